@@ -1,0 +1,1 @@
+"""Simulators: one physical world and protocol-level fakes of every device the drivers talk to."""

@@ -1,0 +1,237 @@
+"""The simulated physical truth that every simulator reads and every Modbus write drives.
+
+- Field in the lab frame: coil constants (3x3, nT/A) x coil currents + ambient field, when the coils are
+  the field source; or the site field rotated into the table frame by the turntable angles.
+- Chamber air follows its setpoint at a limited ramp rate; each DUT's temperature lags the air with its
+  own time constant (first order).
+- Each DUT has known calibration errors of the T24 form, B = (S + tau K) h + b + tau kb, plus a bridge
+  offset that a SET/RESET pair cancels and that drifts with temperature, and white noise.
+
+State is advanced lazily to `clock.now()` on every access, so simulated time may jump by hours.
+Thread-safe: Modbus servers and the pty firmware run in their own threads.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig.clock import Clock
+
+MAX_THERMAL_STEP_S = 2.0  # integration sub-step; the lag model is exact within a step of constant air
+
+
+@dataclass
+class DutTruth:
+    """The injected calibration errors of one DUT (absolute-tau T24 convention, tau in degC)."""
+
+    S: np.ndarray  # 3x3, dimensionless
+    K: np.ndarray  # 3x3, per degC
+    b_nt: np.ndarray  # 3
+    kb_nt_per_c: np.ndarray  # 3
+    bridge_offset_nt: np.ndarray = field(default_factory=lambda: np.zeros(3))  # at 25 degC
+    bridge_offset_tc_nt_per_c: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    noise_nt: float = 0.0  # white noise per axis, RMS
+    thermal_lag_s: float = 600.0  # DUT temperature time constant against the chamber air
+    mount: np.ndarray = field(default_factory=lambda: np.eye(3))  # lab frame -> sensor frame rotation
+
+    def field_from_raw(self, h_nt: np.ndarray, temp_c: float) -> np.ndarray:
+        """The T24 model itself: true field from a raw reading."""
+        return (self.S + temp_c * self.K) @ h_nt + self.b_nt + temp_c * self.kb_nt_per_c
+
+    def raw_from_field(self, field_nt: np.ndarray, temp_c: float) -> np.ndarray:
+        """Noise-free raw reading (offset-cancelled) that the T24 model maps to `field_nt`."""
+        return np.linalg.solve(self.S + temp_c * self.K, field_nt - self.b_nt - temp_c * self.kb_nt_per_c)
+
+    def bridge_offset_at(self, temp_c: float) -> np.ndarray:
+        return self.bridge_offset_nt + (temp_c - 25.0) * self.bridge_offset_tc_nt_per_c
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, *, noise_nt: float = 20.0, thermal_lag_s: float = 600.0):
+        """Errors of the size an AMR datasheet allows: ~2 % scale, ~1 % cross-axis, 100s of nT offset."""
+        S = np.eye(3) + rng.normal(0, 0.01, (3, 3))
+        S[np.diag_indices(3)] = 1 + rng.normal(0, 0.02, 3)
+        K = rng.normal(0, 1.5e-4, (3, 3))  # ~150 ppm/degC
+        return cls(
+            S=S,
+            K=K,
+            b_nt=rng.normal(0, 400, 3),
+            kb_nt_per_c=rng.normal(0, 5, 3),
+            bridge_offset_nt=rng.normal(0, 2000, 3),
+            bridge_offset_tc_nt_per_c=rng.normal(0, 20, 3),
+            noise_nt=noise_nt,
+            thermal_lag_s=thermal_lag_s,
+        )
+
+
+def rotation_deg(az_deg: float, el_deg: float) -> np.ndarray:
+    """Table frame -> lab frame rotation: azimuth about z (up), then elevation about the table's y axis."""
+    a, e = math.radians(az_deg), math.radians(el_deg)
+    rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(e), 0, math.sin(e)], [0, 1, 0], [-math.sin(e), 0, math.cos(e)]])
+    return rz @ ry
+
+
+@dataclass
+class _Dut:
+    truth: DutTruth
+    temp_c: float
+
+
+class World:
+    """Physical truth of the simulated rig, on an injected clock."""
+
+    def __init__(
+        self,
+        clock: Clock,
+        *,
+        field_source: str = "coils",  # "coils" or "turntable"
+        ambient_nt=(0.0, 0.0, 0.0),
+        coil_constants_nt_per_a=None,
+        site_field_nt=(19148.0, 894.0, 45587.0),
+        air_c: float = 22.0,
+        ramp_c_per_min: float = 3.0,
+        turntable_rate_deg_s: float = 20.0,
+        seed: int = 0,
+    ):
+        self.clock = clock
+        self.field_source = field_source
+        self.ambient_nt = np.asarray(ambient_nt, float)
+        self.coil_constants = (
+            np.diag([50_000.0, 50_000.0, 50_000.0])
+            if coil_constants_nt_per_a is None
+            else np.asarray(coil_constants_nt_per_a, float)
+        )
+        self.site_field_nt = np.asarray(site_field_nt, float)
+        self.rng = np.random.default_rng(seed)
+        self._lock = threading.RLock()
+        self._t = clock.now()
+        # chamber
+        self.air_c = air_c
+        self.setpoint_c = air_c
+        self.ramp_c_per_min = ramp_c_per_min
+        self.chamber_alarm = False
+        self.chamber_running = True
+        # coils
+        self.coil_currents_a = np.zeros(3)
+        self.coils_enabled = False
+        # turntable
+        self.table_deg = np.zeros(2)  # az, el
+        self.table_target_deg = np.zeros(2)
+        self.turntable_rate_deg_s = turntable_rate_deg_s
+        self.table_fault = False
+        # DUTs and fixed temperature probes
+        self.duts: dict[str, _Dut] = {}
+
+    # --- time -------------------------------------------------------------------------------------
+    def _advance(self) -> None:
+        now = self.clock.now()
+        dt_total = now - self._t
+        if dt_total <= 0:
+            return
+        self._advance_table(dt_total)
+        t = 0.0
+        while t < dt_total:
+            dt = min(MAX_THERMAL_STEP_S, dt_total - t)
+            if self.chamber_running:
+                step = self.ramp_c_per_min / 60.0 * dt
+                delta = self.setpoint_c - self.air_c
+                self.air_c += max(-step, min(step, delta))
+            for d in self.duts.values():
+                d.temp_c = self.air_c + (d.temp_c - self.air_c) * math.exp(-dt / d.truth.thermal_lag_s)
+            t += dt
+        self._t = now
+
+    def _advance_table(self, dt: float) -> None:
+        move = self.table_target_deg - self.table_deg
+        reach = self.turntable_rate_deg_s * dt
+        dist = float(np.max(np.abs(move)))
+        if dist <= reach or dist == 0:
+            self.table_deg = self.table_target_deg.copy()
+        else:
+            self.table_deg = self.table_deg + move * (reach / dist)
+
+    # --- chamber ----------------------------------------------------------------------------------
+    def set_chamber_setpoint(self, temp_c: float) -> None:
+        with self._lock:
+            self._advance()
+            self.setpoint_c = float(temp_c)
+
+    def set_chamber_ramp(self, c_per_min: float) -> None:
+        with self._lock:
+            self._advance()
+            self.ramp_c_per_min = float(c_per_min)
+
+    def chamber_air_c(self) -> float:
+        with self._lock:
+            self._advance()
+            return self.air_c
+
+    # --- DUTs -------------------------------------------------------------------------------------
+    def add_dut(self, name: str, truth: DutTruth, temp_c: float | None = None) -> None:
+        with self._lock:
+            self._advance()
+            self.duts[name] = _Dut(truth, self.air_c if temp_c is None else temp_c)
+
+    def dut_temp_c(self, name: str) -> float:
+        with self._lock:
+            self._advance()
+            return self.duts[name].temp_c
+
+    def true_field_nt(self, dut: str) -> np.ndarray:
+        """True field in the DUT's sensor frame, nT."""
+        with self._lock:
+            self._advance()
+            return self.duts[dut].truth.mount @ self.lab_field_nt()
+
+    def dut_raw_nt(self, dut: str, polarity: int = 1, noisy: bool = True) -> np.ndarray:
+        """What the DUT's bridges output, in nT: polarity x h + bridge offset + noise.
+
+        polarity is +1 after a SET pulse and -1 after a RESET pulse, so (out_set - out_reset)/2 = h.
+        """
+        with self._lock:
+            self._advance()
+            d = self.duts[dut]
+            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(), d.temp_c)
+            out = polarity * h + d.truth.bridge_offset_at(d.temp_c)
+            if noisy and d.truth.noise_nt > 0:
+                out = out + self.rng.normal(0, d.truth.noise_nt, 3)
+            return out
+
+    # --- field source -----------------------------------------------------------------------------
+    def lab_field_nt(self) -> np.ndarray:
+        with self._lock:
+            self._advance()
+            if self.field_source == "coils":
+                currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
+                return self.coil_constants @ currents + self.ambient_nt
+            return rotation_deg(*self.table_deg).T @ self.site_field_nt
+
+    def set_coil_currents(self, currents_a, enabled: bool = True) -> None:
+        with self._lock:
+            self._advance()
+            self.coil_currents_a = np.asarray(currents_a, float).copy()
+            self.coils_enabled = enabled
+
+    def set_turntable_target(self, az_deg: float, el_deg: float) -> None:
+        with self._lock:
+            self._advance()
+            self.table_target_deg = np.array([az_deg, el_deg], float)
+
+    def stop_turntable(self) -> None:
+        with self._lock:
+            self._advance()
+            self.table_target_deg = self.table_deg.copy()
+
+    def turntable_angles_deg(self) -> np.ndarray:
+        with self._lock:
+            self._advance()
+            return self.table_deg.copy()
+
+    def turntable_moving(self) -> bool:
+        with self._lock:
+            self._advance()
+            return bool(np.any(self.table_deg != self.table_target_deg))

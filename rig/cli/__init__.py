@@ -1,0 +1,65 @@
+"""The `rig` command. Each family of subcommands lives in its own module and registers itself here.
+
+Errors of the project's family print as one line (`error: ...`) with exit code 2; a traceback only
+with --debug. Ctrl-C exits 130.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+import click
+
+from rig import __version__
+from rig.errors import MagrigError
+
+
+@click.group()
+@click.version_option(__version__, prog_name="magrig")
+@click.option("--debug", is_flag=True, help="Show tracebacks and debug logs (raw frames).")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """magrig: run the AMR magnetometer calibration rig and fit its calibrations."""
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+    logging.basicConfig(
+        level=logging.DEBUG if debug else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+
+
+def _register_all() -> None:
+    from rig.cli import calib_cmds, campaign_cmds, device_cmds, report_cmds
+
+    for module in (calib_cmds, device_cmds, campaign_cmds, report_cmds):
+        module.register(cli)
+
+
+_register_all()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in args
+    try:
+        cli.main(args=args, prog_name="rig", standalone_mode=False)
+    except MagrigError as err:
+        if debug:
+            raise
+        click.echo(f"error: {err}", err=True)
+        return 2
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    except click.ClickException as err:
+        err.show()
+        return err.exit_code
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,9 @@
+"""CLI: rig refit, rig apply, rig export-cal."""
+
+from __future__ import annotations
+
+import click
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to the `rig` group."""
