@@ -1,9 +1,150 @@
-"""CLI: rig refit, rig apply, rig export-cal."""
+"""CLI: rig refit (fit a calibration to a CSV or session file), rig apply (calibrate a CSV)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
+import numpy as np
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MODEL_CHOICE = click.Choice(["t24", "p12", "scalar"])
+
+
+def _unit_options(f):
+    f = click.option("--columns", "column_map", metavar="OURS=THEIRS,...",
+                     help="Map CSV columns, e.g. hx=mx_gauss,hy=my_gauss,hz=mz_gauss.")(f)
+    f = click.option("--counts-per-unit", metavar="X[/UNIT]",
+                     help="With --raw-unit counts: counts per UNIT (default per gauss), e.g. 1090/gauss.")(f)
+    return click.option("--raw-unit", metavar="nT|uT|mT|gauss|counts", default=None,
+                        help="Unit of hx,hy,hz in the input (refit default nT; apply default: as fitted).")(f)
+
+
+def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None):
+    """A Dataset from a session file (SQLite, via rig.store) or a CSV file."""
+    from calib import csvio
+    from rig.errors import DataError
+
+    p = Path(path)
+    try:
+        with p.open("rb") as f:
+            magic = f.read(len(SQLITE_MAGIC))
+    except OSError as err:
+        raise DataError(f"{p}: cannot read ({err.strerror or err})") from None
+    if magic == SQLITE_MAGIC:
+        try:
+            from rig.store import read_dataset
+        except ImportError:
+            raise DataError(f"{p}: is a session file, but session reading (rig.store) is not available") from None
+        return read_dataset(p, dut)
+    if dut is not None:
+        raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
+    ds = csvio.read_csv(p, raw_unit=raw_unit, counts_per_unit=counts_per_unit,
+                        columns=csvio.parse_column_map(column_map))
+    ds.source["column_map"] = column_map or ""
+    ds.source["counts_per_unit"] = "" if counts_per_unit is None else str(counts_per_unit)
+    return ds
+
+
+@click.command("refit")
+@click.argument("data", type=click.Path(dir_okay=False))
+@click.option("--model", type=MODEL_CHOICE, default="t24", show_default=True, help="Calibration model.")
+@click.option("--robust", is_flag=True, help="Huber reweighting; outliers are flagged and counted.")
+@click.option("--dut", metavar="NAME", help="DUT to fit, when DATA is a session file.")
+@_unit_options
+@click.option("--field-norm-nt", type=float, help="Scalar model: the known constant |B| in nT.")
+@click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Calibration file to write (.yaml, or .json).")
+def refit(data, model, robust, dut, raw_unit, counts_per_unit, column_map, field_norm_nt, temp_ref_c, output):
+    """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT."""
+    import calib
+    from calib import calfile
+
+    ds = load_dataset(data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit,
+                      column_map=column_map)
+    cal = calib.fit(ds, model, robust=robust, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt)
+    calfile.save(cal, output)
+    print_summary(cal)
+    click.echo(f"wrote {output}")
+
+
+@click.command("apply")
+@click.argument("calibration", type=click.Path(dir_okay=False))
+@click.argument("data", type=click.Path(dir_okay=False))
+@_unit_options
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="CSV file to write.")
+def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
+    """Calibrate every row of DATA: writes its columns plus bx,by,bz (calibrated field, nT).
+
+    Reference columns bx,by,bz already in DATA are kept as ref_bx,ref_by,ref_bz. The raw unit and
+    column mapping default to those the calibration was fitted with.
+    """
+    from calib import calfile, csvio
+    from rig.errors import DataError
+
+    cal = calfile.load(calibration)
+    if raw_unit is None:
+        raw_unit = cal.source.get("raw_unit", "nT")
+        counts_per_unit = counts_per_unit or cal.source.get("counts_per_unit") or None
+    column_map = column_map if column_map is not None else cal.source.get("column_map") or None
+    ds = load_dataset(data, dut=None, raw_unit=raw_unit, counts_per_unit=counts_per_unit, column_map=column_map)
+    field = cal.apply(ds.h_nt, ds.temp_c)
+    out = {}
+    for name, values in ds.columns.items():
+        new = f"ref_{name}" if name in csvio.REF_COLUMNS else name
+        if new in out or new in csvio.REF_COLUMNS:
+            raise DataError(f"{data}: column {new!r} would appear twice in the output")
+        out[new] = values
+    for i, name in enumerate(csvio.REF_COLUMNS):
+        out[name] = field[:, i]
+    csvio.write_csv(output, out)
+    click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration})")
+
+
+def _fmt_with_error(value: float, err: float) -> str:
+    return f"{value:.6g} ± {err:.2g}"
+
+
+def print_summary(cal) -> None:
+    """Parameters with standard errors, residual RMS before/after, per axis and per temperature step."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(highlight=False)
+    st = cal.stats
+    ref = "" if cal.temp_ref_c is None else f", temperature terms centred at {cal.temp_ref_c:g} degC"
+    console.print(f"[bold]{cal.model}[/bold] fit of {st.get('n_used')} of {st.get('n')} samples{ref}")
+    params = Table("parameter", "value ± std error", title="parameters (absolute-temperature convention)")
+    for name, value in cal.params.items():
+        err = np.broadcast_to(cal.std_errors[name], np.shape(value))
+        value = np.atleast_2d(value)
+        err = np.atleast_2d(err)
+        for i, (row, erow) in enumerate(zip(value, err, strict=True)):
+            label = name if value.shape[0] == 1 else f"{name}[{i + 1},:]"
+            params.add_row(label, "   ".join(_fmt_with_error(v, e) for v, e in zip(row, erow, strict=True)))
+    console.print(params)
+    fit = Table("rows", "n", "RMS before (nT)", "RMS after (nT)", title="residuals")
+    fit.add_row("all used", str(st.get("n_used")), f"{st['rms_before_nt']:.4g}", f"{st['rms_after_nt']:.4g}")
+    for axis, entry in st.get("per_axis", {}).items():
+        fit.add_row(f"axis {axis}", "", f"{entry.get('rms_before_nt', float('nan')):.4g}",
+                    f"{entry['rms_after_nt']:.4g}")
+    for label, entry in st.get("per_group", {}).items():
+        temp = f" ({entry['temp_c']:.1f} degC)" if "temp_c" in entry else ""
+        fit.add_row(f"step {label}{temp}", str(entry["n"]), f"{entry['rms_before_nt']:.4g}",
+                    f"{entry['rms_after_nt']:.4g}")
+    console.print(fit)
+    if "norm_spread_pct" in st:
+        console.print(f"|B| spread after calibration: {st['norm_spread_pct']:.3f} % (std/mean); "
+                      f"field norm: {st.get('field_norm')}")
+    if st.get("robust"):
+        console.print(f"robust: {st['n_outliers']} rows flagged as outliers and left out of the fit"
+                      + (f" (first rows: {st['outlier_rows_first']})" if st.get("outlier_rows_first") else ""))
+    for warning in st.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {warning}")
 
 
 def register(group: click.Group) -> None:
     """Add this module's commands to the `rig` group."""
+    group.add_command(refit)
+    group.add_command(apply_cmd, name="apply")

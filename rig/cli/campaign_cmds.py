@@ -1,4 +1,4 @@
-"""CLI: rig check, rig run, rig export."""
+"""CLI: rig run."""
 
 from __future__ import annotations
 

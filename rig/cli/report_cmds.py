@@ -1,4 +1,4 @@
-"""CLI: rig report, rig sessions."""
+"""CLI: rig report, rig export-cal, rig sessions."""
 
 from __future__ import annotations
 

@@ -1,0 +1,42 @@
+"""Calibration files: YAML by default, JSON when the name ends in .json. Round-trips exactly."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import yaml
+
+from calib.atomic import atomic_write
+from calib.calibration import Calibration
+from rig.errors import DataError
+
+
+def save(cal: Calibration, path: str | os.PathLike) -> None:
+    """Write atomically (temp file + rename)."""
+    d = cal.to_dict()
+    with atomic_write(path) as f:
+        if str(path).lower().endswith(".json"):
+            json.dump(d, f, indent=2)
+            f.write("\n")
+        else:
+            yaml.safe_dump(d, f, sort_keys=False, default_flow_style=None, width=120)
+
+
+def load(path: str | os.PathLike) -> Calibration:
+    """Read and validate; a missing, corrupted or foreign file raises DataError naming it and the key."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(f"{p}: calibration file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise DataError(f"{p}: cannot read calibration file ({err})") from None
+    try:
+        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        where = getattr(err, "problem_mark", None)
+        line = f" line {where.line + 1}" if where is not None else f" line {getattr(err, 'lineno', '?')}"
+        raise DataError(f"{p}:{line}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}") from None
+    return Calibration.from_dict(data, where=str(p))

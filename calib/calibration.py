@@ -1,0 +1,134 @@
+"""A fitted calibration: model, parameters with standard errors, fit statistics and provenance."""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib import models
+from rig.errors import DataError
+
+FORMAT_NAME = "magrig-calibration"
+FORMAT_VERSION = 1
+
+
+def _software_version() -> str:
+    from rig import __version__
+
+    return __version__
+
+
+def _utc_now() -> str:
+    return dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+@dataclass
+class Calibration:
+    """Result of a fit. `params` and `std_errors` share keys (see calib.models for names and shapes)."""
+
+    model: str
+    params: dict[str, np.ndarray]
+    std_errors: dict[str, np.ndarray]
+    temp_ref_c: float | None = None
+    stats: dict = field(default_factory=dict)
+    source: dict = field(default_factory=dict)
+    software_version: str = field(default_factory=_software_version)
+    created_utc: str = field(default_factory=_utc_now)
+    # per-row flags of a robust fit (True = flagged as outlier); not saved in the calibration file
+    outliers: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def apply(self, h_nt: np.ndarray, temp_c: np.ndarray | None = None) -> np.ndarray:
+        """Calibrated field B (N,3) in nT for raw readings h (N,3) in nT."""
+        return models.apply(self.model, self.params, np.atleast_2d(h_nt), temp_c, self.temp_ref_c)
+
+    def to_dict(self) -> dict:
+        """Plain python types only (lists, floats, str), so YAML/JSON round-trip exactly."""
+        return {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "model": self.model,
+            "temp_ref_c": None if self.temp_ref_c is None else float(self.temp_ref_c),
+            "params": {k: np.asarray(v, float).tolist() for k, v in self.params.items()},
+            "std_errors": {k: np.asarray(v, float).tolist() for k, v in self.std_errors.items()},
+            "stats": to_plain(self.stats),
+            "source": to_plain(self.source),
+            "software_version": self.software_version,
+            "created_utc": self.created_utc,
+        }
+
+    @classmethod
+    def from_dict(cls, d: object, where: str = "calibration") -> Calibration:
+        """Validate and build; a problem raises DataError naming `where` and the key path."""
+        if not isinstance(d, dict):
+            raise DataError(f"{where}: not a calibration (expected a mapping at the top level)")
+        if d.get("format", FORMAT_NAME) != FORMAT_NAME:
+            raise DataError(f"{where}: key 'format' is {d.get('format')!r}, expected {FORMAT_NAME!r}")
+        model = d.get("model")
+        if model not in models.MODELS:
+            raise DataError(f"{where}: key 'model' is {model!r}, expected one of {', '.join(models.MODELS)}")
+        params = _read_arrays(d, "params", model, where)
+        std_errors = _read_arrays(d, "std_errors", model, where, required=set(params))
+        temp_ref = d.get("temp_ref_c")
+        if temp_ref is not None and not _is_number(temp_ref):
+            raise DataError(f"{where}: key 'temp_ref_c' must be a number, got {temp_ref!r}")
+        for key in ("stats", "source"):
+            if not isinstance(d.get(key, {}), dict):
+                raise DataError(f"{where}: key {key!r} must be a mapping")
+        return cls(
+            model=model,
+            params=params,
+            std_errors=std_errors,
+            temp_ref_c=None if temp_ref is None else float(temp_ref),
+            stats=d.get("stats", {}),
+            source=d.get("source", {}),
+            software_version=str(d.get("software_version", "unknown")),
+            created_utc=str(d.get("created_utc", "")),
+        )
+
+
+def _is_number(x: object) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and np.isfinite(x)
+
+
+def _read_arrays(d: dict, section: str, model: str, where: str, required: set | None = None) -> dict:
+    block = d.get(section)
+    if not isinstance(block, dict):
+        raise DataError(f"{where}: key {section!r} is missing or not a mapping")
+    shapes = {**models.PARAM_SHAPES[model], **models.OPTIONAL_PARAMS[model]}
+    needed = set(models.PARAM_SHAPES[model]) if required is None else required
+    for name in needed:
+        if name not in block:
+            raise DataError(f"{where}: key '{section}.{name}' is missing (model {model})")
+    out = {}
+    for name, value in block.items():
+        if name not in shapes:
+            raise DataError(f"{where}: key '{section}.{name}' is not a parameter of model {model}")
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise DataError(f"{where}: key '{section}.{name}' is not numeric") from None
+        if arr.shape != shapes[name]:
+            raise DataError(f"{where}: key '{section}.{name}' has shape {arr.shape}, expected {shapes[name]}")
+        if not np.all(np.isfinite(arr)):
+            raise DataError(f"{where}: key '{section}.{name}' contains NaN or inf")
+        out[name] = arr
+    return out
+
+
+def to_plain(x: object) -> object:
+    """Numpy scalars/arrays and tuples to python floats/ints/lists; dict keys to str."""
+    if isinstance(x, dict):
+        return {str(k): to_plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [to_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return to_plain(x.tolist())
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating):
+        return float(x)
+    return x

@@ -1,0 +1,78 @@
+"""calib.fit: one entry point for every model, with the optional robust wrapper and the fit statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib import p12, scalar, t24
+from calib.calibration import Calibration
+from calib.dataset import Dataset
+from calib.robust import irls
+from calib.stats import residual_stats
+from rig.errors import DataError
+
+
+def fit(
+    ds: Dataset,
+    model: str = "t24",
+    *,
+    robust: bool = False,
+    temp_ref_c: float | None = None,
+    field_norm_nt: float | None = None,
+    temperature_terms: bool | None = None,
+) -> Calibration:
+    """Fit `model` ("t24", "p12" or "scalar") to `ds`.
+
+    robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
+    `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
+    (default: middle of the data's range). field_norm_nt / temperature_terms: scalar model only (see
+    calib.scalar.fit_weighted).
+    """
+    check_dataset(ds)
+    if model == "t24":
+        def fit_weighted(w):
+            return t24.fit_weighted(ds, w, temp_ref_c)
+    elif model == "p12":
+        def fit_weighted(w):
+            return p12.fit_weighted(ds, w)
+    elif model == "scalar":
+        def fit_weighted(w):
+            return scalar.fit_weighted(
+                ds, w, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt, temperature_terms=temperature_terms
+            )
+    else:
+        raise DataError(f"unknown model {model!r}: choose t24, p12 or scalar")
+    if robust:
+        cal, _, flagged = irls(fit_weighted, len(ds))
+    else:
+        cal, _ = fit_weighted(None)
+        flagged = np.zeros(len(ds), bool)
+    used = ~flagged
+    field = cal.apply(ds.h_nt, ds.temp_c)
+    stats = dict(cal.stats)
+    stats.update(residual_stats(ds, field, vector=model != "scalar", used=used))
+    stats.update({"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust})
+    if flagged.any():
+        stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
+    cal.stats = stats
+    cal.source = {**ds.source, "rows_used": int(used.sum())}
+    cal.outliers = flagged
+    return cal
+
+
+def check_dataset(ds: Dataset) -> None:
+    """Shapes agree and every number is finite; a problem names the array and the first bad row."""
+    n = ds.h_nt.shape[0] if ds.h_nt.ndim == 2 else -1
+    if ds.h_nt.ndim != 2 or ds.h_nt.shape[1] != 3:
+        raise DataError(f"raw readings must be an (N,3) array, got shape {ds.h_nt.shape}")
+    if n == 0:
+        raise DataError(f"{ds.source.get('path', 'dataset')}: no samples")
+    arrays = {"h_nt": ds.h_nt, "temp_c": ds.temp_c, "ref_nt": ds.ref_nt, "ref_norm_nt": ds.ref_norm_nt}
+    for name, arr in arrays.items():
+        if arr is None:
+            continue
+        if arr.shape[0] != n:
+            raise DataError(f"{name} has {arr.shape[0]} rows, the readings have {n}")
+        bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
+        if bad.any():
+            raise DataError(f"{name} row {int(np.flatnonzero(bad)[0])}: NaN or inf")

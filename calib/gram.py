@@ -1,0 +1,226 @@
+"""Streaming T24 least squares: an 11x11 Gram matrix of [1, t, h, t h, B] summed over samples.
+
+t = T - temp_ref_c (the temperature centred at a reference fixed before any data arrives), so the
+accumulator is exact under merging and never holds samples: memory does not grow with N. The 8x8 block
+of the regressors x = [1, t, h1, h2, h3, t h1, t h2, t h3] is the paper's Gram matrix G (with centred
+tau), the x-B block holds the three right-hand sides and the B-B block gives the residual sum of squares
+without a second pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.calibration import Calibration
+from rig.errors import DataError, FitError
+
+N_PARAMS = 8  # per output axis: b, kb, S_i1..3, K_i1..3
+CHUNK_ROWS = 8192  # rows per BLAS product: big enough to be fast, small enough to stay in cache
+MIN_TEMP_SPAN_C = 0.5  # below this the temperature terms are not identifiable
+RCOND_SINGULAR = 1e-13  # of the column-scaled Gram: below it the design is treated as singular
+RCOND_WARN = 1e-9
+AXES = "xyz"
+PARAM_NAMES = ["b", "kb", "S1", "S2", "S3", "K1", "K2", "K3"]
+GROUP_OF_PARAM = ["offset b", "offset drift kb", "S", "S", "S", "K", "K", "K"]
+
+
+class GramAccumulator:
+    """Sums for a T24 fit. add() chunks, merge() accumulators, solve() at any time (cheap: 8x8 algebra)."""
+
+    def __init__(self, temp_ref_c: float = 25.0):
+        self.temp_ref_c = float(temp_ref_c)
+        self.gram = np.zeros((11, 11))
+        self.n = 0
+        self.temp_min_c = np.inf
+        self.temp_max_c = -np.inf
+        self._buf = np.empty((CHUNK_ROWS, 11))
+
+    def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
+        """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""
+        h = np.asarray(h_nt, dtype=float).reshape(-1, 3)
+        ref = np.asarray(ref_nt, dtype=float).reshape(-1, 3)
+        t = np.broadcast_to(np.asarray(temp_c, dtype=float), (h.shape[0],))
+        if ref.shape != h.shape:
+            raise DataError(f"reference field has {ref.shape[0]} rows, readings have {h.shape[0]}")
+        if h.shape[0] == 0:
+            return
+        sw = None
+        used = t
+        if weights is not None:
+            w = np.broadcast_to(np.asarray(weights, dtype=float), t.shape)
+            sw = np.sqrt(w)
+            used = t[w > 0]
+            if used.size == 0:
+                return
+        buf = self._buf
+        for lo in range(0, h.shape[0], CHUNK_ROWS):
+            hi = min(lo + CHUNK_ROWS, h.shape[0])
+            z = buf[: hi - lo]
+            z[:, 0] = 1.0
+            np.subtract(t[lo:hi], self.temp_ref_c, out=z[:, 1])
+            z[:, 2:5] = h[lo:hi]
+            np.multiply(z[:, 1:2], z[:, 2:5], out=z[:, 5:8])
+            z[:, 8:11] = ref[lo:hi]
+            if sw is not None:
+                z *= sw[lo:hi, None]
+            self.gram += z.T @ z
+        self.n += used.size  # rows with zero weight (flagged outliers) do not count
+        self.temp_min_c = min(self.temp_min_c, float(used.min()))
+        self.temp_max_c = max(self.temp_max_c, float(used.max()))
+
+    def merge(self, other: GramAccumulator) -> GramAccumulator:
+        """Add another accumulator's sums into this one (same reference temperature required)."""
+        if other.temp_ref_c != self.temp_ref_c:
+            raise FitError(
+                f"cannot merge Gram sums centred at {other.temp_ref_c} degC into sums centred at "
+                f"{self.temp_ref_c} degC"
+            )
+        self.gram += other.gram
+        self.n += other.n
+        self.temp_min_c = min(self.temp_min_c, other.temp_min_c)
+        self.temp_max_c = max(self.temp_max_c, other.temp_max_c)
+        return self
+
+    def identifiability(self) -> str | None:
+        """None when a T24 fit can be made, else a sentence saying what cannot be identified and why."""
+        try:
+            _ScaledSystem(self)
+        except FitError as err:
+            return str(err)
+        return None
+
+    def solve(self) -> Calibration:
+        """T24 calibration from the sums so far, or FitError naming the parameters the data cannot fix."""
+        return _ScaledSystem(self).calibration()
+
+
+class _ScaledSystem:
+    """The normal equations with columns scaled to unit diagonal, checked for identifiability."""
+
+    def __init__(self, acc: GramAccumulator):
+        n = acc.n
+        if n <= N_PARAMS:
+            raise FitError(
+                f"T24: {n} samples, more than {N_PARAMS} needed (8 parameters per axis); collect more points"
+            )
+        span = acc.temp_max_c - acc.temp_min_c
+        if span < MIN_TEMP_SPAN_C:
+            mid = 0.5 * (acc.temp_max_c + acc.temp_min_c)
+            raise FitError(
+                f"T24: all samples within {span:.2f} degC (at {mid:.1f} degC): the temperature terms "
+                "K and kb are not identifiable; add a temperature step or fit P12"
+            )
+        self.acc = acc
+        g = acc.gram[:N_PARAMS, :N_PARAMS]
+        d = np.sqrt(np.diag(g))
+        if np.any(d == 0):
+            zero = [PARAM_NAMES[i] for i in np.flatnonzero(d == 0)]
+            raise FitError(f"T24: regressors {', '.join(zero)} are zero for every sample")
+        gs = g / np.outer(d, d)
+        w, v = np.linalg.eigh(gs)
+        self.rcond = float(w[0] / w[-1])
+        if self.rcond < RCOND_SINGULAR:
+            raise FitError(_explain_null_space(acc, v[:, 0]))
+        self.d = d
+        self.gs_inv = (v / w) @ v.T  # inverse of the scaled Gram
+        rhs = acc.gram[:N_PARAMS, N_PARAMS:] / d[:, None]
+        # one step of iterative refinement recovers the digits lost in the eigen-solve
+        beta_s = self.gs_inv @ rhs
+        beta_s += self.gs_inv @ (rhs - gs @ beta_s)
+        self.beta = beta_s / d[:, None]  # (8,3): column i holds axis i's [b', kb, S'_i., K_i.]
+
+    def residual_ss(self) -> np.ndarray:
+        """Residual sum of squares per axis, from the sums: B'B - beta' X'B (normal equations hold)."""
+        g = self.acc.gram
+        bb = np.diag(g[N_PARAMS:, N_PARAMS:])
+        xb = g[:N_PARAMS, N_PARAMS:]
+        return np.maximum(bb - np.einsum("pi,pi->i", self.beta, xb), 0.0)
+
+    def raw_ss(self) -> np.ndarray:
+        """Sum of squares of (h - B) per axis: the misfit of an uncalibrated sensor."""
+        g = self.acc.gram
+        hh = np.diag(g[2:5, 2:5])
+        bb = np.diag(g[N_PARAMS:, N_PARAMS:])
+        hb = np.diag(g[2:5, N_PARAMS:])
+        return np.maximum(hh - 2 * hb + bb, 0.0)
+
+    def calibration(self, rss: np.ndarray | None = None, dof: float | None = None) -> Calibration:
+        acc = self.acc
+        rss = self.residual_ss() if rss is None else rss
+        dof = acc.n - N_PARAMS if dof is None else dof
+        sigma2 = rss / dof
+        cov_centred = self.gs_inv / np.outer(self.d, self.d)
+        tr = acc.temp_ref_c
+        to_abs = np.eye(N_PARAMS)
+        to_abs[0, 1] = -tr  # b = b' - tr kb
+        to_abs[2:5, 5:8] = -tr * np.eye(3)  # S = S' - tr K
+        beta_abs = to_abs @ self.beta
+        cov_abs = to_abs @ cov_centred @ to_abs.T
+        se = np.sqrt(np.outer(np.diag(cov_abs), sigma2))  # (8,3)
+        params = _unpack(beta_abs)
+        std_errors = _unpack(se)
+        n = acc.n
+        stats = {
+            "n": n,
+            "n_used": n,
+            "n_outliers": 0,
+            "rms_before_nt": float(np.sqrt(self.raw_ss().sum() / (3 * n))),
+            "rms_after_nt": float(np.sqrt(rss.sum() / (3 * n))),
+            "sigma_nt": {a: float(np.sqrt(s)) for a, s in zip(AXES, sigma2, strict=True)},
+            "per_axis": {a: {"rms_after_nt": float(np.sqrt(r / n))} for a, r in zip(AXES, rss, strict=True)},
+            "temp_span_c": [float(acc.temp_min_c), float(acc.temp_max_c)],
+            "rcond_scaled_gram": self.rcond,
+        }
+        if self.rcond < RCOND_WARN:
+            stats["warnings"] = [f"poorly conditioned design (rcond {self.rcond:.1e}); check the std errors"]
+        return Calibration(
+            model="t24",
+            params=params,
+            std_errors=std_errors,
+            temp_ref_c=tr,
+            stats=stats,
+            source={"kind": "gram"},
+        )
+
+    def centred_covariance(self) -> np.ndarray:
+        """Unit-variance covariance (G^-1) of the centred per-axis parameters [b', kb, S'_i., K_i.]."""
+        return self.gs_inv / np.outer(self.d, self.d)
+
+
+def _unpack(beta: np.ndarray) -> dict[str, np.ndarray]:
+    """(8,3) per-axis columns -> named T24 parameters."""
+    return {
+        "S": beta[2:5].T.copy(),
+        "K": beta[5:8].T.copy(),
+        "b_nt": beta[0].copy(),
+        "kb_nt_per_c": beta[1].copy(),
+    }
+
+
+def _explain_null_space(acc: GramAccumulator, null_vec: np.ndarray) -> str:
+    """A sentence naming the parameters a (near-)singular design cannot separate, and what would help."""
+    g = acc.gram
+    n = acc.n
+    mean_h = g[0, 2:5] / n
+    cov_h = g[2:5, 2:5] / n - np.outer(mean_h, mean_h)
+    ev, evec = np.linalg.eigh(cov_h)
+    if ev[0] <= 1e-10 * max(ev[-1], 1e-300):
+        flat = evec[:, 0]
+        return (
+            "T24: the readings span fewer than three field directions (no variation along sensor direction "
+            f"[{flat[0]:.2f}, {flat[1]:.2f}, {flat[2]:.2f}]): columns of S and K and the offsets are not "
+            "identifiable; add coil directions out of that plane"
+        )
+    weight = null_vec**2
+    groups: dict[str, float] = {}
+    for name, wgt in zip(GROUP_OF_PARAM, weight, strict=True):
+        groups[name] = groups.get(name, 0.0) + float(wgt)
+    involved = [name for name, wgt in sorted(groups.items(), key=lambda kv: -kv[1]) if wgt > 0.05]
+    if set(involved) <= {"K", "offset drift kb"}:
+        hint = "add field directions at a second temperature step, or fit P12"
+    else:
+        hint = "add more field directions at each temperature step"
+    return (
+        f"T24: the design is singular: {' and '.join(involved)} cannot be separated from each other with "
+        f"these samples; {hint}"
+    )

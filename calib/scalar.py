@@ -1,0 +1,198 @@
+"""Attitude-independent (scalar) calibration: |A (h - c)| = |B| when only the field magnitude is known.
+
+A is upper-triangular (the calibrated field is in a sensor-aligned frame: the true frame up to one
+rotation). Optional linear temperature terms: A(t) = A + t KA, c(t) = c + t kc, t = T - temp_ref_c.
+
+Initial guess: the algebraic ellipsoid fit (linear least squares on the quadric h'Wh - 2u'h + e = |B|^2
+with W = A'A), done on centred and scaled readings. Refinement: Levenberg-Marquardt on the field-domain
+residuals |A(h - c)| - |B|, with analytic Jacobian and column scaling. No scipy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.calibration import Calibration
+from calib.dataset import Dataset
+from calib.stats import known_norm
+from rig.errors import DataError, FitError
+
+MIN_TEMP_SPAN_C = 0.5
+UPPER = np.triu_indices(3)  # the 6 free entries of an upper-triangular matrix
+MAX_ITER = 200
+RCOND_SINGULAR = 1e-13
+
+
+def _field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, str]:
+    if field_norm_nt is not None:
+        if not field_norm_nt > 0:
+            raise DataError(f"field norm must be positive, got {field_norm_nt} nT")
+        return np.full(len(ds), float(field_norm_nt)), f"given constant {field_norm_nt:g} nT"
+    norm = known_norm(ds)
+    if norm is not None:
+        return norm, "per-sample reference"
+    # unknown constant magnitude: output scaled to the raw readings' mean radius about their centre
+    radius = float(np.sqrt(np.mean(np.sum((ds.h_nt - ds.h_nt.mean(axis=0)) ** 2, axis=1))))
+    return np.full(len(ds), radius), f"unknown; scaled to the raw mean radius {radius:.6g} nT"
+
+
+def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ellipsoid through scaled readings hn with known scaled norms fn: returns (A upper, c)."""
+    x, y, z = hn.T
+    quad = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, -2 * x, -2 * y, -2 * z])
+    sw = np.sqrt(w)[:, None]
+    constant_norm = np.ptp(fn) <= 1e-9 * np.max(fn)
+    if constant_norm:
+        # homogeneous: quadric through the points, scale fixed afterwards by the known norm
+        d = np.column_stack([quad, np.ones(len(hn))]) * sw
+        v = np.linalg.svd(d, full_matrices=False)[2][-1]
+    else:
+        d = np.column_stack([quad, np.ones(len(hn))]) * sw
+        v = np.linalg.lstsq(d, (fn**2)[:, None] * sw, rcond=None)[0][:, 0]
+    wm = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
+    if np.trace(wm) < 0:
+        wm, v = -wm, -v
+    try:
+        c = np.linalg.solve(wm, v[6:9])
+    except np.linalg.LinAlgError:
+        raise FitError(_coverage_message()) from None
+    if constant_norm:
+        denom = c @ wm @ c - v[9]
+        if denom <= 0:
+            raise FitError(_coverage_message())
+        wm = wm * (fn[0] ** 2 / denom)
+    try:
+        a = np.linalg.cholesky(wm).T  # W = A'A, A upper-triangular with positive diagonal
+    except np.linalg.LinAlgError:
+        raise FitError(_coverage_message()) from None
+    return a, c
+
+
+def _coverage_message() -> str:
+    return (
+        "scalar: the readings do not outline an ellipsoid (matrix A and offset c are not identifiable); "
+        "rotate the sensor through more orientations"
+    )
+
+
+def _unpack(theta: np.ndarray, temp: bool):
+    a = np.zeros((3, 3))
+    a[UPPER] = theta[:6]
+    c = theta[6:9]
+    if not temp:
+        return a, c, None, None
+    ka = np.zeros((3, 3))
+    ka[UPPER] = theta[9:15]
+    return a, c, ka, theta[15:18]
+
+
+def _residuals_jacobian(theta, hn, fn, t, temp: bool):
+    a, c, ka, kc = _unpack(theta, temp)
+    v = hn - c if not temp else hn - c - t[:, None] * kc
+    y = v @ a.T if not temp else v @ a.T + t[:, None] * (v @ ka.T)
+    norm = np.linalg.norm(y, axis=1)
+    u = y / norm[:, None]
+    r = norm - fn
+    d_a = (u[:, :, None] * v[:, None, :])[:, UPPER[0], UPPER[1]]
+    if not temp:
+        d_c = -(u @ a)
+        return r, np.column_stack([d_a, d_c])
+    am_u = u @ a + t[:, None] * (u @ ka)
+    return r, np.column_stack([d_a, -am_u, t[:, None] * d_a, -t[:, None] * am_u])
+
+
+def _levenberg_marquardt(theta, hn, fn, t, w, temp: bool):
+    r, jac = _residuals_jacobian(theta, hn, fn, t, temp)
+    cost = np.sum(w * r**2)
+    mu = 1e-3
+    for _ in range(MAX_ITER):
+        jtj = jac.T @ (jac * w[:, None])
+        grad = jac.T @ (w * r)
+        scale = np.sqrt(np.maximum(np.diag(jtj), np.finfo(float).tiny))
+        jtj_s = jtj / np.outer(scale, scale)
+        improved = False
+        while mu < 1e10:
+            step = -np.linalg.solve(jtj_s + mu * np.eye(len(theta)), grad / scale) / scale
+            r_new, jac_new = _residuals_jacobian(theta + step, hn, fn, t, temp)
+            cost_new = np.sum(w * r_new**2)
+            if cost_new <= cost:
+                improved = True
+                break
+            mu *= 10
+        if not improved:
+            break
+        theta = theta + step
+        small = cost - cost_new <= 1e-14 * cost
+        r, jac, cost = r_new, jac_new, cost_new
+        mu = max(mu / 10, 1e-12)
+        if small:
+            break
+    return theta, r, jac
+
+
+def fit_weighted(
+    ds: Dataset,
+    weights: np.ndarray | None,
+    *,
+    temp_ref_c: float | None = None,
+    field_norm_nt: float | None = None,
+    temperature_terms: bool | None = None,
+):
+    """(Calibration, |B| residuals (N,)) of a weighted scalar fit.
+
+    field_norm_nt: one known |B| for every sample; else ref_norm_nt, else |ref_nt|, else unknown (the
+    output is then scaled to the raw readings' mean radius). temperature_terms: None = on when the data
+    has a temperature column spanning at least MIN_TEMP_SPAN_C.
+    """
+    n = len(ds)
+    w = np.ones(n) if weights is None else np.asarray(weights, float)
+    fn_nt, norm_source = _field_norm(ds, field_norm_nt)
+    span = 0.0 if ds.temp_c is None else float(np.ptp(ds.temp_c[w > 0]))
+    temp = span >= MIN_TEMP_SPAN_C if temperature_terms is None else temperature_terms
+    if temp and span < MIN_TEMP_SPAN_C:
+        raise FitError(
+            f"scalar: temperature span {span:.2f} degC: the temperature terms KA and kc are not identifiable; "
+            "add a temperature step or fit without temperature terms"
+        )
+    n_params = 18 if temp else 9
+    if np.count_nonzero(w) <= n_params:
+        raise FitError(f"scalar: {np.count_nonzero(w)} samples, more than {n_params} needed")
+    if temp:
+        ref_c = round(float(0.5 * (np.min(ds.temp_c) + np.max(ds.temp_c))), 1) if temp_ref_c is None else temp_ref_c
+        t = ds.temp_c - ref_c
+    else:
+        ref_c, t = None, np.zeros(n)
+    # centre and scale so the quadric's columns are of similar size
+    centre = np.average(ds.h_nt, axis=0, weights=w)
+    size = float(np.sqrt(np.average(np.sum((ds.h_nt - centre) ** 2, axis=1), weights=w)))
+    hn, fn = (ds.h_nt - centre) / size, fn_nt / size
+    a0, c0 = _algebraic(hn, fn, w)
+    theta = np.concatenate([a0[UPPER], c0] + ([np.zeros(9)] if temp else []))
+    theta, r, jac = _levenberg_marquardt(theta, hn, fn, t, w, temp)
+    jtj = jac.T @ (jac * w[:, None])
+    scale = np.sqrt(np.diag(jtj))
+    eig, vec = np.linalg.eigh(jtj / np.outer(scale, scale))
+    if eig[0] < RCOND_SINGULAR * eig[-1]:
+        if temp and np.sum(vec[9:, 0] ** 2) > 0.5:
+            raise FitError("scalar: the temperature terms KA and kc are not identifiable from these samples; "
+                           "add orientations at each temperature step or fit without temperature terms")
+        raise FitError(_coverage_message())
+    cov = (vec / eig) @ vec.T / np.outer(scale, scale)
+    sigma2 = float(np.sum(w * r**2) / (np.count_nonzero(w) - n_params))
+    se = np.sqrt(np.diag(cov) * sigma2)
+    a, c, ka, kc = _unpack(theta, temp)
+    se_a, se_c, se_ka, se_kc = _unpack(se, temp)
+    params = {"A": a, "c_nt": centre + size * c}
+    std_errors = {"A": se_a, "c_nt": size * se_c}
+    if temp:
+        params.update({"KA_per_c": ka, "kc_nt_per_c": size * kc})
+        std_errors.update({"KA_per_c": se_ka, "kc_nt_per_c": size * se_kc})
+    cal = Calibration(
+        model="scalar",
+        params=params,
+        std_errors=std_errors,
+        temp_ref_c=ref_c,
+        stats={"field_norm": norm_source, "sigma_nt": float(np.sqrt(sigma2) * size), "temperature_terms": temp},
+        source={"kind": "dataset"},
+    )
+    return cal, r * size

@@ -1,0 +1,28 @@
+"""T24 fit of an in-memory dataset through the streaming Gram accumulator."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.calibration import Calibration
+from calib.dataset import Dataset
+from calib.gram import GramAccumulator
+from rig.errors import DataError
+
+
+def default_temp_ref_c(temp_c: np.ndarray) -> float:
+    """Centre of the temperature range, rounded to 0.1 degC so files show a tidy number."""
+    return round(float(0.5 * (np.min(temp_c) + np.max(temp_c))), 1)
+
+
+def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | None):
+    """(Calibration, vector residuals (N,3)) of a weighted T24 fit."""
+    if ds.temp_c is None:
+        raise DataError("T24 needs the DUT temperature of every sample (column temp); fit P12 without it")
+    if ds.ref_nt is None:
+        raise DataError("T24 needs the reference field vector of every sample (columns bx,by,bz)")
+    ref_c = default_temp_ref_c(ds.temp_c) if temp_ref_c is None else temp_ref_c
+    acc = GramAccumulator(ref_c)
+    acc.add(ds.h_nt, ds.temp_c, ds.ref_nt, weights)
+    cal: Calibration = acc.solve()
+    return cal, cal.apply(ds.h_nt, ds.temp_c) - ds.ref_nt

@@ -1,0 +1,202 @@
+"""3-axis bipolar Helmholtz-coil current controller over Modbus (our register map, docs/modbus-maps.md).
+
+Construct (the station YAML maps onto these keywords; `transport` is a ModbusTransport):
+
+    CoilController(transport, *, name, clock, max_current_a, poll_s=0.01)
+
+connect() checks the identity registers (model must start with "MAGRIG-HC3") and that max_current_a
+does not exceed the controller's rating; set(currents_a) writes the three setpoints in one request, then
+switches the outputs on; read() -> CoilReading; wait_settled(timeout_s, tol_a) polls the readback on the
+injected clock; safe_state() sets 0 A on every axis, then switches the outputs off.
+
+Faults (over-temperature, compliance: the supply cannot drive the current) are reported in the reading;
+wait_settled raises DeviceFault on one, since a faulted axis will not settle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from drivers.base import Device
+from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
+from rig.clock import Clock
+from rig.errors import ConfigError, DeviceFault, DeviceTimeout, LimitError, ProtocolError
+
+AXES = ("x", "y", "z")
+MODEL_PREFIX = "MAGRIG-HC3"
+
+# --- register map (holding registers; int32 values are two registers, high word first) ------------
+MODEL = 0  # R string, 8 registers (16 ASCII characters, zero padded)
+MODEL_REGISTERS = 8
+FIRMWARE = 8  # R uint16 major, then minor at 9
+RATED_CURRENT_MA = 10  # R uint16, full-scale current of each channel, mA
+SETPOINT_UA = 100  # RW int32 x3 (x, y, z): bipolar current setpoint, microamps
+READBACK_UA = 106  # R  int32 x3: measured output current, microamps
+OUTPUT_ENABLE = 112  # RW uint16 x3: 1 = output on
+STATUS = 115  # R  uint16 x3: status bits below
+COMPLIANCE_LIMIT_UA = 118  # R int32 x3: largest current the supply can drive into its coil
+COMMAND = 124  # W uint16: COMMAND_CLEAR_FAULTS
+COMMAND_CLEAR_FAULTS = 1
+
+STATUS_OUTPUT_ON = 1 << 0
+STATUS_SETTLED = 1 << 1
+STATUS_OVER_TEMPERATURE = 1 << 2
+STATUS_COMPLIANCE = 1 << 3
+FAULT_BITS = {"over_temperature": STATUS_OVER_TEMPERATURE, "compliance": STATUS_COMPLIANCE}
+
+UA_PER_A = 1_000_000
+
+
+def currents_to_words(currents_a) -> list[int]:
+    words: list[int] = []
+    for current_a in currents_a:
+        words += encode_int32(round(current_a * UA_PER_A))
+    return words
+
+
+def words_to_currents(words) -> tuple[float, float, float]:
+    return tuple(decode_int32(words[2 * i : 2 * i + 2]) / UA_PER_A for i in range(3))
+
+
+def decode_faults(status_words) -> frozenset[str]:
+    """{"x:over_temperature", "z:compliance", ...} from the three status words."""
+    return frozenset(
+        f"{axis}:{fault}"
+        for axis, word in zip(AXES, status_words, strict=True)
+        for fault, bit in FAULT_BITS.items()
+        if word & bit
+    )
+
+
+@dataclass(frozen=True)
+class CoilReading:
+    t: float
+    currents_a: tuple[float, float, float]  # readback
+    setpoints_a: tuple[float, float, float]
+    enabled: tuple[bool, bool, bool]
+    faults: frozenset[str]
+
+
+class CoilController(Device):
+    kind = "coils"
+
+    def __init__(
+        self,
+        transport: ModbusTransport,
+        *,
+        name: str,
+        clock: Clock | None = None,
+        max_current_a: float,
+        poll_s: float = 0.01,
+    ):
+        super().__init__(name, clock)
+        self.transport = transport
+        self.max_current_a = max_current_a
+        self.poll_s = poll_s
+        self.model = ""
+        self.firmware = ""
+        self.rated_current_a: float | None = None
+        self.compliance_limit_a: tuple[float, float, float] | None = None
+
+    def connect(self) -> None:
+        self.transport.connect()
+        self.model = self.transport.read_string(MODEL, MODEL_REGISTERS, operation="read model")
+        if not self.model.startswith(MODEL_PREFIX):
+            raise ProtocolError(
+                self.name, "connect", f"model {self.model!r} is not a {MODEL_PREFIX} controller"
+            )
+        major, minor, rated_ma = self.transport.read_holding(
+            FIRMWARE, 3, operation="read firmware and rating"
+        )
+        self.firmware = f"{major}.{minor}"
+        self.rated_current_a = rated_ma / 1000.0
+        if self.max_current_a > self.rated_current_a:
+            raise ConfigError(
+                f"{self.name}: max_current_a {self.max_current_a} A exceeds the controller's "
+                f"rating {self.rated_current_a} A"
+            )
+        words = self.transport.read_holding(COMPLIANCE_LIMIT_UA, 6, operation="read compliance limits")
+        self.compliance_limit_a = words_to_currents(words)
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def set(self, currents_a) -> None:
+        """Command (x, y, z) currents in A; limits are checked before anything is written."""
+        currents = self._checked(currents_a)
+        text = ", ".join(f"{c:+.6f}" for c in currents)
+        self.transport.write_registers(
+            SETPOINT_UA, currents_to_words(currents), operation=f"write setpoints ({text}) A"
+        )
+        self.transport.write_registers(OUTPUT_ENABLE, [1, 1, 1], operation="switch outputs on")
+
+    def read(self) -> CoilReading:
+        t = self.clock.now()
+        words = self.transport.read_holding(SETPOINT_UA, STATUS + 3 - SETPOINT_UA, operation="read currents")
+
+        def at(reg: int, n: int) -> list[int]:
+            return words[reg - SETPOINT_UA : reg - SETPOINT_UA + n]
+
+        status = at(STATUS, 3)
+        return CoilReading(
+            t=t,
+            currents_a=words_to_currents(at(READBACK_UA, 6)),
+            setpoints_a=words_to_currents(at(SETPOINT_UA, 6)),
+            enabled=tuple(bool(w) for w in at(OUTPUT_ENABLE, 3)),
+            faults=decode_faults(status),
+        )
+
+    def wait_settled(self, timeout_s: float = 1.0, tol_a: float = 1e-3) -> CoilReading:
+        """Poll until every readback is within tol_a of its setpoint; DeviceFault on a fault,
+        DeviceTimeout after timeout_s (on the injected clock)."""
+        deadline = self.clock.now() + timeout_s
+        while True:
+            reading = self.read()
+            if reading.faults:
+                raise DeviceFault(
+                    self.name, "wait settled", f"controller reports {', '.join(sorted(reading.faults))}"
+                )
+            errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
+            if max(errors) <= tol_a:
+                return reading
+            if self.clock.now() >= deadline:
+                raise DeviceTimeout(
+                    self.name,
+                    "wait settled",
+                    f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
+                    f"{reading.setpoints_a} A after {timeout_s:g} s",
+                )
+            self.clock.sleep(self.poll_s)
+
+    def clear_faults(self) -> None:
+        self.transport.write_register(COMMAND, COMMAND_CLEAR_FAULTS, operation="clear faults")
+
+    def safe_state(self) -> None:
+        self.transport.write_registers(SETPOINT_UA, [0] * 6, operation="safe state: setpoints to 0 A")
+        self.transport.write_registers(OUTPUT_ENABLE, [0, 0, 0], operation="safe state: outputs off")
+
+    def describe(self) -> dict:
+        return {
+            **super().describe(),
+            "model": self.model,
+            "firmware": self.firmware,
+            "rated_current_a": self.rated_current_a,
+            "compliance_limit_a": self.compliance_limit_a,
+            "max_current_a": self.max_current_a,
+            **self.transport.describe(),
+        }
+
+    def _checked(self, currents_a) -> tuple[float, float, float]:
+        values = tuple(float(c) for c in currents_a)
+        if len(values) != 3:
+            raise LimitError(f"{self.name}: expected 3 currents (x, y, z), got {len(values)}")
+        for axis, current_a in zip(AXES, values, strict=True):
+            if not math.isfinite(current_a):
+                raise LimitError(f"{self.name}: current on axis {axis} is {current_a}, not a number")
+            if abs(current_a) > self.max_current_a:
+                raise LimitError(
+                    f"{self.name}: current {current_a:+.4f} A on axis {axis} exceeds max_current_a "
+                    f"{self.max_current_a} A"
+                )
+        return values

@@ -1,0 +1,239 @@
+"""Serial transport: line-oriented I/O with timeouts, bounded retries, reconnect and a raw-byte log.
+
+Constructor (what the station YAML maps onto)::
+
+    SerialTransport(port, *, name, clock=None, baudrate=9600, timeout_s=0.5, tries=3,
+                    backoff_s=0.02, opener=None)
+
+- port: a device path ("/dev/ttyUSB0", a pty slave or a stable symlink to one) or a pyserial URL
+  ("loop://", "socket://host:port", "rfc2217://..."), opened with `serial.serial_for_url`.
+- name: the station's name for the device; every error names it ("dut2: poll sample: ...").
+- clock: waits between retries go through it (I/O timeouts are wall time: the port is real).
+- baudrate: 8N1 line rate; timeout_s: default read timeout of every call; tries: attempts per `query`.
+- opener: `opener(port, baudrate=, timeout_s=)` returning an object with the pyserial methods used
+  here (read, write, in_waiting, timeout, reset_input_buffer, close); tests pass a scripted fake.
+
+Why the transport reads lines itself: pyserial's `readline()` returns a partial line at timeout, so a
+line counts only when its terminator has arrived. Bytes after a terminator stay buffered for the next
+call (continuous streams deliver several lines per read).
+
+Unplugging shows up as OSError / SerialException (a subclass of OSError) on read or write. The transport
+then closes the port and raises DeviceNotFound; the next attempt reopens the same path, so a device that
+comes back under the same name (a udev by-id link, the simulator's stable link) is picked up again.
+`open_count` tells a driver that a reopen happened (the device may have power-cycled: reconfigure it).
+"""
+
+from __future__ import annotations
+
+import logging
+import termios
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import serial
+
+from drivers.transports.retry import with_retries
+from rig.clock import Clock, RealClock
+from rig.errors import DeviceNotFound, DeviceTimeout
+
+T = TypeVar("T")
+log = logging.getLogger("magrig.transport.serial")
+
+BITS_PER_BYTE_8N1 = 10  # start + 8 data + stop
+
+
+# A pulled cable shows up as OSError (SerialException is one) or, from termios calls, termios.error.
+PORT_ERRORS = (OSError, termios.error)
+
+
+def line_time_s(n_bytes: int, baudrate: int) -> float:
+    """Time `n_bytes` take on an 8N1 line."""
+    return n_bytes * BITS_PER_BYTE_8N1 / baudrate
+
+
+def _open_with_pyserial(port: str, *, baudrate: int, timeout_s: float) -> Any:
+    return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s)
+
+
+class SerialTransport:
+    """One serial port, shared by one driver. Not thread-safe: one caller at a time."""
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        name: str,
+        clock: Clock | None = None,
+        baudrate: int = 9600,
+        timeout_s: float = 0.5,
+        tries: int = 3,
+        backoff_s: float = 0.02,
+        opener: Callable[..., Any] | None = None,
+    ):
+        self.port = port
+        self.name = name
+        self.clock = clock or RealClock()
+        self.baudrate = baudrate
+        self.timeout_s = timeout_s
+        self.tries = tries
+        self.backoff_s = backoff_s
+        self._opener = opener or _open_with_pyserial
+        self._ser: Any = None
+        self._port_timeout_s: float | None = None
+        self._rx = bytearray()
+        self.open_count = 0
+
+    # --- link -------------------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._ser is not None
+
+    def open(self) -> None:
+        """Open the port if it is not open. Raises DeviceNotFound if the port cannot be opened."""
+        if self._ser is not None:
+            return
+        try:
+            self._ser = self._opener(self.port, baudrate=self.baudrate, timeout_s=self.timeout_s)
+        except (*PORT_ERRORS, ValueError) as exc:
+            raise DeviceNotFound(self.name, "open port", f"cannot open {self.port}: {exc}") from exc
+        self._port_timeout_s = self.timeout_s
+        self._rx.clear()
+        self.open_count += 1
+        log.debug("%s: opened %s at %d baud", self.name, self.port, self.baudrate,
+                  extra={"device": self.name})
+
+    def close(self) -> None:
+        """Release the port; never raises."""
+        ser, self._ser = self._ser, None
+        self._rx.clear()
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception as exc:  # noqa: BLE001 - closing a dead port must not raise
+                log.debug("%s: close: %s", self.name, exc, extra={"device": self.name})
+
+    def _lost(self, operation: str, exc: BaseException) -> DeviceNotFound:
+        """The port went away (unplug): close it so the next attempt reopens it."""
+        self.close()
+        return DeviceNotFound(self.name, operation, f"port {self.port} lost: {exc}")
+
+    def _port(self) -> Any:
+        self.open()
+        return self._ser
+
+    # --- bytes ------------------------------------------------------------------------------------
+    def write(self, data: bytes, *, operation: str = "write") -> None:
+        """Send `data` once (no retry). A lost port raises DeviceNotFound after closing it."""
+        ser = self._port()
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s > %r", self.name, data, extra={"device": self.name})
+        try:
+            ser.write(data)
+        except serial.SerialTimeoutException as exc:
+            raise DeviceTimeout(self.name, operation, f"write of {len(data)} bytes timed out") from exc
+        except PORT_ERRORS as exc:
+            raise self._lost(operation, exc) from exc
+
+    def flush_input(self) -> None:
+        """Drop whatever has arrived but not been read (stale replies, stream tail)."""
+        self._rx.clear()
+        ser = self._port()
+        try:
+            ser.reset_input_buffer()
+        except PORT_ERRORS as exc:
+            raise self._lost("flush input", exc) from exc
+
+    def _set_port_timeout(self, seconds: float) -> None:
+        if seconds != self._port_timeout_s:
+            self._ser.timeout = seconds
+            self._port_timeout_s = seconds
+
+    def read_line(
+        self, terminator: bytes = b"\r", timeout_s: float | None = None, *, operation: str = "read line"
+    ) -> bytes:
+        """The next complete line, terminator included. Raises DeviceTimeout if it is not complete
+        within `timeout_s` (the partial bytes are dropped and named in the message)."""
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout
+        ser = self._port()
+        while True:
+            end = self._rx.find(terminator)
+            if end >= 0:
+                end += len(terminator)
+                line = bytes(self._rx[:end])
+                del self._rx[:end]
+                if log.isEnabledFor(logging.DEBUG):
+                    log.debug("%s < %r", self.name, line, extra={"device": self.name})
+                return line
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                partial = bytes(self._rx)
+                self._rx.clear()
+                what = f"incomplete line {partial!r}" if partial else "no reply"
+                raise DeviceTimeout(self.name, operation, f"{what} within {timeout:g} s")
+            try:
+                # Blocking waits use the port's own timeout. Changing it costs system calls, so it is
+                # changed only when far off: a call ends at most 10 % of its timeout late.
+                if not 0.5 * remaining <= self._port_timeout_s <= remaining + 0.1 * timeout:
+                    self._set_port_timeout(remaining)
+                waiting = ser.in_waiting
+                chunk = ser.read(waiting if waiting else 1)
+            except PORT_ERRORS as exc:
+                raise self._lost(operation, exc) from exc
+            self._rx += chunk
+
+    def discard_input(self, quiet_s: float = 0.05) -> int:
+        """Read and drop bytes until the line has been quiet for `quiet_s` (e.g. the tail of a stream
+        after it was stopped). Returns the number of bytes dropped."""
+        dropped = len(self._rx)
+        self._rx.clear()
+        ser = self._port()
+        try:
+            self._set_port_timeout(quiet_s)
+            while chunk := ser.read(max(1, ser.in_waiting)):
+                dropped += len(chunk)
+        except PORT_ERRORS as exc:
+            raise self._lost("discard input", exc) from exc
+        if dropped and log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: dropped %d stale bytes", self.name, dropped, extra={"device": self.name})
+        return dropped
+
+    # --- requests ---------------------------------------------------------------------------------
+    def retry(self, op: Callable[[], T], *, operation: str, tries: int | None = None) -> T:
+        """`op` with this transport's bounded retries; the final error names device and operation."""
+        return with_retries(
+            op,
+            device=self.name,
+            operation=operation,
+            tries=self.tries if tries is None else tries,
+            backoff_s=self.backoff_s,
+            clock=self.clock,
+        )
+
+    def exchange(
+        self, command: bytes, *, operation: str, terminator: bytes = b"\r", timeout_s: float | None = None
+    ) -> bytes:
+        """One try: drop stale input, send `command`, return the next complete reply line."""
+        self.flush_input()
+        self.write(command, operation=operation)
+        return self.read_line(terminator, timeout_s, operation=operation)
+
+    def query(
+        self,
+        command: bytes,
+        *,
+        operation: str,
+        parse: Callable[[bytes], T],
+        terminator: bytes = b"\r",
+        timeout_s: float | None = None,
+        tries: int | None = None,
+    ) -> T:
+        """`exchange` then `parse`, retried as a whole. `parse` raises ProtocolError for a malformed
+        reply, so the retry re-sends the command."""
+
+        def once() -> T:
+            reply = self.exchange(command, operation=operation, terminator=terminator, timeout_s=timeout_s)
+            return parse(reply)
+
+        return self.retry(once, operation=operation, tries=tries)

@@ -1,0 +1,71 @@
+"""CLI: rig check, rig export."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import click
+
+from calib.atomic import atomic_write
+from rig.config import load_campaign
+from rig.plan import check_plan
+from rig.store import EXPORT_COLUMNS, sample_rows
+
+
+@click.command("check")
+@click.argument("plan_path", metavar="PLAN.yaml", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--station", "station_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Station file (default: the plan's `station:`, else configs/stations/sim.yaml).")
+def check_cmd(plan_path: Path, station_path: Path | None) -> None:
+    """Validate a plan against its station without touching hardware; print the step count and an
+    estimate of the campaign's duration."""
+    campaign = load_campaign(plan_path, station_path)
+    report = check_plan(campaign.plan, campaign.station)
+    simulated = campaign.station.simulated_devices()
+    if all(simulated.values()):
+        sim_note = "all devices simulated"
+    elif any(simulated.values()):
+        sim_note = "simulated: " + ", ".join(name for name, sim in simulated.items() if sim)
+    else:
+        sim_note = "no simulated devices"
+    click.echo(f"plan {campaign.plan.name} ({plan_path}) on station {campaign.station.name} "
+               f"({campaign.station_path}; {sim_note}): OK")
+    for line in report.summary_lines():
+        click.echo(line)
+
+
+@click.command("export")
+@click.argument("session_path", metavar="SESSION", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--csv", "as_csv", is_flag=True, default=True, help="Write CSV (the only format so far).")
+@click.option("--dut", help="Which DUT (needed when the session has several).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Output CSV file.")
+@click.option("--include-flagged", is_flag=True,
+              help="Also write flagged samples (overflow, saturated...); they are left out by default.")
+def export_cmd(session_path: Path, as_csv: bool, dut: str | None, output: Path,
+               include_flagged: bool) -> None:
+    """Write one DUT's samples as CSV: hx,hy,hz raw nT, temp degC, bx,by,bz reference nT, plus point, t,
+    setpoint, reference temperature, SET/RESET offsets and flags. `rig refit` reads it."""
+    dut, rows = sample_rows(session_path, dut)
+    kept = [r for r in rows if include_flagged or not r["flags"]]
+    _write_csv_atomically(output, kept)
+    left_out = len(rows) - len(kept)
+    note = f" ({left_out} flagged sample(s) left out)" if left_out else ""
+    click.echo(f"wrote {len(kept)} samples of {dut} to {output}{note}")
+
+
+def _write_csv_atomically(output: Path, rows: list[dict]) -> None:
+    """A failure never leaves half a file (nor touches an existing one)."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(output, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(EXPORT_COLUMNS)
+        for r in rows:
+            writer.writerow(["" if r[c] is None else r[c] for c in EXPORT_COLUMNS])
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to the `rig` group."""
+    group.add_command(check_cmd)
+    group.add_command(export_cmd)

@@ -1,0 +1,374 @@
+"""The run engine: executes campaign steps written as plain generators, and alone decides pause, resume,
+abort, holds and the final safe state.
+
+A step is one point of the plan (`Step(point_id, make)`); `make(retake)` returns a generator that yields
+small commands (`SetChamber`, `WaitStable`, `MoveField`, `Settle`, `CollectPoint`, `Checkpoint`) and
+receives each command's result. The engine looks the command's type up in its `handlers` (the rig-aware
+code in rig/campaign.py) and runs it. Steps never catch Ctrl-C, never call safe_state() and never record
+exit status: that is the engine's job, so every exit path is the same.
+
+- Ctrl-C (SIGINT) asks for a pause; the engine takes it at the next safe point (a command boundary, or a
+  poll inside a long wait), puts every device in its safe state, and asks `prompt` whether to resume or
+  abort (no prompt: abort). A resumed point starts again from its first command (nothing of it was
+  recorded: a point is stored in one transaction). A second Ctrl-C, or SIGTERM, aborts.
+- A `Hold` (chamber alarm, DUT temperature out of band) or a `DeviceError` (a fault that survived the
+  transport's retries) holds the run: the engine logs it, waits `hold_wait_s`, and retakes the point with
+  `retake=True` (the step then re-settles). After `max_retakes` retakes of one point it aborts with the
+  reason.
+- Whatever happens (completion, abort, an unexpected exception), every device gets safe_state() and the
+  session records the exit status and reason.
+
+Continuous mode (sampling while the chamber ramps) fits the same engine: its step would yield
+`SetChamber(target, ramp_c_per_min=...)` without `WaitStable`, then a loop of `MoveField` + `CollectPoint`
+(each sample already carries its own DUT temperature) with a `Checkpoint` after each stored block, until
+the DUT reaches the target. Only a new step generator and its point list are needed; holds, pause, resume
+by point id and the final safe state stay as they are.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections import deque
+from collections.abc import Callable, Generator, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from rig.clock import Clock
+from rig.errors import DeviceError, MagrigError
+from rig.settle import SettleCriteria
+
+log = logging.getLogger("magrig.engine")
+
+COMPLETED = "completed"
+ABORTED = "aborted"
+FAILED = "failed"
+
+
+# --- commands a step yields ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SetChamber:
+    temp_c: float
+
+
+@dataclass(frozen=True)
+class WaitStable:
+    """Wait until every DUT temperature is stable around target_c (rig/settle.py)."""
+
+    target_c: float
+    criteria: SettleCriteria
+
+
+@dataclass(frozen=True)
+class MoveField:
+    """Command the field source: a field vector in nT (coils) or table angles in degrees (turntable)."""
+
+    target: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Settle:
+    """Let the field source settle (wait_settled, then a fixed delay)."""
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class CollectPoint:
+    """Collect the point's samples from every DUT and temperature sensor and store them in one go."""
+
+    point: Any
+    temp_band_c: float | None = None  # hold if a DUT temperature leaves target +- band during the point
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """The point is complete and recorded: a safe place to pause."""
+
+    point_id: str
+
+
+Command = SetChamber | WaitStable | MoveField | Settle | CollectPoint | Checkpoint
+
+
+@dataclass(frozen=True)
+class Step:
+    point_id: str
+    make: Callable[[bool], Generator[Any, Any, None]]
+
+
+class Hold(MagrigError):
+    """Raised by a handler: the point cannot be taken as it is (alarm, temperature out of band)."""
+
+
+class SessionLike(Protocol):
+    def log_event(self, kind: str, message: str, **data: Any) -> None: ...
+
+    def finish(self, status: str, reason: str) -> None: ...
+
+
+@dataclass
+class RunResult:
+    status: str
+    reason: str
+    points_done: int
+
+
+@dataclass
+class RunStatus:
+    """What the live display shows; the handlers update it as they go."""
+
+    point_id: str = ""
+    step: str = ""
+    points_done: int = 0
+    points_total: int = 0
+    chamber_c: float | None = None
+    dut_temps_c: dict[str, float] = field(default_factory=dict)
+    settling: str = ""
+    events: deque = field(default_factory=lambda: deque(maxlen=8))
+    started_t: float | None = None
+    point_durations_s: deque = field(default_factory=lambda: deque(maxlen=20))
+
+
+class _Pause(Exception):
+    pass
+
+
+class _Abort(Exception):
+    pass
+
+
+class Engine:
+    """Runs steps; see the module docstring for the rules it enforces."""
+
+    def __init__(
+        self,
+        handlers: Mapping[type, Callable[[Any], Any]],
+        *,
+        devices: Iterable[Any],
+        clock: Clock,
+        session: SessionLike,
+        prompt: Callable[[str], str] | None = None,
+        max_retakes: int = 3,
+        hold_wait_s: float = 60.0,
+        status: RunStatus | None = None,
+    ):
+        self.handlers = dict(handlers)
+        self.devices = list(devices)
+        self.clock = clock
+        self.session = session
+        self.prompt = prompt
+        self.max_retakes = max_retakes
+        self.hold_wait_s = hold_wait_s
+        self.status = status or RunStatus()
+        self.log_handler: SessionLogHandler | None = None
+        self._pause_requested = threading.Event()
+        self._abort_reason: str | None = None
+        self._prompting = False
+
+    # --- requests (signal handlers and tests call these) -----------------------------------------
+    def request_pause(self) -> None:
+        if self._prompting:
+            raise KeyboardInterrupt  # Ctrl-C at the pause prompt means abort
+        if self._pause_requested.is_set():
+            self.request_abort("second Ctrl-C")
+        else:
+            self._pause_requested.set()
+
+    def request_abort(self, reason: str) -> None:
+        if self._abort_reason is None:
+            self._abort_reason = reason
+
+    def check_interrupt(self) -> None:
+        """Called between commands and by long handlers at every poll: raises to pause or abort."""
+        if self.log_handler is not None:
+            self.log_handler.flush_pending()
+        if self._abort_reason is not None:
+            raise _Abort(self._abort_reason)
+        if self._pause_requested.is_set():
+            raise _Pause()
+
+    def wait(self, seconds: float, poll_s: float = 5.0) -> None:
+        """Wait on the clock in slices, staying responsive to pause and abort."""
+        end = self.clock.now() + seconds
+        while (left := end - self.clock.now()) > 0:
+            self.check_interrupt()
+            self.clock.sleep(min(poll_s, left))
+        self.check_interrupt()
+
+    def event(self, kind: str, message: str, **data: Any) -> None:
+        """Record an event in the session and in the live status."""
+        self.status.events.append(f"{kind}: {message}")
+        try:
+            self.session.log_event(kind, message, **data)
+        except Exception as exc:  # the session must not take the run down with it
+            log.error("could not record event %s: %s", kind, exc)
+
+    # --- running ----------------------------------------------------------------------------------
+    def run(self, steps: Iterable[Step], done_ids: Iterable[str] = ()) -> RunResult:
+        """Run every step whose point is not in `done_ids`; always ends with safe_state() everywhere."""
+        steps = list(steps)
+        done = set(done_ids)
+        todo = [s for s in steps if s.point_id not in done]
+        self.status.points_total = len(steps)
+        self.status.points_done = len(steps) - len(todo)
+        self.status.started_t = self.clock.now()
+        status, reason = FAILED, "not started"
+        self.log_handler = SessionLogHandler(self.session)
+        magrig_log = logging.getLogger("magrig")
+        magrig_log.addHandler(self.log_handler)
+        with _signals_to(self):
+            try:
+                self.event("run", f"{len(todo)} of {len(steps)} points to take")
+                for step in todo:
+                    self._run_point(step)
+                status, reason = COMPLETED, f"all {len(steps)} points taken"
+            except _Abort as exc:
+                status, reason = ABORTED, str(exc)
+            except KeyboardInterrupt:
+                status, reason = ABORTED, "interrupted"
+            except Exception as exc:
+                status, reason = FAILED, f"{type(exc).__name__}: {exc}" if not isinstance(
+                    exc, MagrigError) else str(exc)
+                log.error("run failed: %s", reason)
+            finally:
+                self.make_safe()
+                self.event("exit", f"{status}: {reason}", status=status)
+                magrig_log.removeHandler(self.log_handler)
+                self.log_handler.flush_pending()
+                self.session.finish(status, reason)
+        return RunResult(status, reason, self.status.points_done)
+
+    def make_safe(self) -> list[str]:
+        """safe_state() on every device, each on its own (one failure must not skip the others).
+        Returns the names of the devices that failed to go safe."""
+        failed = []
+        for dev in self.devices:
+            name = getattr(dev, "name", type(dev).__name__)
+            try:
+                dev.safe_state()
+            except Exception as exc:
+                failed.append(name)
+                log.error("%s: safe_state failed: %s", name, exc, extra={"device": name})
+        self.event("safe_state", "all devices safe" if not failed else f"FAILED on {', '.join(failed)}",
+                   failed=failed)
+        return failed
+
+    def _run_point(self, step: Step) -> None:
+        retakes = 0
+        retake = False
+        while True:
+            t0 = self.clock.now()
+            try:
+                self._run_generator(step, retake)
+                self.status.points_done += 1
+                self.status.point_durations_s.append(self.clock.now() - t0)
+                return
+            except _Pause:
+                self._pause(step.point_id)
+                retake = True  # the chamber was made safe: settle again
+            except (Hold, DeviceError) as exc:
+                retakes += 1
+                if retakes > self.max_retakes:
+                    raise _Abort(f"point {step.point_id}: {exc} (gave up after {self.max_retakes} "
+                                 f"retakes)") from exc
+                self.event("hold", f"point {step.point_id}: {exc}; retake {retakes} of "
+                           f"{self.max_retakes}", point_id=step.point_id, reason=str(exc))
+                self.status.step = f"hold: {exc}"
+                self.wait(self.hold_wait_s)
+                retake = True
+
+    def _run_generator(self, step: Step, retake: bool) -> None:
+        self.status.point_id = step.point_id
+        gen = step.make(retake)
+        try:
+            reply = None
+            while True:
+                self.check_interrupt()
+                command = gen.send(reply)
+                handler = self.handlers.get(type(command))
+                if handler is None:
+                    raise MagrigError(f"no handler for command {type(command).__name__}")
+                self.status.step = type(command).__name__
+                reply = handler(command)
+                if isinstance(command, Checkpoint):
+                    self.check_interrupt()
+        except StopIteration:
+            return
+        finally:
+            gen.close()
+
+    def _pause(self, point_id: str) -> None:
+        self.event("pause", f"paused before finishing point {point_id}", point_id=point_id)
+        self.status.step = "paused"
+        self.make_safe()
+        answer = "abort"
+        if self.prompt is not None:
+            self._prompting = True
+            try:
+                answer = self.prompt(f"paused at {point_id}: resume or abort?")
+            except (KeyboardInterrupt, EOFError):
+                answer = "abort"
+            finally:
+                self._prompting = False
+        if answer != "resume" or self._abort_reason is not None:
+            raise _Abort(self._abort_reason or f"operator aborted while paused at {point_id}")
+        self._pause_requested.clear()
+        self.event("resume", f"resuming at point {point_id}", point_id=point_id)
+
+
+class SessionLogHandler(logging.Handler):
+    """Copies WARNING+ records of the "magrig" loggers (retries, faults) into the session's events.
+
+    SQLite connections belong to one thread: records from other threads (simulators, transports' helper
+    threads) wait in a queue until the engine's thread flushes them at its next check."""
+
+    def __init__(self, session: SessionLike):
+        super().__init__(level=logging.WARNING)
+        self.session = session
+        self.owner = threading.get_ident()
+        self.pending: deque[logging.LogRecord] = deque(maxlen=1000)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.pending.append(record)
+        if threading.get_ident() == self.owner:
+            self.flush_pending()
+
+    def flush_pending(self) -> None:
+        if threading.get_ident() != self.owner:
+            return
+        while self.pending:
+            record = self.pending.popleft()
+            try:
+                self.session.log_event(
+                    record.levelname.lower(), record.getMessage(),
+                    logger=record.name, device=getattr(record, "device", None))
+            except Exception:
+                self.handleError(record)
+
+
+class _signals_to:
+    """While running: SIGINT asks for a pause, SIGTERM for an abort (main thread only; elsewhere no-op)."""
+
+    def __init__(self, engine: Engine):
+        self.engine = engine
+        self.saved: dict[int, Any] = {}
+
+    def __enter__(self):
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        self.saved[signal.SIGINT] = signal.signal(signal.SIGINT, lambda *_: self.engine.request_pause())
+        self.saved[signal.SIGTERM] = signal.signal(
+            signal.SIGTERM, lambda *_: self.engine.request_abort("SIGTERM"))
+        return self
+
+    def __exit__(self, *exc):
+        for sig, old in self.saved.items():
+            signal.signal(sig, old)
+
+
+def prompt_from_tty(message: str) -> str:
+    """Interactive pause prompt: 'r' resumes, anything else aborts."""
+    answer = input(f"{message} [r/a] ").strip().lower()
+    return "resume" if answer in ("r", "resume") else "abort"

@@ -1,0 +1,277 @@
+"""A plan compiled against its station: the deterministic list of points a campaign collects.
+
+    points = compile_plan(plan, station)       # [Point], temperature-major
+    report = check_plan(plan, station)         # limits checked without hardware; raises LimitError
+
+Point ids are stable: `T03-F07` is temperature step 3, field 7 (coils); `T03-O07` orientation 7
+(turntable). Numbers are 1-based and zero-padded to at least 2 digits (3 when there are > 99).
+For coils the target is the total field (lab frame, nT) the coils must make, ambient included; for a
+turntable it is (az_deg, el_deg).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig import fieldsets
+from rig.config import (
+    COIL_FIELD_KINDS,
+    TABLE_FIELD_KINDS,
+    Coils,
+    Cube24Fields,
+    DirectionFields,
+    FibonacciFields,
+    GridOrientations,
+    ListOrientations,
+    Plan,
+    Stability,
+    Station,
+    Turntable,
+)
+from rig.errors import ConfigError, LimitError
+from rig.reference import currents_for_field
+
+ASSUMED_START_C = 22.0
+ASSUMED_THERMAL_LAG_S = 600.0  # for real DUT mounts, whose lag the station does not state
+
+
+@dataclass(frozen=True)
+class Point:
+    id: str
+    index: int  # 0-based position in the campaign
+    temp_index: int  # 1-based
+    setpoint_c: float
+    field_index: int  # 1-based
+    field_nt: tuple[float, float, float] | None  # coils: total field to make, lab frame
+    angles_deg: tuple[float, float] | None  # turntable: (az, el)
+    samples: int
+    settle_s: float
+    ramp_c_per_min: float
+    stability: Stability
+
+    @property
+    def target(self) -> dict:
+        """The commanded target as plain data (stored with the point)."""
+        if self.field_nt is not None:
+            return {"field_nt": list(self.field_nt)}
+        return {"az_deg": self.angles_deg[0], "el_deg": self.angles_deg[1]}  # type: ignore[index]
+
+
+def field_targets(plan: Plan, station: Station) -> list[tuple[float, ...]]:
+    """Field vectors (nT) for coils or (az, el) pairs for a turntable, in plan order."""
+    fs = plan.fields
+    source = station.field_source
+    if isinstance(source, Coils) and fs.kind not in COIL_FIELD_KINDS:
+        raise ConfigError(f"plan {plan.name}: fields.kind {fs.kind!r} needs a turntable; station "
+                          f"{station.name} has coils (use one of {', '.join(sorted(COIL_FIELD_KINDS))})")
+    if isinstance(source, Turntable) and fs.kind not in TABLE_FIELD_KINDS:
+        raise ConfigError(f"plan {plan.name}: fields.kind {fs.kind!r} needs coils; station {station.name} "
+                          f"has a turntable (use one of {', '.join(sorted(TABLE_FIELD_KINDS))})")
+    if isinstance(fs, GridOrientations):
+        return fieldsets.grid_orientations(fs.az_deg, fs.el_deg)
+    if isinstance(fs, ListOrientations):
+        return [tuple(map(float, a)) for a in fs.angles_deg]
+    if isinstance(fs, Cube24Fields | FibonacciFields | DirectionFields):
+        if isinstance(fs, Cube24Fields):
+            directions = fieldsets.cube24_directions()
+        elif isinstance(fs, FibonacciFields):
+            directions = fieldsets.fibonacci_directions(fs.n)
+        else:
+            try:
+                directions = fieldsets.normalised(fs.directions)
+            except ValueError as exc:
+                raise ConfigError(f"plan {plan.name}: fields.directions: {exc}") from None
+        vectors = fieldsets.scaled(directions, fs.magnitude_list())
+    else:
+        vectors = np.asarray(fs.vectors_nt, float)
+    return [tuple(float(x) for x in v) for v in vectors]
+
+
+def point_id(temp_index: int, field_index: int, n_temps: int, n_fields: int, letter: str = "F") -> str:
+    tw, fw = max(2, len(str(n_temps))), max(2, len(str(n_fields)))
+    return f"T{temp_index:0{tw}d}-{letter}{field_index:0{fw}d}"
+
+
+def compile_plan(plan: Plan, station: Station) -> list[Point]:
+    steps = plan.temperatures.step_list()
+    targets = field_targets(plan, station)
+    coils = isinstance(station.field_source, Coils)
+    letter = "F" if coils else "O"
+    points = []
+    for ti, step in enumerate(steps, start=1):
+        stability = plan.temperatures.stability_for(step)
+        ramp = step.ramp_c_per_min or plan.temperatures.ramp_c_per_min
+        for fi, target in enumerate(targets, start=1):
+            points.append(Point(
+                id=point_id(ti, fi, len(steps), len(targets), letter),
+                index=len(points),
+                temp_index=ti,
+                setpoint_c=step.setpoint_c,
+                field_index=fi,
+                field_nt=target if coils else None,  # type: ignore[arg-type]
+                angles_deg=None if coils else target,  # type: ignore[arg-type]
+                samples=plan.samples_per_point,
+                settle_s=plan.settle_s,
+                ramp_c_per_min=ramp,
+                stability=stability,
+            ))
+    return points
+
+
+@dataclass
+class PlanCheck:
+    """What `rig check` prints: sizes, the duration estimate with its parts, and warnings."""
+
+    points: list[Point]
+    n_temperatures: int
+    n_fields: int
+    n_duts: int
+    samples_per_dut: int
+    duration_s: float
+    breakdown_s: dict[str, float]
+    max_current_a: float | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def summary_lines(self) -> list[str]:
+        lines = [
+            f"{len(self.points)} points = {self.n_temperatures} temperatures x {self.n_fields} fields; "
+            f"{self.samples_per_dut} samples per DUT, {self.n_duts} DUT(s)",
+            f"estimated duration {format_duration(self.duration_s)} ("
+            + ", ".join(f"{k} {format_duration(v)}" for k, v in self.breakdown_s.items()) + ")",
+        ]
+        if self.max_current_a is not None:
+            lines.append(f"largest coil current {self.max_current_a:.3f} A")
+        lines += [f"warning: {w}" for w in self.warnings]
+        return lines
+
+
+def format_duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    h, rem = divmod(seconds, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h{m:02d}m" if h else (f"{m}m{s:02d}s" if m else f"{s}s")
+
+
+def _check_setpoints(plan: Plan, station: Station, points: list[Point]) -> None:
+    lim = station.chamber.limits
+    for p in points:
+        if not lim.min_setpoint_c <= p.setpoint_c <= lim.max_setpoint_c:
+            raise LimitError(
+                f"plan {plan.name}: temperature step {p.temp_index} setpoint {p.setpoint_c:g} degC is "
+                f"outside chamber.limits min_setpoint_c {lim.min_setpoint_c:g} .. "
+                f"max_setpoint_c {lim.max_setpoint_c:g}"
+            )
+        if p.ramp_c_per_min > lim.max_ramp_c_per_min:
+            raise LimitError(
+                f"plan {plan.name}: temperature step {p.temp_index} ramp {p.ramp_c_per_min:g} degC/min "
+                f"exceeds chamber.limits max_ramp_c_per_min {lim.max_ramp_c_per_min:g}"
+            )
+
+
+def _check_coils(plan: Plan, coils: Coils, points: list[Point], warnings: list[str]) -> float:
+    """Largest current magnitude over all points; LimitError when one exceeds max_current_a."""
+    inv = np.linalg.inv(coils.constants)
+    if isinstance(coils.ambient_nt, str):
+        ambient = np.zeros(3)
+        margin = np.linalg.norm(inv, axis=1) * coils.ambient_max_nt  # worst case over |ambient| <= max
+        assumption = (f"any ambient up to {coils.ambient_max_nt:g} nT (field_source.ambient_max_nt; "
+                      "ambient_nt is 'measure')")
+        warnings.append(f"ambient field not yet measured: currents checked for {assumption}")
+    else:
+        ambient, margin = np.asarray(coils.ambient_nt, float), np.zeros(3)
+        assumption = "the station's ambient_nt"
+    largest = 0.0
+    for p in points:
+        worst = np.abs(currents_for_field(p.field_nt, coils.constants, ambient)) + margin
+        axis = int(np.argmax(worst))
+        if worst[axis] > coils.max_current_a:
+            raise LimitError(
+                f"plan {plan.name}: point {p.id} field {_fmt_vec(p.field_nt)} nT needs {worst[axis]:.3f} A "
+                f"in coil {'xyz'[axis]} with {assumption}, above field_source.max_current_a "
+                f"{coils.max_current_a:g} A"
+            )
+        largest = max(largest, float(worst[axis]))
+    return largest
+
+
+def _check_angles(plan: Plan, table: Turntable, points: list[Point]) -> None:
+    for p in points:
+        for value, key, (lo, hi) in zip(p.angles_deg, ("az_limits_deg", "el_limits_deg"),  # type: ignore[arg-type]
+                                        (table.az_limits_deg, table.el_limits_deg), strict=True):
+            if not lo <= value <= hi:
+                raise LimitError(f"plan {plan.name}: point {p.id} angle {value:g} deg is outside "
+                                 f"field_source.{key} [{lo:g}, {hi:g}]")
+
+
+def _fmt_vec(v) -> str:
+    return "(" + ", ".join(f"{x:.0f}" for x in v) + ")"
+
+
+def _settle_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st: Stability) -> float:
+    """A first-order mount lags a ramp by rate*lag; after the ramp that error decays with the lag."""
+    lag_error_c = min(abs(delta_c), ramp_c_per_min / 60.0 * lag_s)
+    decay = lag_s * math.log(lag_error_c / st.band_c) if lag_error_c > st.band_c else 0.0
+    return decay + st.dwell_s
+
+
+def estimate_duration(plan: Plan, station: Station, points: list[Point],
+                      n_fields: int) -> dict[str, float]:
+    """Seconds spent ramping, waiting for stability, moving/settling and sampling. DUTs are assumed to
+    be read one after another; real-station mounts are assumed to lag by ASSUMED_THERMAL_LAG_S."""
+    lags = [station.sim.duts[d.name].thermal_lag_s if d.simulated and d.name in station.sim.duts
+            else ASSUMED_THERMAL_LAG_S for d in station.duts]
+    lag_s = max(lags)
+    ramp_s = stable_s = 0.0
+    temp = station.sim.air_c if station.chamber.simulated else ASSUMED_START_C
+    for p in points[::n_fields]:
+        rate = min(p.ramp_c_per_min, station.chamber.limits.max_ramp_c_per_min)
+        delta = p.setpoint_c - temp
+        ramp_s += abs(delta) / rate * 60.0
+        stable_s += _settle_after_ramp_s(delta, rate, lag_s, p.stability)
+        temp = p.setpoint_c
+    move_s = sum(p.settle_s for p in points)
+    source = station.field_source
+    if isinstance(source, Turntable):
+        angles = np.array([(0.0, 0.0)] + [p.angles_deg for p in points])
+        travel = float(np.abs(np.diff(angles, axis=0)).max(axis=1).sum())  # both axes move at once
+        move_s += travel / source.rate_deg_s
+    pair = plan.set_reset == "pair"
+    per_sample = sum(d.sample_time_s(pair and d.type in ("mmc5983ma", "serialmag")) for d in station.duts)
+    sampling_s = per_sample * sum(p.samples for p in points)
+    return {"ramps": ramp_s, "stability": stable_s, "moves+settle": move_s, "sampling": sampling_s}
+
+
+def check_plan(plan: Plan, station: Station) -> PlanCheck:
+    """Validate `plan` against `station` without touching hardware. Raises LimitError naming the limit."""
+    points = compile_plan(plan, station)
+    n_fields = len(field_targets(plan, station))
+    n_temps = len(points) // n_fields
+    warnings: list[str] = []
+    _check_setpoints(plan, station, points)
+    largest = None
+    source = station.field_source
+    if isinstance(source, Coils):
+        largest = _check_coils(plan, source, points, warnings)
+        span = fieldsets.span_ratio(np.array([p.field_nt for p in points[:n_fields]]))
+        if span < 0.2:
+            warnings.append(f"field directions barely span 3-D (ratio {span:.2f}): the scale and cross-axis "
+                            "terms will be poorly determined")
+    else:
+        _check_angles(plan, source, points)
+    if n_temps < 2 and "t24" in plan.fit.models:
+        warnings.append("one temperature step only: the T24 temperature terms K and kb are not identifiable")
+    breakdown = estimate_duration(plan, station, points, n_fields)
+    return PlanCheck(
+        points=points,
+        n_temperatures=n_temps,
+        n_fields=n_fields,
+        n_duts=len(station.duts),
+        samples_per_dut=len(points) * plan.samples_per_point,
+        duration_s=sum(breakdown.values()),
+        breakdown_s=breakdown,
+        max_current_a=largest,
+        warnings=warnings,
+    )

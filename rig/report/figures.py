@@ -1,0 +1,261 @@
+"""Report figures: pure functions from numpy arrays to matplotlib Figures (Agg, no pyplot state).
+
+Every function returns a `Figure` with its own Agg canvas, so building figures in a thread or a test
+never touches a GUI backend; `png_bytes(fig)` renders and frees it.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+
+BEFORE_COLOUR = "tab:orange"
+AFTER_COLOUR = "tab:blue"
+OUTLIER_COLOUR = "tab:red"
+MAX_SCATTER_POINTS = 20000  # more points only slow the render; a seeded subsample looks the same
+
+
+def new_figure(width_in: float, height_in: float) -> Figure:
+    fig = Figure(figsize=(width_in, height_in), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def png_bytes(fig: Figure, dpi: int = 100) -> bytes:
+    """Render to PNG and release the figure's memory."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    fig.clear()
+    return buf.getvalue()
+
+
+def _thin(n: int, limit: int = MAX_SCATTER_POINTS) -> np.ndarray:
+    """Row indices to plot: all rows, or an evenly spread subset when there are too many."""
+    if n <= limit:
+        return np.arange(n)
+    return np.linspace(0, n - 1, limit).astype(int)
+
+
+def _rms(x: np.ndarray) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def residuals_vs_temperature(
+    temp_c: np.ndarray | None,
+    before_nt: np.ndarray,
+    after_nt: np.ndarray,
+    labels: list[str],
+    outliers: np.ndarray | None = None,
+    title: str = "",
+) -> Figure:
+    """One row per component (x, y, z or |B|): error before calibration (left) and after (right).
+
+    before_nt/after_nt are (N, k) errors in nT against the reference; `outliers` an optional (N,) mask of
+    rows the robust fit rejected (drawn in red). Without temperatures the x axis is the sample index.
+    """
+    before_nt = np.asarray(before_nt, dtype=float).reshape(len(before_nt), -1)
+    after_nt = np.asarray(after_nt, dtype=float).reshape(len(after_nt), -1)
+    n, k = after_nt.shape
+    x = np.arange(n, dtype=float) if temp_c is None else np.asarray(temp_c, dtype=float)
+    x_label = "sample index" if temp_c is None else "DUT temperature (°C)"
+    rows = _thin(n)
+    mask = np.zeros(n, bool) if outliers is None else np.asarray(outliers, bool)
+    fig = new_figure(10, 2.3 * k + 0.6)
+    axes = fig.subplots(k, 2, sharex=True, squeeze=False)
+    for i, label in enumerate(labels):
+        for j, (err, colour, when) in enumerate(
+            ((before_nt, BEFORE_COLOUR, "before"), (after_nt, AFTER_COLOUR, "after"))
+        ):
+            ax = axes[i, j]
+            kept = rows[~mask[rows]]
+            ax.scatter(
+                x[kept],
+                err[kept, i],
+                s=3,
+                alpha=0.4,
+                color=colour,
+                rasterized=True,
+                label=f"{when} (RMS {_rms(err[~mask, i]):.1f} nT)",
+            )
+            lo, hi = _central_range(err[kept, i], share=1.0)
+            ax.set_ylim(lo, hi)
+            flagged = rows[mask[rows]]
+            if flagged.size:
+                # outliers beyond the axis are drawn on its edge, so they never squash the good samples
+                y = np.clip(err[flagged, i], lo, hi)
+                off = (err[flagged, i] < lo) | (err[flagged, i] > hi)
+                ax.scatter(
+                    x[flagged],
+                    y,
+                    s=14,
+                    marker="x",
+                    color=OUTLIER_COLOUR,
+                    clip_on=False,
+                    label=f"outliers ({int(mask.sum())}, {int(off.sum())} off-scale at the edge)",
+                )
+            ax.axhline(0.0, color="0.3", lw=0.8)
+            ax.set_ylabel(f"{label} error (nT)")
+            ax.legend(loc="upper right", fontsize=8, markerscale=3)
+            ax.grid(alpha=0.3)
+    axes[0, 0].set_title("before calibration (raw − reference)")
+    axes[0, 1].set_title("after calibration (calibrated − reference)")
+    for ax in axes[-1]:
+        ax.set_xlabel(x_label)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def _central_range(x: np.ndarray, share: float = 0.998) -> tuple[float, float]:
+    """The range holding the central `share` of x, widened 10 %: a few outliers do not squash the rest."""
+    if x.size == 0:
+        return -1.0, 1.0
+    lo, hi = np.quantile(x, [(1 - share) / 2, 1 - (1 - share) / 2])
+    pad = 0.1 * (hi - lo) or 1.0
+    return float(lo - pad), float(hi + pad)
+
+
+def norm_error_histogram(before_nt: np.ndarray, after_nt: np.ndarray, title: str = "") -> Figure:
+    """Histograms of the field-magnitude error (|B| estimate − |B| reference, nT), before and after.
+
+    Two panels because the two spreads differ by orders of magnitude.
+    """
+    fig = new_figure(10, 3.4)
+    axes = fig.subplots(1, 2)
+    for ax, err, colour, when in (
+        (axes[0], before_nt, BEFORE_COLOUR, "before calibration"),
+        (axes[1], after_nt, AFTER_COLOUR, "after calibration"),
+    ):
+        err = np.asarray(err, dtype=float)
+        err = err[np.isfinite(err)]
+        lo, hi = _central_range(err)
+        beyond = int(np.sum((err < lo) | (err > hi)))
+        note = f"\n{beyond} beyond the axis" if beyond else ""
+        ax.hist(
+            err,
+            bins=60,
+            range=(lo, hi),
+            color=colour,
+            alpha=0.85,
+            label=f"mean {np.mean(err):.1f} nT\nRMS {_rms(err):.1f} nT\nN = {err.size}{note}",
+        )
+        ax.set_xlabel("|B| error (nT)")
+        ax.set_ylabel("samples")
+        ax.set_title(when)
+        ax.legend(loc="upper right", fontsize=8, handlelength=0)
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def azimuth_elevation_deg(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth (−180..180, from +x towards +y) and elevation (−90..90, towards +z) of vectors (N, 3)."""
+    v = np.asarray(v, dtype=float)
+    az = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    el = np.degrees(np.arctan2(v[:, 2], np.hypot(v[:, 0], v[:, 1])))
+    return az, el
+
+
+def direction_map(direction_nt: np.ndarray, residual_nt: np.ndarray, title: str = "") -> Figure:
+    """Where the field pointed (in sensor axes) and where the error lives.
+
+    Left: sample count per 30°×(equal-area) cell, empty cells show the coverage gaps.
+    Right: each sample at its field direction, coloured by the size of its residual after calibration.
+    """
+    az, el = azimuth_elevation_deg(direction_nt)
+    resid = np.asarray(residual_nt, dtype=float)
+    fig = new_figure(11, 4.0)
+    ax_cov, ax_res = fig.subplots(1, 2, sharey=True)
+
+    az_edges = np.linspace(-180, 180, 13)
+    el_edges = np.degrees(np.arcsin(np.linspace(-1, 1, 7)))  # equal-area bands
+    counts, _, _ = np.histogram2d(az, el, bins=(az_edges, el_edges))
+    masked = np.ma.masked_equal(counts.T, 0)
+    mesh = ax_cov.pcolormesh(
+        az_edges, el_edges, masked, cmap="Greens", norm=LogNorm(vmin=1), edgecolors="0.7", linewidth=0.3
+    )
+    ax_cov.set_facecolor("mistyrose")  # empty cells show through in light red
+    fig.colorbar(mesh, ax=ax_cov, label="samples per cell")
+    empty = int((counts == 0).sum())
+    ax_cov.set_title(f"coverage: {empty} of {counts.size} cells empty (light red)")
+
+    rows = _thin(len(resid))
+    order = rows[np.argsort(resid[rows])]  # largest residuals drawn last, on top
+    vmax = float(np.quantile(resid, 0.99)) if resid.size else 1.0
+    sc = ax_res.scatter(
+        az[order], el[order], c=resid[order], s=10, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
+    )
+    fig.colorbar(sc, ax=ax_res, extend="max", label="|residual| after calibration (nT)")
+    ax_res.set_title("residual by field direction")
+    for ax in (ax_cov, ax_res):
+        ax.set_xlim(-180, 180)
+        ax.set_ylim(-90, 90)
+        ax.set_xticks(np.arange(-180, 181, 60))
+        ax.set_yticks(np.arange(-90, 91, 30))
+        ax.set_xlabel("field azimuth in sensor axes (deg)")
+        ax.grid(alpha=0.3)
+    ax_cov.set_ylabel("field elevation in sensor axes (deg)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def model_comparison(
+    models: list[str], fit_rms_nt: list[float], heldout_rms_nt: list[float], metric: str, title: str = ""
+) -> Figure:
+    """Bars per model: RMS on the points it was fitted to and on held-out points (log scale)."""
+    fig = new_figure(6.5, 3.6)
+    ax = fig.subplots()
+    x = np.arange(len(models))
+    width = 0.38
+    drawn = []
+    for offset, values, colour, label in (
+        (-width / 2, fit_rms_nt, "0.6", "fitted points"),
+        (width / 2, heldout_rms_nt, AFTER_COLOUR, "held-out points"),
+    ):
+        vals = np.array([v if v is not None and np.isfinite(v) and v > 0 else np.nan for v in values])
+        bars = ax.bar(x + offset, np.nan_to_num(vals, nan=0.0), width, color=colour, label=label)
+        drawn.append((bars, vals))
+    finite = np.concatenate([vals[np.isfinite(vals)] for _, vals in drawn])
+    floor = float(finite.min()) / 2 if finite.size else 0.1
+    ax.set_yscale("log")
+    ax.set_ylim(floor, float(finite.max()) * 3 if finite.size else 10.0)
+    for bars, vals in drawn:
+        for bar, v in zip(bars, vals, strict=True):
+            text = "n/a" if np.isnan(v) else f"{v:.3g}"
+            ax.annotate(
+                text,
+                (bar.get_x() + bar.get_width() / 2, floor if np.isnan(v) else v),
+                ha="center",
+                va="bottom",
+                fontsize=8,
+            )
+    ax.set_xticks(x, [m.upper() for m in models])
+    ax.set_ylabel(f"{metric} RMS (nT)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    ax.set_title(title or "model comparison")
+    return fig
+
+
+def step_rms(
+    temp_c: list[float], rms_before_nt: list[float], rms_after_nt: list[float], title: str = ""
+) -> Figure:
+    """Residual RMS per temperature step, before and after calibration (log scale)."""
+    fig = new_figure(6.5, 3.4)
+    ax = fig.subplots()
+    ax.plot(temp_c, rms_before_nt, "o-", color=BEFORE_COLOUR, label="before calibration")
+    ax.plot(temp_c, rms_after_nt, "s-", color=AFTER_COLOUR, label="after calibration")
+    ax.set_yscale("log")
+    ax.set_xlabel("temperature step (°C)")
+    ax.set_ylabel("vector error RMS (nT)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    ax.set_title(title or "residual per temperature step")
+    return fig

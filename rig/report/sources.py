@@ -1,0 +1,269 @@
+"""What a report is made from: a session file, or a calibration file plus the CSV it was fitted on.
+
+Both roads end in `ReportInputs`: one Dataset per DUT, what the session knows about each temperature step
+(settle time, stability, failed points), flagged samples, session-level warnings and provenance.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rig import __version__
+from rig.errors import DataError, SessionError
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MAX_LISTED = 5  # how many point ids a warning names before "and N more"
+
+
+@dataclass
+class StepInfo:
+    """One temperature step as the session recorded it."""
+
+    temp_index: int
+    setpoint_c: float
+    points_planned: int = 0
+    points_done: int = 0
+    points_failed: int = 0
+    settle_s: float | None = None
+    stable: bool | None = None  # False: the step was sampled although the DUT never met the criteria
+
+
+@dataclass
+class DutInput:
+    name: str
+    dataset: object  # calib.dataset.Dataset
+    calibration: object | None = None  # a given calib.Calibration (from a file); None: fit here
+    flagged: dict[str, list[str]] = field(default_factory=dict)  # flag -> point ids of flagged samples
+    flagged_rows: Counter = field(default_factory=Counter)  # flag -> number of samples
+
+
+@dataclass
+class ReportInputs:
+    title: str
+    duts: list[DutInput]
+    steps: dict[int, StepInfo] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    provenance: list[tuple[str, str]] = field(default_factory=list)
+
+
+def is_session_file(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(SQLITE_MAGIC)) == SQLITE_MAGIC
+    except OSError:
+        return False
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def sha256_text(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def utc(t: float | None) -> str:
+    if t is None:
+        return "-"
+    return dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def listed(items: list[str]) -> str:
+    """`a, b, c` or `a, b, c, d, e and 7 more`."""
+    head = ", ".join(items[:MAX_LISTED])
+    return head if len(items) <= MAX_LISTED else f"{head} and {len(items) - MAX_LISTED} more"
+
+
+# ---------------------------------------------------------------------------------------------- session
+
+
+def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
+    """Everything the report needs from one session file (read-only)."""
+    from rig import store
+
+    path = Path(path)
+    summary = store.summarize(path)
+    names = [dut] if dut else summary["duts"]
+    if not names:
+        raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
+    info, points, events = _session_tables(path)
+    duts = []
+    for name in names:
+        ds = store.read_dataset(path, name)
+        _, rows = store.sample_rows(path, name)
+        flagged: dict[str, list[str]] = defaultdict(list)
+        flagged_rows: Counter = Counter()
+        for row in rows:
+            for flag in filter(None, row["flags"].split(",")):
+                flagged_rows[flag] += 1
+                if row["point"] not in flagged[flag]:
+                    flagged[flag].append(row["point"])
+        duts.append(DutInput(name, ds, None, dict(flagged), flagged_rows))
+    steps = _steps(points)
+    warnings = _session_warnings(summary, points, events, steps)
+    started = utc(info["started"])
+    provenance = [
+        ("session", f"{path.name} (started {started})"),
+        ("session file sha256", duts[0].dataset.source.get("sha256") or sha256_of(path)),
+        ("station", f"{info['station_name']} ({info['station_path'] or 'path not recorded'})"),
+        ("station text sha256", sha256_text(info["station_text"])),
+        ("plan", f"{info['plan_name']} ({info['plan_path'] or 'path not recorded'})"),
+        ("plan text sha256", sha256_text(info["plan_text"])),
+        ("operator", info["operator"] or "-"),
+        (
+            "simulated devices",
+            ", ".join(k for k, v in json.loads(info["simulated_json"]).items() if v) or "none",
+        ),
+        (
+            "run",
+            f"{started} to {utc(info['ended'])}; exit {info['exit_status'] or 'not recorded'}"
+            + (f" ({info['exit_reason']})" if info["exit_reason"] else ""),
+        ),
+        (
+            "points",
+            f"{summary['points_done']} done of {summary['points_planned']} planned, "
+            f"{summary['points_failed']} failed",
+        ),
+        ("recorded with", f"magrig {info['software_version']}"),
+        ("report made with", f"magrig {__version__}"),
+    ]
+    title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
+    return ReportInputs(title, duts, steps, warnings, provenance)
+
+
+def _session_tables(path: Path) -> tuple[dict, list[dict], list[dict]]:
+    """Session record, points and events. The store has no public reader for these, so they are read
+    through its verified read-only connection."""
+    import sqlite3
+
+    from rig import store
+
+    try:
+        with store._read_only(path) as conn:
+            info = dict(conn.execute("SELECT * FROM session").fetchone())
+            points = [dict(r) for r in conn.execute("SELECT * FROM points ORDER BY idx")]
+            events = [dict(r) for r in conn.execute("SELECT * FROM events ORDER BY id")]
+    except sqlite3.Error as exc:
+        raise SessionError(f"{path}: damaged session file: {exc}") from None
+    return info, points, events
+
+
+def _settle_fields(settle_json: str | None) -> tuple[float | None, bool | None]:
+    """(settle seconds, stable?) from a point's settle statistics, whatever subset of keys it has."""
+    if not settle_json:
+        return None, None
+    try:
+        d = json.loads(settle_json)
+    except ValueError:
+        return None, None
+    if not isinstance(d, dict):
+        return None, None
+    seconds = next(
+        (d[k] for k in ("settle_s", "temp_settle_s", "wait_s", "elapsed_s") if _num(d.get(k))), None
+    )
+    state = d.get("state", d.get("status", d.get("settle_state")))
+    stable = (
+        d.get("stable")
+        if isinstance(d.get("stable"), bool)
+        else (None if state is None else str(state).lower() == "stable")
+    )
+    if d.get("timed_out") is True or d.get("timeout") is True:
+        stable = False
+    return (None if seconds is None else float(seconds)), stable
+
+
+def _num(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def _steps(points: list[dict]) -> dict[int, StepInfo]:
+    steps: dict[int, StepInfo] = {}
+    for p in points:
+        s = steps.setdefault(p["temp_index"], StepInfo(p["temp_index"], p["setpoint_c"]))
+        s.points_planned += 1
+        s.points_done += p["state"] == "done"
+        s.points_failed += p["state"] == "failed"
+        seconds, stable = _settle_fields(p["settle_json"])
+        if seconds is not None:
+            s.settle_s = max(s.settle_s or 0.0, seconds)
+        if stable is not None:
+            s.stable = stable if s.stable is None else (s.stable and stable)
+    return steps
+
+
+def _session_warnings(summary: dict, points: list[dict], events: list[dict], steps: dict) -> list[str]:
+    out = []
+    if not summary["completed"]:
+        out.append(
+            f"run not completed: exit {summary['exit_status'] or 'not recorded'}"
+            + (f" ({summary['exit_reason']})" if summary["exit_reason"] else "")
+            + f"; {summary['points_done']} of {summary['points_planned']} points done"
+        )
+    failed = [p for p in points if p["state"] == "failed"]
+    if failed:
+        out.append(
+            f"{len(failed)} point(s) failed: " + listed([f"{p['id']} ({p['reason']})" for p in failed])
+        )
+    for s in steps.values():
+        if s.stable is False:
+            out.append(f"temperature step {s.temp_index} ({s.setpoint_c:g} °C) did not reach stability")
+    timeouts = [
+        e
+        for e in events
+        if "timeout" in (e["kind"] + " " + e["message"]).lower()
+        and ("settl" in (e["kind"] + " " + e["message"]).lower() or "stab" in e["message"].lower())
+    ]
+    if timeouts:
+        out.append(f"{len(timeouts)} settle timeout(s): " + listed([e["message"] for e in timeouts]))
+    holds = [e for e in events if e["kind"] == "hold" and e not in timeouts]
+    if holds:
+        out.append(f"{len(holds)} hold(s) during the run: " + listed([e["message"] for e in holds]))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- cal + CSV
+
+
+def from_calibration(
+    cal_path: str | Path, data_path: str | Path | None, dut: str | None = None
+) -> ReportInputs:
+    """A calibration file and the CSV it was fitted on (the CSV contract: hx,hy,hz[,temp][,bx,by,bz])."""
+    from calib import calfile, csvio
+
+    cal_path = Path(cal_path)
+    if data_path is None:
+        raise DataError(
+            f"{cal_path}: a calibration file needs the data it was fitted on: add --data DATA.csv"
+        )
+    data_path = Path(data_path)
+    cal = calfile.load(cal_path)
+    ds = csvio.read_csv(data_path)
+    name = dut or cal.source.get("dut") or data_path.stem
+    warnings = []
+    fitted_hash = cal.source.get("sha256")
+    data_hash = ds.source.get("sha256") or sha256_of(data_path)
+    if fitted_hash and fitted_hash != data_hash:
+        warnings.append(
+            f"{data_path.name} (sha256 {data_hash[:12]}...) is not the file the calibration was "
+            f"fitted on (sha256 {str(fitted_hash)[:12]}...): the residuals are on other data"
+        )
+    provenance = [
+        ("calibration file", f"{cal_path.name} (model {cal.model}, fitted {cal.created_utc or '-'})"),
+        ("calibration file sha256", sha256_of(cal_path)),
+        ("calibration fitted on", f"{cal.source.get('path', '-')} (sha256 {fitted_hash or '-'})"),
+        ("data file", f"{data_path.name}: {len(ds)} rows used of {ds.source.get('rows_total', len(ds))}"),
+        ("data file sha256", data_hash),
+        ("fitted with", f"magrig {cal.software_version}"),
+        ("report made with", f"magrig {__version__}"),
+    ]
+    title = f"Calibration report: {name} ({cal_path.name} on {data_path.name})"
+    return ReportInputs(title, [DutInput(name, ds, cal)], {}, warnings, provenance)

@@ -1,0 +1,219 @@
+"""Watlow F4T / F4 chamber drivers: literal frames, and the drivers against the pymodbus simulator."""
+
+from __future__ import annotations
+
+import pytest
+
+from drivers.chamber import ALARM_REGISTER, F4_SETPOINT, F4T_SETPOINT, WatlowF4, WatlowF4T
+from drivers.sim.chamber import ChamberSim
+from drivers.sim.modbus_server import ScriptedPeer
+from drivers.sim.world import World
+from drivers.transports.modbus import ModbusTransport
+from rig.clock import SimClock
+from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, LimitError, ProtocolError
+
+LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
+
+
+def transport(port: int, clock, *, rtu: bool = False) -> ModbusTransport:
+    where = {"serial_port": f"socket://127.0.0.1:{port}"} if rtu else {"host": "127.0.0.1", "port": port}
+    return ModbusTransport(name="chamber", timeout_s=0.2, clock=clock, **where)
+
+
+@pytest.fixture
+def clock():
+    return SimClock()
+
+
+@pytest.fixture
+def world(clock):
+    return World(clock, air_c=22.0, ramp_c_per_min=3.0)
+
+
+def f4t(port, clock, **kw):
+    return WatlowF4T(transport(port, clock), name="chamber", clock=clock, **LIMITS, **kw)
+
+
+# --- transcripts ----------------------------------------------------------------------------------
+def test_f4t_setpoint_frame_is_low_word_first(clock):
+    # 85.0 degC = 0x42AA0000 -> FC16 at 2782 (0x0ADE) with registers [0x0000, 0x42AA]
+    script = [
+        (
+            bytes.fromhex("0001 0000 000b 01 10 0ade 0002 04 0000 42aa"),
+            bytes.fromhex("0001 0000 0006 01 10 0ade 0002"),
+        )
+    ]
+    with ScriptedPeer(script) as peer:
+        chamber = f4t(peer.port, clock)
+        chamber.set(85.0)
+        chamber.close()
+    assert peer.received == [script[0][0]]
+
+
+def test_f4t_read_decodes_registers(clock):
+    script = [
+        # 27586 (0x6BC2): 23.5 degC = 0x41BC0000, low word first
+        (bytes.fromhex("0001 0000 0006 01 03 6bc2 0002"), bytes.fromhex("0001 0000 0007 01 03 04 0000 41bc")),
+        # 2782 setpoint: -20.0 = 0xC1A00000
+        (bytes.fromhex("0002 0000 0006 01 03 0ade 0002"), bytes.fromhex("0002 0000 0007 01 03 04 0000 c1a0")),
+        # input error (ours, 60001 = 0xEA61): 0; alarm (ours, 60000 = 0xEA60): 1
+        (bytes.fromhex("0003 0000 0006 01 03 ea61 0001"), bytes.fromhex("0003 0000 0005 01 03 02 0000")),
+        (bytes.fromhex("0004 0000 0006 01 03 ea60 0001"), bytes.fromhex("0004 0000 0005 01 03 02 0001")),
+    ]
+    with ScriptedPeer(script) as peer:
+        chamber = f4t(peer.port, clock)
+        reading = chamber.read()
+        chamber.close()
+    assert peer.received == [request for request, _ in script]
+    assert (reading.air_c, reading.setpoint_c, reading.input_error, reading.alarm) == (23.5, -20.0, False, True)
+    assert reading.fault and reading.t == clock.now()
+
+
+def test_f4t_ramp_frames(clock):
+    script = [
+        # ramp scale 2796 (0x0AEC) = 57 (degrees per minute)
+        (bytes.fromhex("0001 0000 0006 01 06 0aec 0039"), bytes.fromhex("0001 0000 0006 01 06 0aec 0039")),
+        # ramp rate 2798 (0x0AEE) = 2.0 = 0x40000000, low word first
+        (
+            bytes.fromhex("0002 0000 000b 01 10 0aee 0002 04 0000 4000"),
+            bytes.fromhex("0002 0000 0006 01 10 0aee 0002"),
+        ),
+        # ramp action 2794 (0x0AEA) = 85 (ramp on set point changes)
+        (bytes.fromhex("0003 0000 0006 01 06 0aea 0055"), bytes.fromhex("0003 0000 0006 01 06 0aea 0055")),
+    ]
+    with ScriptedPeer(script) as peer:
+        chamber = f4t(peer.port, clock)
+        chamber.set_ramp_rate(2.0)
+        chamber.close()
+    assert peer.received == [request for request, _ in script]
+
+
+def test_f4_legacy_over_rtu_reads_precision_then_scales(clock):
+    script = [
+        (bytes.fromhex("01 03 025e 0001 e460"), bytes.fromhex("01 03 02 0001 7984")),  # 606 precision = 1
+        (bytes.fromhex("01 03 0385 0001 95a7"), bytes.fromhex("01 03 02 0001 7984")),  # 901 units = degC
+        (bytes.fromhex("01 06 012c 0352 c8f2"), bytes.fromhex("01 06 012c 0352 c8f2")),  # SP 300 = 850
+        (bytes.fromhex("01 03 0064 0002 85d4"), bytes.fromhex("01 03 04 00e9 0000 2bc7")),  # PV 23.3, no error
+        (bytes.fromhex("01 03 012c 0001 443f"), bytes.fromhex("01 03 02 0352 3949")),  # SP 85.0
+        (bytes.fromhex("01 03 ea60 0001 b00c"), bytes.fromhex("01 03 02 0000 b844")),  # alarm (ours) 0
+    ]
+    with ScriptedPeer(script) as peer:
+        chamber = WatlowF4(transport(peer.port, clock, rtu=True), name="chamber", clock=clock, **LIMITS)
+        chamber.connect()
+        chamber.set(85.0)
+        reading = chamber.read()
+        chamber.close()
+    assert peer.received == [request for request, _ in script]
+    assert reading.air_c == pytest.approx(23.3) and reading.setpoint_c == 85.0 and not reading.fault
+
+
+# --- against the simulator ------------------------------------------------------------------------
+def test_setpoint_moves_the_world_air_on_simulated_time(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        chamber = f4t(sim.port, clock)
+        chamber.connect()
+        assert chamber.read().air_c == pytest.approx(22.0)
+        chamber.set(85.0)
+        clock.sleep(600.0)  # 10 min at 3 degC/min
+        reading = chamber.read()
+        assert reading.air_c == pytest.approx(52.0, abs=0.01) and reading.setpoint_c == 85.0
+        chamber.set_ramp_rate(1.0)
+        clock.sleep(600.0)
+        assert chamber.read().air_c == pytest.approx(62.0, abs=0.01)
+        chamber.safe_state()
+        assert world.setpoint_c == 25.0
+        chamber.close()
+
+
+def test_limit_violation_writes_nothing(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        chamber = f4t(sim.port, clock)
+        before = sim.register_values(F4T_SETPOINT, 2)
+        seen = sim.server.requests_seen
+        with pytest.raises(LimitError, match="chamber: setpoint 130.0 degC is above max_setpoint_c 125.0"):
+            chamber.set(130.0)
+        with pytest.raises(LimitError, match="below min_setpoint_c"):
+            chamber.set(-41.0)
+        with pytest.raises(LimitError, match="max_ramp_c_per_min"):
+            chamber.set_ramp_rate(6.0)
+        assert sim.server.requests_seen == seen + 0
+        assert sim.register_values(F4T_SETPOINT, 2) == before and world.setpoint_c == 22.0
+        chamber.close()
+
+
+def test_alarm_and_input_error_are_reported(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        chamber = f4t(sim.port, clock)
+        assert not chamber.read().fault
+        world.chamber_alarm = True
+        assert chamber.read().alarm
+        world.chamber_alarm = False
+        sim.input_error = True
+        reading = chamber.read()
+        assert reading.input_error and not reading.alarm and reading.fault
+        chamber.close()
+
+
+def test_controller_refuses_out_of_range_setpoint(world, clock):
+    with ChamberSim(world, "f4t", range_c=(-70.0, 180.0)) as sim:
+        link = transport(sim.port, clock)
+        with pytest.raises(ProtocolError, match="exception reply 3 \\(illegal data value\\)"):
+            link.write_float32(F4T_SETPOINT, 500.0, word_order="little")
+        assert world.setpoint_c == 22.0
+        link.close()
+
+
+def test_timeout_names_device_and_operation(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        chamber = f4t(sim.port, clock)
+        chamber.read()
+        sim.silence(3)
+        with pytest.raises(DeviceTimeout) as err:
+            chamber.set(85.0)
+        assert str(err.value) == "chamber: write setpoint 85.0 degC: no reply within 0.2 s (after 3 tries)"
+        chamber.set(40.0)  # the link recovers once the device answers again
+        assert world.setpoint_c == 40.0
+        chamber.close()
+
+
+def test_unplugged_chamber_is_not_found_then_recovers(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        chamber = f4t(sim.port, clock)
+        chamber.read()
+        sim.unplug()
+        with pytest.raises(DeviceNotFound, match="chamber: read chamber temperature: connection refused"):
+            chamber.read()
+        sim.replug()
+        assert chamber.read().air_c == pytest.approx(22.0)
+        chamber.close()
+
+
+@pytest.mark.parametrize(("decimals", "units_c"), [(0, True), (2, True), (1, False)])
+def test_f4_legacy_scaling_and_units(world, clock, decimals, units_c):
+    with ChamberSim(world, "f4", decimals=decimals, units_c=units_c, framing="rtu") as sim:
+        chamber = WatlowF4(transport(sim.port, clock, rtu=True), name="chamber", clock=clock, **LIMITS)
+        chamber.connect()
+        chamber.set(-20.0)
+        assert world.setpoint_c == pytest.approx(-20.0, abs=0.05)
+        raw = sim.register_values(F4_SETPOINT, 1)[0]
+        expected = -20.0 if units_c else -4.0  # -20 degC = -4 degF
+        assert raw == (round(expected * 10**decimals) & 0xFFFF)
+        world.chamber_alarm = True
+        reading = chamber.read()
+        assert reading.setpoint_c == pytest.approx(-20.0, abs=0.05) and reading.alarm
+        assert sim.register_values(ALARM_REGISTER, 1) == [1]
+        with pytest.raises(ConfigError, match="no ramp-rate register"):
+            chamber.set_ramp_rate(1.0)
+        chamber.close()
+
+
+def test_safe_setpoint_must_be_inside_limits(clock):
+    with pytest.raises(ConfigError, match="safe_setpoint_c 150"):
+        WatlowF4T(transport(1, clock), name="chamber", clock=clock, **{**LIMITS, "safe_setpoint_c": 150.0})
+
+
+def test_describe_names_model_and_link(world, clock):
+    with ChamberSim(world, "f4t") as sim:
+        info = f4t(sim.port, clock).describe()
+    assert info["model"].startswith("Watlow F4T") and info["word_order"] == "little"
+    assert info["link"] == f"tcp 127.0.0.1:{sim.port}" and info["max_setpoint_c"] == 125.0

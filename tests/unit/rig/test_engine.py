@@ -1,0 +1,234 @@
+"""The engine with tiny fake devices and steps: every exit path ends safe, holds retake, events recorded."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from rig.clock import SimClock
+from rig.engine import (
+    ABORTED,
+    COMPLETED,
+    FAILED,
+    Checkpoint,
+    CollectPoint,
+    Engine,
+    Hold,
+    MoveField,
+    SetChamber,
+    Step,
+)
+from rig.errors import DeviceTimeout
+
+
+class FakeDevice:
+    def __init__(self, name: str, fail_safe: bool = False):
+        self.name = name
+        self.safe_calls = 0
+        self.fail_safe = fail_safe
+
+    def safe_state(self) -> None:
+        self.safe_calls += 1
+        if self.fail_safe:
+            raise OSError("bus gone")
+
+
+class MemorySession:
+    """Keeps what the engine records, like rig.store.Session does (events, exit status)."""
+
+    def __init__(self):
+        self.events: list[tuple[str, str, dict]] = []
+        self.points: list[str] = []
+        self.finished: tuple[str, str] | None = None
+
+    def log_event(self, kind, message, **data):
+        self.events.append((kind, message, data))
+
+    def finish(self, status, reason):
+        self.finished = (status, reason)
+
+    def kinds(self) -> list[str]:
+        return [k for k, _, _ in self.events]
+
+
+class Rig:
+    """Handlers over fake devices; `faults` maps point id -> exceptions to raise on successive takes."""
+
+    def __init__(self, session: MemorySession, faults=None, on_collect=None):
+        self.session = session
+        self.coils = FakeDevice("coils")
+        self.chamber = FakeDevice("chamber")
+        self.devices = [self.coils, self.chamber]
+        self.faults = {k: list(v) for k, v in (faults or {}).items()}
+        self.on_collect = on_collect
+        self.commands: list[object] = []
+        self.takes: list[tuple[str, bool]] = []
+
+    def handle(self, command):
+        self.commands.append(command)
+        if isinstance(command, CollectPoint):
+            pending = self.faults.get(command.point)
+            if pending:
+                raise pending.pop(0)
+            self.session.points.append(command.point)
+            if self.on_collect:
+                self.on_collect(command.point)
+        return None
+
+    def handlers(self):
+        return {c: self.handle for c in (SetChamber, MoveField, CollectPoint, Checkpoint)}
+
+    def steps(self, ids):
+        def make(pid):
+            def gen(retake):
+                self.takes.append((pid, retake))
+                yield SetChamber(25.0)
+                yield MoveField((1.0, 0.0, 0.0))
+                yield CollectPoint(pid)
+                yield Checkpoint(pid)
+            return gen
+        return [Step(pid, make(pid)) for pid in ids]
+
+
+def make_engine(rig: Rig, session: MemorySession, **kw) -> Engine:
+    kw.setdefault("hold_wait_s", 30.0)
+    return Engine(rig.handlers(), devices=rig.devices, clock=SimClock(), session=session, **kw)
+
+
+IDS = ["T01-F01", "T01-F02", "T02-F01", "T02-F02"]
+
+
+def test_completed_run_takes_every_point_once_and_ends_safe():
+    session = MemorySession()
+    rig = Rig(session)
+    result = make_engine(rig, session).run(rig.steps(IDS))
+    assert result.status == COMPLETED and result.points_done == 4
+    assert session.points == IDS
+    assert session.finished[0] == COMPLETED
+    assert rig.coils.safe_calls == 1 and rig.chamber.safe_calls == 1
+    assert session.kinds()[-2:] == ["safe_state", "exit"]
+
+
+def test_resume_skips_done_points():
+    session = MemorySession()
+    rig = Rig(session)
+    result = make_engine(rig, session).run(rig.steps(IDS), done_ids={"T01-F01", "T01-F02"})
+    assert session.points == ["T02-F01", "T02-F02"]
+    assert result.points_done == 4
+
+
+def test_hold_retakes_the_point_with_resettle_then_continues():
+    session = MemorySession()
+    rig = Rig(session, faults={"T01-F02": [Hold("chamber alarm"), DeviceTimeout("dut1", "read", "no reply")]})
+    engine = make_engine(rig, session, max_retakes=3)
+    clock = engine.clock
+    t0 = clock.now()
+    result = engine.run(rig.steps(IDS))
+    assert result.status == COMPLETED
+    assert session.points == IDS  # retaken point recorded once
+    assert rig.takes.count(("T01-F02", True)) == 2
+    holds = [m for k, m, _ in session.events if k == "hold"]
+    assert len(holds) == 2 and "chamber alarm" in holds[0] and "dut1: read" in holds[1]
+    assert clock.now() - t0 >= 2 * 30.0  # held on the clock before each retake
+
+
+def test_too_many_retakes_abort_with_the_reason_and_end_safe():
+    session = MemorySession()
+    rig = Rig(session, faults={"T02-F01": [Hold("DUT temperature out of band")] * 5})
+    result = make_engine(rig, session, max_retakes=2).run(rig.steps(IDS))
+    assert result.status == ABORTED
+    assert "T02-F01" in result.reason and "out of band" in result.reason
+    assert session.points == ["T01-F01", "T01-F02"]
+    assert session.finished == (ABORTED, result.reason)
+    assert rig.coils.safe_calls == 1 and rig.chamber.safe_calls == 1
+
+
+def test_pause_makes_safe_then_resume_retakes_the_interrupted_point():
+    session = MemorySession()
+    answers = []
+    engine_box = {}
+
+    def ctrl_c_after_first(pid):
+        if pid == "T01-F01":
+            engine_box["engine"].request_pause()  # what the SIGINT handler calls
+
+    rig = Rig(session, on_collect=ctrl_c_after_first)
+
+    def prompt(message):
+        answers.append(message)
+        return "resume"
+
+    engine = make_engine(rig, session, prompt=prompt)
+    engine_box["engine"] = engine
+    result = engine.run(rig.steps(IDS))
+    assert result.status == COMPLETED
+    assert session.points == IDS  # the point before the pause is kept, nothing twice
+    assert len(answers) == 1 and "T01-F01" in answers[0]
+    # safe on pause, and again at the end
+    assert rig.coils.safe_calls == 2 and rig.chamber.safe_calls == 2
+    assert ["pause", "safe_state", "resume"] == [k for k in session.kinds() if k in
+                                                  ("pause", "resume", "safe_state")][:3]
+    assert ("T01-F02", True) in rig.takes  # resumed with a re-settle
+
+
+def test_pause_without_prompt_aborts_cleanly():
+    session = MemorySession()
+    engine_box = {}
+    rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_pause())
+    engine = make_engine(rig, session, prompt=None)
+    engine_box["engine"] = engine
+    result = engine.run(rig.steps(IDS))
+    assert result.status == ABORTED
+    assert session.points == ["T01-F01"]
+    assert session.finished[0] == ABORTED
+    assert rig.coils.safe_calls >= 1 and rig.chamber.safe_calls >= 1
+
+
+def test_sigterm_style_abort_stops_before_the_next_command():
+    session = MemorySession()
+    engine_box = {}
+    rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_abort("SIGTERM"))
+    engine = make_engine(rig, session)
+    engine_box["engine"] = engine
+    result = engine.run(rig.steps(IDS))
+    assert (result.status, result.reason) == (ABORTED, "SIGTERM")
+    assert session.points == ["T01-F01"]
+    assert not any(isinstance(c, SetChamber) for c in rig.commands[4:])
+
+
+def test_unexpected_error_fails_the_run_and_one_failing_device_does_not_skip_the_others():
+    session = MemorySession()
+    rig = Rig(session, faults={"T01-F01": [ZeroDivisionError("bug")]})
+    rig.coils.fail_safe = True
+    result = make_engine(rig, session).run(rig.steps(IDS))
+    assert result.status == FAILED and "ZeroDivisionError" in result.reason
+    assert rig.chamber.safe_calls == 1
+    safe_events = [m for k, m, _ in session.events if k == "safe_state"]
+    assert "FAILED on coils" in safe_events[-1]
+
+
+def test_magrig_warnings_become_session_events_during_the_run():
+    session = MemorySession()
+
+    def warn(pid):
+        logging.getLogger("magrig.transport").warning("dut1: read: try 1 of 3 failed", extra={"device": "dut1"})
+        logging.getLogger("other").warning("not ours")
+
+    rig = Rig(session, on_collect=warn)
+    make_engine(rig, session).run(rig.steps(IDS[:1]))
+    warnings = [(m, d) for k, m, d in session.events if k == "warning"]
+    assert warnings == [("dut1: read: try 1 of 3 failed", {"logger": "magrig.transport", "device": "dut1"})]
+    # the handler is detached after the run
+    logging.getLogger("magrig.transport").warning("after")
+    assert len([k for k in session.kinds() if k == "warning"]) == 1
+
+
+@pytest.mark.parametrize("answer", ["abort", "anything"])
+def test_only_resume_resumes(answer):
+    session = MemorySession()
+    engine_box = {}
+    rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_pause())
+    engine = make_engine(rig, session, prompt=lambda m: answer)
+    engine_box["engine"] = engine
+    assert engine.run(rig.steps(IDS)).status == ABORTED
