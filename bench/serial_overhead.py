@@ -90,30 +90,37 @@ def main() -> None:
         report("pyserial only, polled", *timed(raw_poll, n), poll_wire_s)
         raw.close()
 
-        mag = SerialMagnetometer.from_port(sim.path, name="dut1", clock=world.clock, baudrate=baud,
-                                           set_reset="off")
-        mag.connect()
-        report("driver read(), polled", *timed(mag.read, n), poll_wire_s)
-        mag.close()
+        def connected(set_reset: str) -> SerialMagnetometer:
+            mag = SerialMagnetometer.from_port(
+                sim.path, name="dut1", clock=world.clock, baudrate=baud, set_reset=set_reset
+            )
+            mag.connect()
+            return mag
 
-        pulsed = SerialMagnetometer.from_port(sim.path, name="dut1", clock=world.clock, baudrate=baud)
-        pulsed.connect()
+        plain = connected("off")
+        report("driver read(), polled", *timed(plain.read, n), poll_wire_s)
+        plain.close()
+
+        pulsed = connected("pulse")
         pulse_wire_s = 2 * poll_wire_s + 2 * (line_time_s(len(b"*00]S\r"), baud) + line_time_s(4, baud))
         report("driver read(), SET/RESET", *timed(pulsed.read, max(1, n // 3)), pulse_wire_s)
+        pulsed.close()
 
-        pulsed.set_rate(MAX_RATE_HZ)
-        pulsed.set_reset = "auto"  # stream without the offset pair, to time the stream alone
-        pulsed.read_stream(5)  # warm-up
+        streamer = connected("off")  # no offset pair before the stream: time the stream alone
+        streamer.set_rate(MAX_RATE_HZ)
+        streamer.read_stream(5)  # warm-up
         t0, cpu0 = time.perf_counter(), time.thread_time()
-        samples = pulsed.read_stream(n)
+        samples = streamer.read_stream(n)
         wall_s = (time.perf_counter() - t0) / len(samples)
         cpu_s = (time.thread_time() - cpu0) / len(samples)
-        pulsed.safe_state()
-        pulsed.close()
-    print(f"{'driver read_stream(), 154 Hz':<26} wall per sample {us(wall_s)} (device period {us(period_s)}); "
-          f"caller CPU {us(cpu_s)} = {cpu_s / period_s:.1%} of the period, "
-          f"{cpu_s / reply_s:.1%} of the line time")
-    print(f"lines the simulator dropped (nobody reading): {sim._link.dropped_bytes} bytes")
+        streamer.safe_state()
+        streamer.close()
+    print(
+        f"{'driver read_stream(), 154 Hz':<26} wall per sample {us(wall_s)} (period {us(period_s)}); "
+        f"caller CPU {us(cpu_s)} = {cpu_s / period_s:.1%} of the period, "
+        f"{cpu_s / reply_s:.1%} of the line time"
+    )
+    print(f"lines the simulator dropped (nobody reading): {sim.dropped_bytes} bytes")
 
 
 if __name__ == "__main__":

@@ -98,7 +98,7 @@ def _read_arrays(d: dict, section: str, model: str, where: str, required: set | 
         raise DataError(f"{where}: key {section!r} is missing or not a mapping")
     shapes = {**models.PARAM_SHAPES[model], **models.OPTIONAL_PARAMS[model]}
     needed = set(models.PARAM_SHAPES[model]) if required is None else required
-    for name in needed:
+    for name in [k for k in shapes if k in needed]:
         if name not in block:
             raise DataError(f"{where}: key '{section}.{name}' is missing (model {model})")
     out = {}

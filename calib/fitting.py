@@ -20,6 +20,7 @@ def fit(
     temp_ref_c: float | None = None,
     field_norm_nt: float | None = None,
     temperature_terms: bool | None = None,
+    balance_orientations: bool = False,
 ) -> Calibration:
     """Fit `model` ("t24", "p12" or "scalar") to `ds`.
 
@@ -38,7 +39,8 @@ def fit(
     elif model == "scalar":
         def fit_weighted(w):
             return scalar.fit_weighted(
-                ds, w, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt, temperature_terms=temperature_terms
+                ds, w, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt, temperature_terms=temperature_terms,
+                balance_orientations=balance_orientations,
             )
     else:
         raise DataError(f"unknown model {model!r}: choose t24, p12 or scalar")
@@ -50,12 +52,13 @@ def fit(
     used = ~flagged
     field = cal.apply(ds.h_nt, ds.temp_c)
     stats = dict(cal.stats)
-    stats.update(residual_stats(ds, field, vector=model != "scalar", used=used))
+    norm = stats.get("field_norm_nt")  # scalar model with one constant |B|
+    stats.update(residual_stats(ds, field, vector=model != "scalar", used=used, norm_nt=norm))
     stats.update({"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust})
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
     cal.stats = stats
-    cal.source = {**ds.source, "rows_used": int(used.sum())}
+    cal.source = {**ds.source, "rows_used": int(used.sum()), "rows_rejected": int(flagged.sum())}
     cal.outliers = flagged
     return cal
 

@@ -110,6 +110,13 @@ class _ScaledSystem:
                 f"T24: all samples within {span:.2f} degC (at {mid:.1f} degC): the temperature terms "
                 "K and kb are not identifiable; add a temperature step or fit P12"
             )
+        flat = _missing_field_direction(acc)
+        if flat is not None:
+            raise FitError(
+                "T24: the reference field spans fewer than three directions (nothing along "
+                f"[{flat[0]:.2f}, {flat[1]:.2f}, {flat[2]:.2f}]): the matrices S and K are not identifiable; "
+                "add coil directions out of that plane"
+            )
         self.acc = acc
         g = acc.gram[:N_PARAMS, :N_PARAMS]
         d = np.sqrt(np.diag(g))
@@ -197,30 +204,26 @@ def _unpack(beta: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
+def _missing_field_direction(acc: GramAccumulator) -> np.ndarray | None:
+    """The direction the reference field never varies along (unit vector), if any.
+
+    Judged on the reference vectors, which carry no sensor noise, so a planar coil sequence is caught
+    even though noisy raw readings scatter out of the plane.
+    """
+    g = acc.gram
+    mean_b = g[0, N_PARAMS:] / acc.n
+    cov_b = g[N_PARAMS:, N_PARAMS:] / acc.n - np.outer(mean_b, mean_b)
+    ev, evec = np.linalg.eigh(cov_b)
+    return evec[:, 0] if ev[0] <= 1e-6 * max(ev[-1], 1e-300) else None
+
+
 def _explain_null_space(acc: GramAccumulator, null_vec: np.ndarray) -> str:
     """A sentence naming the parameters a (near-)singular design cannot separate, and what would help."""
-    g = acc.gram
-    n = acc.n
-    mean_h = g[0, 2:5] / n
-    cov_h = g[2:5, 2:5] / n - np.outer(mean_h, mean_h)
-    ev, evec = np.linalg.eigh(cov_h)
-    if ev[0] <= 1e-10 * max(ev[-1], 1e-300):
-        flat = evec[:, 0]
-        return (
-            "T24: the readings span fewer than three field directions (no variation along sensor direction "
-            f"[{flat[0]:.2f}, {flat[1]:.2f}, {flat[2]:.2f}]): columns of S and K and the offsets are not "
-            "identifiable; add coil directions out of that plane"
-        )
     weight = null_vec**2
     groups: dict[str, float] = {}
     for name, wgt in zip(GROUP_OF_PARAM, weight, strict=True):
         groups[name] = groups.get(name, 0.0) + float(wgt)
     involved = [name for name, wgt in sorted(groups.items(), key=lambda kv: -kv[1]) if wgt > 0.05]
-    if set(involved) <= {"K", "offset drift kb"}:
-        hint = "add field directions at a second temperature step, or fit P12"
-    else:
-        hint = "add more field directions at each temperature step"
-    return (
-        f"T24: the design is singular: {' and '.join(involved)} cannot be separated from each other with "
-        f"these samples; {hint}"
-    )
+    hint = "add field directions out of a plane at two or more temperature steps, or fit P12"
+    what = f"{involved[0]} is" if len(involved) == 1 else f"{' and '.join(involved)} are"
+    return f"T24: the design is singular: {what} not identifiable from these samples; {hint}"

@@ -36,11 +36,9 @@ def _row_fits(ds: Dataset, weights: np.ndarray | None):
     for i in range(3):
         x = np.column_stack([ds.ref_nt[:, : i + 1], np.ones(n)])
         scale = np.linalg.norm(x * sw, axis=0)
-        if np.any(scale == 0):
-            raise FitError(f"P12 axis {i + 1}: the reference field is zero along every direction it needs")
-        xs = x * sw / scale
+        xs = x * sw / np.where(scale > 0, scale, 1.0)
         u, s, vt = np.linalg.svd(xs, full_matrices=False)
-        if s[-1] < RCOND_SINGULAR**0.5 * s[0]:
+        if np.any(scale == 0) or s[-1] < RCOND_SINGULAR**0.5 * s[0]:
             raise FitError(
                 f"P12 axis {i + 1}: scale factor and angles are not identifiable: the reference field does not "
                 f"vary independently along B1..B{i + 1}; add field directions"

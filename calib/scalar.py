@@ -36,6 +36,10 @@ def _field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, s
     return np.full(len(ds), radius), f"unknown; scaled to the raw mean radius {radius:.6g} nT"
 
 
+def _constant_norm(fn_nt: np.ndarray) -> dict:
+    return {"field_norm_nt": float(fn_nt[0])} if np.ptp(fn_nt) == 0 else {}
+
+
 def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ellipsoid through scaled readings hn with known scaled norms fn: returns (A upper, c)."""
     x, y, z = hn.T
@@ -130,6 +134,22 @@ def _levenberg_marquardt(theta, hn, fn, t, w, temp: bool):
     return theta, r, jac
 
 
+def orientation_balance_weights(field_nt: np.ndarray, angle_deg: float = 20.0,
+                                max_reference: int = 4000) -> np.ndarray:
+    """Weights ~ 1 / (share of samples within angle_deg of each sample's direction), mean 1.
+
+    Hand-held recordings dwell on some orientations; balancing keeps those from dominating the fit, so
+    the calibration holds better on orientations it saw less. Density is counted against at most
+    `max_reference` evenly spaced samples, so the cost stays linear in N.
+    """
+    u = field_nt / np.linalg.norm(field_nt, axis=1, keepdims=True)
+    ref = u[:: max(1, len(u) // max_reference)]
+    cos_limit = np.cos(np.radians(angle_deg))
+    counts = np.concatenate([np.sum(u[lo : lo + 2048] @ ref.T > cos_limit, axis=1) for lo in range(0, len(u), 2048)])
+    w = 1.0 / np.maximum(counts, 1)
+    return w * (len(w) / w.sum())
+
+
 def fit_weighted(
     ds: Dataset,
     weights: np.ndarray | None,
@@ -137,13 +157,20 @@ def fit_weighted(
     temp_ref_c: float | None = None,
     field_norm_nt: float | None = None,
     temperature_terms: bool | None = None,
+    balance_orientations: bool = False,
 ):
     """(Calibration, |B| residuals (N,)) of a weighted scalar fit.
 
     field_norm_nt: one known |B| for every sample; else ref_norm_nt, else |ref_nt|, else unknown (the
     output is then scaled to the raw readings' mean radius). temperature_terms: None = on when the data
-    has a temperature column spanning at least MIN_TEMP_SPAN_C.
+    has a temperature column spanning at least MIN_TEMP_SPAN_C. balance_orientations: multiply the
+    weights by `orientation_balance_weights` of the field directions of a first, unbalanced fit.
     """
+    if balance_orientations:
+        first, _ = fit_weighted(ds, weights, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
+                                temperature_terms=temperature_terms)
+        balance = orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
+        weights = balance if weights is None else weights * balance
     n = len(ds)
     w = np.ones(n) if weights is None else np.asarray(weights, float)
     fn_nt, norm_source = _field_norm(ds, field_norm_nt)
@@ -192,7 +219,8 @@ def fit_weighted(
         params=params,
         std_errors=std_errors,
         temp_ref_c=ref_c,
-        stats={"field_norm": norm_source, "sigma_nt": float(np.sqrt(sigma2) * size), "temperature_terms": temp},
+        stats={"field_norm": norm_source, **_constant_norm(fn_nt), "balance_orientations": balance_orientations,
+               "sigma_nt": float(np.sqrt(sigma2) * size), "temperature_terms": temp},
         source={"kind": "dataset"},
     )
     return cal, r * size

@@ -43,17 +43,20 @@ def known_norm(ds: Dataset) -> np.ndarray | None:
     return None
 
 
-def residual_stats(ds: Dataset, field_nt: np.ndarray, *, vector: bool, used: np.ndarray | None = None) -> dict:
+def residual_stats(
+    ds: Dataset, field_nt: np.ndarray, *, vector: bool, used: np.ndarray | None = None, norm_nt=None
+) -> dict:
     """RMS before (raw h against the reference) and after calibration, on the rows marked `used`.
 
-    vector=True compares field vectors with ref_nt (T24, P12); otherwise magnitudes with the known |B|.
+    vector=True compares field vectors with ref_nt (T24, P12); otherwise magnitudes with norm_nt
+    (a constant or per-sample array; default: the known |B| of the dataset).
     """
     used = np.ones(len(ds), bool) if used is None else used
     if vector:
         after = field_nt - ds.ref_nt
         before = ds.h_nt - ds.ref_nt
     else:
-        norm = known_norm(ds)
+        norm = known_norm(ds) if norm_nt is None else norm_nt
         after = np.linalg.norm(field_nt, axis=1) - norm
         before = np.linalg.norm(ds.h_nt, axis=1) - norm
     stats: dict = {

@@ -173,12 +173,14 @@ class MMC5983MA(Device):
         }
 
     def read(self) -> FieldSample:
-        """One field sample (and the temperature, if enabled); in continuous mode the next new one."""
+        """One field sample (and the temperature, if enabled); in continuous mode the next new one.
+        t is the start of a triggered measurement, or when continuous-mode data arrived."""
         t = self.clock.now()
         offset_nt = None
         codes_reset: tuple[int, ...] = ()
         if self.continuous_hz is not None:
             codes = self._read_continuous_codes()
+            t = self.clock.now()  # when the new data was seen, not when we started waiting
             field_nt = tuple(code_to_nt(c) for c in codes)
         elif self.set_reset:
             self.pulse(CONTROL0_SET)

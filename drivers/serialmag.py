@@ -181,20 +181,20 @@ class SerialMagnetometer(Device):
             self.pulse(1)
         self._configured_open_count = self.transport.open_count
 
-    def _expect(self, line: bytes, wanted: bytes, sent: bytes) -> bytes:
+    def _expect(self, line: bytes, wanted: bytes, sent: bytes, operation: str) -> bytes:
         if line == wanted:
             return line
         if line.endswith(WRONG_ENTRY):
-            raise ProtocolError(self.name, "reply", f"device answered Re-enter to {sent!r}")
-        raise ProtocolError(self.name, "reply", f"expected {wanted!r} after {sent!r}, got {line!r}")
+            raise ProtocolError(self.name, operation, f"device answered Re-enter to {sent!r}")
+        raise ProtocolError(self.name, operation, f"expected {wanted!r} after {sent!r}, got {line!r}")
 
     def _setting(self, body: str, operation: str) -> None:
         """Write-enable, then one setting command; the pair is retried together."""
         we, cmd = self._cmd("WE"), self._cmd(body)
 
         def once() -> None:
-            self._expect(self.transport.exchange(we, operation=operation), OK, we)
-            self._expect(self.transport.exchange(cmd, operation=operation), OK, cmd)
+            self._expect(self.transport.exchange(we, operation=operation), OK, we, operation)
+            self._expect(self.transport.exchange(cmd, operation=operation), OK, cmd, operation)
 
         self.transport.retry(once, operation=operation)
 
@@ -221,7 +221,8 @@ class SerialMagnetometer(Device):
         cmd = self._cmd(PULSE_COMMAND[polarity])
         operation = "set pulse" if polarity > 0 else "reset pulse"
         self.transport.query(
-            cmd, operation=operation, parse=lambda line: self._expect(line, PULSE_REPLY[polarity], cmd)
+            cmd, operation=operation,
+            parse=lambda line: self._expect(line, PULSE_REPLY[polarity], cmd, operation),
         )
 
     def query_setup(self) -> str:
@@ -262,8 +263,7 @@ class SerialMagnetometer(Device):
             self._ensure_configured()
             opened = self.transport.open_count
             if self.set_reset != "pulse":
-                counts = self.poll_counts()
-                return self._sample(counts, None, _saturated(counts))
+                return self._sample(self.poll_counts(), None)
             reset, set_ = self._pulsed_pair()
             if self.transport.open_count != opened:  # reconnected mid-sequence: polarity unknown
                 self._warn("reconnected during a SET/RESET read; repeating it")
@@ -275,12 +275,13 @@ class SerialMagnetometer(Device):
             )
         raise DeviceError(self.name, "read", "the port kept reconnecting during the SET/RESET sequence")
 
-    def _sample(self, counts, offset_nt, flags) -> FieldSample:
+    def _sample(self, counts, offset_nt) -> FieldSample:
+        """A sample from one reading; a known bridge offset is subtracted."""
         field = counts_to_nt(counts)
         if offset_nt is not None:
             field = tuple(f - o for f, o in zip(field, offset_nt, strict=True))
         return FieldSample(
-            t=self.clock.now(), field_nt=field, counts=counts, offset_nt=offset_nt, flags=flags
+            t=self.clock.now(), field_nt=field, counts=counts, offset_nt=offset_nt, flags=_saturated(counts)
         )
 
     def read_stream(self, n: int) -> list[FieldSample]:
@@ -307,7 +308,7 @@ class SerialMagnetometer(Device):
                     self.clock.sleep(self.transport.backoff_s)
                     continue
                 failures = 0
-                samples.append(self._sample(counts, offset_nt, _saturated(counts)))
+                samples.append(self._sample(counts, offset_nt))
         finally:
             self._stop_stream_quietly()
         return samples
@@ -325,7 +326,7 @@ class SerialMagnetometer(Device):
     def _stop_stream(self) -> None:
         """Esc, then drop the tail of a stream that was in flight."""
         self.transport.write(ESC, operation="stop stream")
-        quiet_s = 2 * line_time_s(LINE_BYTES, self.transport.baudrate) + 0.01
+        quiet_s = 2 * line_time_s(LINE_BYTES, self.transport.baudrate) + 0.05  # + scheduling slack
         self.transport.discard_input(quiet_s)
 
     def _stop_stream_quietly(self) -> None:

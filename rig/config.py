@@ -11,7 +11,8 @@ Station (what is on the bench):
     temperature_sensors [{name, type, transport, beside}].
 Simulation is explicit: a device is simulated exactly when its transport is `{kind: sim}`
 (`device.simulated`), and `Station.simulated_devices()` is what a session records. Nothing falls back to
-a simulator on failure.
+a simulator on failure. `Station.sim_ambient_nt()`, `sim_site_field_nt()`, `sim_dut_truths()` give the
+simulated world's truth with its defaults applied.
 
 Plan (what to do): name; station (path relative to the plan file, optional; the CLI overrides it);
 mode (only `step_and_dwell` today: each point is collected at a stable temperature; every sample still
@@ -39,6 +40,7 @@ from rig.yamlload import KeyPathError, load_model, read_text
 CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_STATION = CONFIGS_DIR / "stations" / "sim.yaml"
 
+TYPICAL_FIELD_NT = (19_136.0, 891.0, 45_594.0)  # WMM at 52 N 5 E, 2026: used when nothing is stated
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 PositiveFloat = Annotated[float, Field(gt=0)]
@@ -282,11 +284,10 @@ class SimDut(Strict):
 
 
 class SimWorld(Strict):
-    """Truth of the simulated world. Random DUT truths come from numpy's default_rng(seed), drawn with
-    drivers.sim.world.DutTruth.random in the order of the station's `duts` list."""
+    """Truth of the simulated world; use `Station.sim_*` for the values with their defaults applied."""
 
     seed: int = 0
-    ambient_nt: Vec3 = (0.0, 0.0, 0.0)
+    ambient_nt: Vec3 | None = Field(None, description="default: the coils' ambient_nt, when given")
     site_field_nt: Vec3 | None = Field(None, description="default: the turntable's site field")
     air_c: float = 22.0
     duts: dict[str, SimDut] = {}
@@ -341,6 +342,51 @@ class Station(Strict):
         """{device name: simulated?} - recorded in every session."""
         return {dev.name: dev.simulated for dev in self.devices()}
 
+    # --- the simulated world, defaults applied ------------------------------------------------------
+    def sim_ambient_nt(self) -> np.ndarray:
+        """True ambient field (lab frame): sim.ambient_nt, else the coils' stated ambient, else a
+        typical mid-latitude field."""
+        if self.sim.ambient_nt is not None:
+            return np.asarray(self.sim.ambient_nt, float)
+        stated = getattr(self.field_source, "ambient_nt", None)
+        return np.asarray(TYPICAL_FIELD_NT if stated in (None, "measure") else stated, float)
+
+    def sim_site_field_nt(self) -> np.ndarray:
+        """True site field (NED): sim.site_field_nt, else the turntable's stated vector or model."""
+        if self.sim.site_field_nt is not None:
+            return np.asarray(self.sim.site_field_nt, float)
+        if isinstance(self.field_source, Turntable):
+            from rig.reference import station_site_field_nt
+
+            stated = station_site_field_nt(self.field_source)
+            if stated is not None:
+                return stated
+        return np.asarray(TYPICAL_FIELD_NT, float)
+
+    def sim_dut_truths(self) -> dict:
+        """{DUT name: drivers.sim.world.DutTruth} for the simulated DUTs. A random truth is drawn from
+        default_rng([seed, position in duts]), so changing one DUT leaves the others' truths alone."""
+        from drivers.sim.world import DutTruth
+
+        out = {}
+        for i, dut in enumerate(self.duts):
+            if not dut.simulated:
+                continue
+            spec = self.sim.duts.get(dut.name, SimDut())
+            if spec.truth == "random":
+                rng = np.random.default_rng([self.sim.seed, i])
+                out[dut.name] = DutTruth.random(rng, noise_nt=spec.noise_nt, thermal_lag_s=spec.thermal_lag_s)
+            else:
+                t = spec.truth
+                out[dut.name] = DutTruth(
+                    S=np.asarray(t.S, float), K=np.asarray(t.K, float), b_nt=np.asarray(t.b_nt, float),
+                    kb_nt_per_c=np.asarray(t.kb_nt_per_c, float),
+                    bridge_offset_nt=np.asarray(t.bridge_offset_nt, float),
+                    bridge_offset_tc_nt_per_c=np.asarray(t.bridge_offset_tc_nt_per_c, float),
+                    noise_nt=spec.noise_nt, thermal_lag_s=spec.thermal_lag_s,
+                )
+        return out
+
     def dut(self, name: str) -> Dut:
         for d in self.duts:
             if d.name == name:
@@ -361,6 +407,11 @@ class Stability(Strict):
 
 def _number_to_step(value: Any) -> Any:
     return {"setpoint_c": value} if isinstance(value, int | float) and not isinstance(value, bool) else value
+
+
+def _yaml_off(value: Any) -> Any:
+    """YAML reads a bare `off` as false."""
+    return "off" if value is False else value
 
 
 class TempStep(Strict):
@@ -480,7 +531,7 @@ class Plan(Strict):
     fields: FieldSet
     samples_per_point: int = Field(ge=1)
     settle_s: float = Field(1.0, ge=0, description="wait after a field change before sampling")
-    set_reset: Literal["pair", "off"] = Field(
+    set_reset: Annotated[Literal["pair", "off"], BeforeValidator(_yaml_off)] = Field(
         "pair", description="pair: SET and RESET reading per sample (offset removed); off: plain reading"
     )
     fit: Fit = Fit()

@@ -292,15 +292,13 @@ class Engine:
                     raise MagrigError(f"no handler for command {type(command).__name__}")
                 self.status.step = type(command).__name__
                 reply = handler(command)
-                if isinstance(command, Checkpoint):
-                    self.check_interrupt()
         except StopIteration:
             return
         finally:
             gen.close()
 
     def _pause(self, point_id: str) -> None:
-        self.event("pause", f"paused before finishing point {point_id}", point_id=point_id)
+        self.event("pause", f"paused at point {point_id} (not recorded yet)", point_id=point_id)
         self.status.step = "paused"
         self.make_safe()
         answer = "abort"

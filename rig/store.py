@@ -31,6 +31,7 @@ import json
 import signal
 import sqlite3
 import threading
+import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +54,8 @@ CREATE TABLE session (
     plan_path TEXT, station_path TEXT,
     software_version TEXT NOT NULL, operator TEXT,
     simulated_json TEXT NOT NULL,          -- {device name: true if simulated}
-    started REAL NOT NULL, ended REAL,
+    started REAL NOT NULL, ended REAL,     -- on the run's clock (simulated time in a simulation)
+    wall_started REAL NOT NULL, wall_ended REAL,  -- wall-clock time, always
     exit_status TEXT, exit_reason TEXT,    -- e.g. completed / aborted / interrupted / failed
     completed INTEGER NOT NULL DEFAULT 0
 );
@@ -147,7 +149,7 @@ def _sigint_deferred() -> Iterator[None]:
     if caught:
         if callable(previous):
             previous(*caught[0])
-        else:
+        elif previous != signal.SIG_IGN:
             raise KeyboardInterrupt
 
 
@@ -214,11 +216,11 @@ class Session:
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
             conn.execute(
                 "INSERT INTO session (id, plan_name, station_name, plan_text, station_text, plan_path, "
-                "station_path, software_version, operator, simulated_json, started) "
-                "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "station_path, software_version, operator, simulated_json, started, wall_started) "
+                "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (plan_name, station_name, plan_text, station_text, plan_path and str(plan_path),
                  station_path and str(station_path), software_version, operator, json.dumps(simulated),
-                 clock.now()),
+                 clock.now(), time.time()),
             )
             conn.executemany(
                 "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
@@ -363,8 +365,11 @@ class Session:
             if completed is None:
                 left = conn.execute("SELECT count(*) FROM points WHERE state != 'done'").fetchone()[0]
                 completed = left == 0
-            conn.execute("UPDATE session SET ended = ?, exit_status = ?, exit_reason = ?, completed = ?",
-                         (self.clock.now(), status, reason, int(completed)))
+            conn.execute(
+                "UPDATE session SET ended = ?, wall_ended = ?, exit_status = ?, exit_reason = ?, "
+                "completed = ?",
+                (self.clock.now(), time.time(), status, reason, int(completed)),
+            )
 
 
 def _json_default(value):
@@ -420,47 +425,53 @@ def _pick_dut(conn: sqlite3.Connection, path: Path, dut: str | None) -> str:
     return dut
 
 
-EXPORT_COLUMNS = ["point", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c", "ref_temp",
-                  "ox", "oy", "oz", "flags"]
+# The CSV contract of calib.csvio (hx,hy,hz raw nT; temp degC; bx,by,bz reference nT; group) plus context.
+EXPORT_COLUMNS = ["point", "group", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c",
+                  "dut_temp", "ref_temp", "ox", "oy", "oz", "flags"]
 
 
 def sample_rows(path: str | Path, dut: str | None = None) -> tuple[str, list[dict]]:
-    """(dut, rows) of the done points of one DUT, in collection order, keyed by EXPORT_COLUMNS."""
+    """(dut, rows) of the done points of one DUT in collection order, keyed by EXPORT_COLUMNS.
+
+    `temp` is the DUT's own temperature, or the reference sensor's where that is missing (`dut_temp`
+    and `ref_temp` keep both); `group` labels the temperature step, e.g. "T03 25.0C"."""
     path = Path(path)
     with _read_only(path) as conn:
         dut = _pick_dut(conn, path, dut)
         cur = conn.execute(
-            "SELECT s.point_id AS point, s.t, s.hx, s.hy, s.hz, s.temp_c AS temp, s.bx, s.by, s.bz, "
-            "p.setpoint_c, s.ref_temp_c AS ref_temp, s.ox, s.oy, s.oz, s.flags, p.temp_index "
+            "SELECT s.point_id AS point, p.temp_index, s.t, s.hx, s.hy, s.hz, "
+            "coalesce(s.temp_c, s.ref_temp_c) AS temp, s.bx, s.by, s.bz, p.setpoint_c, "
+            "s.temp_c AS dut_temp, s.ref_temp_c AS ref_temp, s.ox, s.oy, s.oz, s.flags "
             "FROM samples s JOIN points p ON p.id = s.point_id "
-            "WHERE s.dut = ? AND p.state = 'done' ORDER BY p.idx, s.t, s.id",
+            "WHERE s.dut = ? AND p.state = 'done' ORDER BY p.idx, s.id",
             (dut,),
         )
-        return dut, [dict(r) for r in cur]
+        rows = [dict(r) for r in cur]
+    for r in rows:
+        r["group"] = f"T{r['temp_index']:02d} {r['setpoint_c']:.1f}C"
+    return dut, rows
 
 
 def read_dataset(path: str | Path, dut: str | None = None):
-    """The samples of one DUT as a calib Dataset. Flagged samples are left out (counted in source).
-    The temperature of a row is the DUT's own; where that is missing, the reference sensor's.
-    `group` labels each row with its temperature step ("T03 25.0C")."""
+    """The samples of one DUT as a calib Dataset (rows as in `sample_rows`). Flagged samples are left
+    out and counted in source["rows_rejected"]."""
     from calib.dataset import Dataset
 
     path = Path(path)
     dut, rows = sample_rows(path, dut)
     good = [r for r in rows if not r["flags"]]
-    missing_temp = [r["point"] for r in good if r["temp"] is None and r["ref_temp"] is None]
+    missing_temp = [r["point"] for r in good if r["temp"] is None]
     if missing_temp:
         raise SessionError(f"{path}: DUT {dut}: point {missing_temp[0]} has samples without a temperature")
 
     def col(name: str, dtype=float) -> np.ndarray:
         return np.array([r[name] for r in good], dtype=dtype)
 
-    temp = np.array([r["temp"] if r["temp"] is not None else r["ref_temp"] for r in good], float)
     return Dataset(
         h_nt=np.column_stack([col("hx"), col("hy"), col("hz")]) if good else np.zeros((0, 3)),
-        temp_c=temp,
+        temp_c=col("temp"),
         ref_nt=np.column_stack([col("bx"), col("by"), col("bz")]) if good else np.zeros((0, 3)),
-        group=np.array([f"T{r['temp_index']:02d} {r['setpoint_c']:.1f}C" for r in good], dtype=object),
+        group=col("group", object),
         columns={"point": col("point", object), "t": col("t"), "setpoint_c": col("setpoint_c")},
         source={
             "path": str(path), "sha256": _sha256(path), "kind": "session", "dut": dut,
@@ -493,6 +504,8 @@ def summarize(path: str | Path) -> dict:
         "station": s["station_name"],
         "started": s["started"],
         "ended": s["ended"],
+        "wall_started": s["wall_started"],
+        "wall_ended": s["wall_ended"],
         "operator": s["operator"],
         "simulated": json.loads(s["simulated_json"]),
         "duts": duts,

@@ -51,8 +51,17 @@ def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
         raise ConfigError(f"{source}: not valid YAML: {exc}") from None
     lines: dict[KeyPath, int] = {}
     if node is not None:
-        _collect_lines(node, (), lines)
+        try:
+            _collect_lines(node, (), lines)
+        except _DuplicateKey as dup:
+            raise ConfigError(f"{source}: {format_path(dup.path)}: key given twice "
+                              f"(lines {dup.first} and {dup.second})") from None
     return data, lines
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, path: KeyPath, first: int, second: int):
+        self.path, self.first, self.second = path, first, second
 
 
 def _collect_lines(node: yaml.Node, path: KeyPath, lines: dict[KeyPath, int]) -> None:
@@ -60,6 +69,8 @@ def _collect_lines(node: yaml.Node, path: KeyPath, lines: dict[KeyPath, int]) ->
     if isinstance(node, yaml.MappingNode):
         for key_node, value_node in node.value:
             key_path = (*path, str(key_node.value))
+            if key_path in lines:
+                raise _DuplicateKey(key_path, lines[key_path], key_node.start_mark.line + 1)
             lines[key_path] = key_node.start_mark.line + 1
             _collect_lines(value_node, key_path, lines)
     elif isinstance(node, yaml.SequenceNode):
@@ -102,6 +113,11 @@ _MESSAGES = {
     "missing": "required key is missing",
     "too_short": "needs at least {min_length} item(s)",
     "too_long": "takes at most {max_length} item(s)",
+    "union_tag_invalid": "{tag!r} is not one of {expected_tags}",
+    "union_tag_not_found": "required key {discriminator} is missing",
+    "model_type": "expected a mapping of keys, got {input!r}",
+    "model_attributes_type": "expected a mapping of keys, got {input!r}",
+    "dict_type": "expected a mapping of keys, got {input!r}",
 }
 
 
@@ -110,7 +126,7 @@ def _message(err: dict) -> str:
     if template:
         try:
             ctx = {k: f"{v:g}" if isinstance(v, float) else v for k, v in err.get("ctx", {}).items()}
-            return template.format(**ctx)
+            return template.format(input=err.get("input"), **ctx)
         except (KeyError, IndexError):
             pass
     msg = err["msg"]
@@ -129,6 +145,8 @@ def error_from_validation(exc: pydantic.ValidationError, data: object, lines: di
     cause = first.get("ctx", {}).get("error")
     if isinstance(cause, KeyPathError):
         loc, first = loc + cause.path, {"type": "blame", "msg": cause.message}
+    elif first["type"] == "union_tag_invalid":
+        loc += (first["ctx"]["discriminator"].strip("'"),)  # blame the `kind:` line itself
     path, exists = _data_path(data, loc)
     line_path = path if exists else path[:-1]
     line = lines.get(line_path)

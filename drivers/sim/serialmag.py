@@ -10,8 +10,9 @@ RESET (-1) pulse, or with auto S/R on the device's own (out_set - out_reset)/2. 
 counts per gauss and clipped to +-range_counts (+-2 gauss).
 
 Timing is real time (the pty is real I/O): replies leave `reply_latency_s` after the CR; continuous mode
-emits at the commanded rate from its own thread. With `line_baudrate` set, every line is also held back
-for its 8N1 line time, so wall-clock figures include the wire time a real cable would add.
+emits at the commanded rate from its own thread. With `line_baudrate` set, every command and every line
+sent is also held back for its 8N1 line time, so wall-clock figures include the wire time a real cable
+would add.
 
 Power-on defaults: rate 20 Hz, auto S/R on, polarity +1 (SET), not streaming, write-enable off.
 Our choices where the HMR2300 manual is silent: setting commands (R=, TN, TF) without a preceding *ddWE
@@ -59,6 +60,8 @@ def format_sample_line(counts) -> bytes:
 
 
 class SerialMagSim:
+    """The device's firmware: parses commands from the pty, replies and streams from the world."""
+
     def __init__(
         self,
         world: World,
@@ -110,6 +113,20 @@ class SerialMagSim:
     @property
     def path(self) -> str | None:
         return self._link.path if self._link else None
+
+    @property
+    def streaming(self) -> bool:
+        return self._stream_thread is not None
+
+    @property
+    def garbles_pending(self) -> int:
+        """Sample lines still to be garbled by garble_next()."""
+        return self._garble
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes lost because the driver did not read them (pty buffer full)."""
+        return self._link.dropped_bytes if self._link else 0
 
     def stop(self) -> None:
         self._closing.set()
@@ -165,6 +182,8 @@ class SerialMagSim:
                 self._rx.append(byte)
 
     def _on_command(self, line: bytes) -> None:
+        if self.line_baudrate:  # the command's own bytes (and its CR) take time on the wire
+            self._closing.wait((len(line) + 1) * 10 / self.line_baudrate)
         with self._lock:
             self.received.append(line)
             if self._drop > 0:

@@ -28,6 +28,7 @@ log = logging.getLogger("magrig.transport.i2c")
 
 BLOCK_MAX_BYTES = 32  # SMBus I2C block transfer limit (smbus2 I2C_SMBUS_BLOCK_MAX)
 NACK_ERRNO = errno.EREMOTEIO  # 121: "Remote I/O error", what Linux reports when no chip ACKs
+CLOCK_RESOLUTION_S = 1e-6  # epoch seconds as float resolve ~0.2 us: finer waits cannot advance
 T = TypeVar("T")
 
 
@@ -161,11 +162,11 @@ class I2CTransport:
         """Sleep the expected conversion time, then poll `ready` every `poll_s` until `timeout_s`
         (counted from the call) has passed; DeviceTimeout names what was awaited."""
         start = self.clock.now()
+        deadline = start + timeout_s
         self.clock.sleep(first_wait_s)
         while not ready():
-            waited_s = self.clock.now() - start
-            if waited_s >= timeout_s:
-                raise DeviceTimeout(
-                    self.name, f"wait for {what}", f"not ready after {waited_s * 1e3:.1f} ms"
-                )
-            self.clock.sleep(min(poll_s, timeout_s - waited_s))
+            remaining_s = deadline - self.clock.now()
+            if remaining_s < CLOCK_RESOLUTION_S:
+                waited_ms = (self.clock.now() - start) * 1e3
+                raise DeviceTimeout(self.name, f"wait for {what}", f"not ready after {waited_ms:.1f} ms")
+            self.clock.sleep(min(poll_s, remaining_s))

@@ -152,6 +152,11 @@ class ModbusTransport:
                 retries=0,
                 trace_packet=self._trace_packet,
             )
+        self._not_found = (
+            f"connection refused at {host}:{port}"
+            if host is not None
+            else f"cannot open serial port {serial_port}"
+        )
         self._where = f"{host}:{port}" if host is not None else str(serial_port)
 
     # --- link -------------------------------------------------------------------------------------
@@ -242,7 +247,7 @@ class ModbusTransport:
 
     def _ensure_connected(self, operation: str) -> None:
         if not self.client.connected and not self.client.connect():
-            raise DeviceNotFound(self.name, operation, f"connection refused at {self._where}")
+            raise DeviceNotFound(self.name, operation, self._not_found)
 
     def _reconnect(self, operation: str) -> None:
         self.client.close()

@@ -27,6 +27,8 @@ def cli(ctx: click.Context, debug: bool) -> None:
         level=logging.DEBUG if debug else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    # pymodbus logs every timeout as ERROR with frame dumps; our transport retries and reports them itself.
+    logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
 def _register_all() -> None:

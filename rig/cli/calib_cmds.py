@@ -53,17 +53,23 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
 @click.option("--dut", metavar="NAME", help="DUT to fit, when DATA is a session file.")
 @_unit_options
 @click.option("--field-norm-nt", type=float, help="Scalar model: the known constant |B| in nT.")
+@click.option("--balance-orientations", is_flag=True,
+              help="Scalar model: weight samples so over-visited orientations do not dominate.")
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Calibration file to write (.yaml, or .json).")
-def refit(data, model, robust, dut, raw_unit, counts_per_unit, column_map, field_norm_nt, temp_ref_c, output):
+def refit(data, model, robust, dut, raw_unit, counts_per_unit, column_map, field_norm_nt, balance_orientations,
+          temp_ref_c, output):
     """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT."""
     import calib
     from calib import calfile
 
     ds = load_dataset(data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit,
                       column_map=column_map)
-    cal = calib.fit(ds, model, robust=robust, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt)
+    if model != "scalar" and (field_norm_nt is not None or balance_orientations):
+        raise click.UsageError("--field-norm-nt and --balance-orientations apply to --model scalar only")
+    cal = calib.fit(ds, model, robust=robust, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
+                    balance_orientations=balance_orientations)
     calfile.save(cal, output)
     print_summary(cal)
     click.echo(f"wrote {output}")

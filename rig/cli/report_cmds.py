@@ -2,8 +2,82 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
+
+from rig.errors import DataError, MagrigError, SessionError
+from rig.exports import FORMATS
+
+SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")
+
+
+@click.command("report")
+@click.argument("source", metavar="SESSION_OR_CAL", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--data", type=click.Path(dir_okay=False, path_type=Path),
+              help="With a calibration file: the CSV it was fitted on.")
+@click.option("--dut", help="Report on this DUT only (a session file; default: every DUT).")
+@click.option("-o", "--output-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("report"),
+              show_default=True, help="Folder for report.html and its PNG figures.")
+def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Path) -> None:
+    """Write a calibration report (one self-contained HTML file plus PNG figures) from a session file,
+    or from a calibration file and the CSV it was fitted on (--data)."""
+    from rig.report.build import build_report
+
+    page = build_report(source, data=data, dut=dut, out_dir=output_dir)
+    figures = sorted(p.name for p in page.parent.glob("*.png"))
+    click.echo(f"wrote {page} ({len(figures)} figures beside it)")
+
+
+@click.command("export-cal")
+@click.argument("calibration", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(FORMATS), required=True, help="Export format.")
+@click.option("--name", help="Name of the C symbols (default: the DUT, else the calibration file's name).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="File to write (default: standard output).")
+def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path | None) -> None:
+    """Export a calibration for firmware (C header) or other tools (JSON, CSV of parameters)."""
+    from calib import calfile
+    from calib.atomic import atomic_write
+    from rig.exports import export_calibration
+
+    cal = calfile.load(calibration)
+    symbol = name or cal.source.get("dut") or (output.stem if output else calibration.stem)
+    text = export_calibration(cal, fmt, str(symbol))
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    try:
+        with atomic_write(output) as f:
+            f.write(text)
+    except OSError as exc:
+        raise DataError(f"{output}: cannot write ({exc.strerror or exc})") from None
+    click.echo(f"wrote {output} ({fmt}, model {cal.model})")
+
+
+@click.command("sessions")
+@click.argument("directory", default=".", type=click.Path(file_okay=False, path_type=Path))
+def sessions_cmd(directory: Path) -> None:
+    """One line per session file in DIRECTORY: date, station, DUTs, points done of planned, exit status,
+    last fit residual. Files that are not sessions, or are damaged, get a one-line note."""
+    from rig.report.sessions import HEADER, session_files, session_line, skipped_line
+
+    if not directory.is_dir():
+        raise SessionError(f"{directory}: no such folder")
+    files = session_files(directory, SESSION_SUFFIXES)
+    if not files:
+        click.echo(f"no session files ({', '.join('*' + s for s in SESSION_SUFFIXES)}) in {directory}")
+        return
+    click.echo(HEADER)
+    for path in files:
+        try:
+            click.echo(session_line(path))
+        except MagrigError as exc:
+            click.echo(skipped_line(path, str(exc)))
 
 
 def register(group: click.Group) -> None:
     """Add this module's commands to the `rig` group."""
+    group.add_command(report_cmd)
+    group.add_command(export_cal_cmd)
+    group.add_command(sessions_cmd)

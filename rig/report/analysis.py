@@ -145,6 +145,17 @@ def kept_rows(cal, n: int) -> np.ndarray:
     return ~np.asarray(cal.outliers, bool)
 
 
+def outlier_rows(cal, err: Errors) -> np.ndarray:
+    """Outliers of the calibration shown: those its robust fit flagged, or, for a calibration read from a
+    file (which keeps no flags), rows whose residual lies beyond the robust fit's own flag threshold."""
+    if cal.outliers is not None and len(cal.outliers) == len(err.norm_after):
+        return np.asarray(cal.outliers, bool)
+    from calib.robust import FLAG_D, robust_scale, row_distance
+
+    res = err.vector_after if err.vector_after is not None else err.norm_after[:, None]
+    return row_distance(res, robust_scale(res)) > FLAG_D[res.shape[1]]
+
+
 # ---------------------------------------------------------------------------------------------- steps
 
 
@@ -179,12 +190,11 @@ class StepRow:
     extra: dict = field(default_factory=dict)  # settle time, status... from the session when known
 
 
-def step_table(ds, cal, err: Errors) -> list[StepRow]:
+def step_table(ds, flagged: np.ndarray, err: Errors) -> list[StepRow]:
     """Samples, mean temperature, residual RMS (vector when known, else |B|) and outliers per step."""
     steps = step_of_each_row(ds)
     before = err.vector_before if err.vector_after is not None else err.norm_before
     after = err.vector_after if err.vector_after is not None else err.norm_after
-    flagged = ~kept_rows(cal, len(ds))
     rows = []
     for s in np.unique(steps):
         m = steps == s
@@ -209,21 +219,27 @@ def fibonacci_directions(n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def coverage_gaps(
-    direction_nt: np.ndarray, max_gap_deg: float = COVERAGE_GAP_DEG, probes: int = 200
-) -> list[tuple[float, float, float]]:
-    """Probe directions with no sample within `max_gap_deg`: (azimuth_deg, elevation_deg, nearest_deg).
-
-    Probes are spread evenly over the sphere; samples are reduced to distinct directions first.
-    """
+def nearest_sample_deg(probe_unit: np.ndarray, direction_nt: np.ndarray) -> np.ndarray:
+    """Angle (deg) from each probe unit vector (M, 3) to the nearest sample direction."""
     v = np.asarray(direction_nt, dtype=float)
     norms = np.linalg.norm(v, axis=1)
     v = v[norms > 0] / norms[norms > 0, None]
     if len(v) == 0:
-        return [(0.0, 90.0, 180.0)]
+        return np.full(len(probe_unit), 180.0)
     v = np.unique(np.round(v, 3), axis=0)
+    best = np.full(len(probe_unit), -1.0)
+    for chunk in range(0, len(v), 2000):  # bounded memory for large sample sets
+        best = np.maximum(best, (probe_unit @ v[chunk : chunk + 2000].T).max(axis=1))
+    return np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
+
+
+def coverage_gaps(
+    direction_nt: np.ndarray, max_gap_deg: float = COVERAGE_GAP_DEG, probes: int = 200
+) -> list[tuple[float, float, float]]:
+    """Probe directions, spread evenly over the sphere, with no sample within `max_gap_deg`:
+    (azimuth_deg, elevation_deg, nearest_deg) each."""
     p = fibonacci_directions(probes)
-    nearest_deg = np.degrees(np.arccos(np.clip((p @ v.T).max(axis=1), -1, 1)))
+    nearest_deg = nearest_sample_deg(p, direction_nt)
     gaps = nearest_deg > max_gap_deg
     az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
     el = np.degrees(np.arcsin(p[:, 2]))

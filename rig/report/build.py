@@ -95,6 +95,8 @@ class DutResult:
     steps: list[analysis.StepRow]
     gaps: list[tuple[float, float, float]]
     warnings: list[str]
+    given: bool  # main came from a calibration file, not from a fit made here
+    outliers: np.ndarray  # rows left out of the residuals shown (see analysis.outlier_rows)
 
 
 def fit_model(ds, model: str):
@@ -123,20 +125,34 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
     err = analysis.errors(ds, main)
     points = ds.columns.get("point")
     folds, fold_text = analysis.fold_of_each_row(ds, labels=points if points is not None else ds.group)
-    exclude = ~analysis.kept_rows(main, len(ds))
+    outliers = analysis.outlier_rows(main, err)
     scores = [
-        analysis.cross_validate(ds, m, fit_model, folds, fits.get(m), exclude)
+        analysis.cross_validate(ds, m, fit_model, folds, fits.get(m), outliers)
         for m in analysis.MODELS
         if m in fits or m in failures
     ]
     for score in scores:
         if score.model in failures:
             score.note = f"cannot fit: {failures[score.model]}"
-    step_rows = analysis.step_table(ds, main, err)
+    step_rows = analysis.step_table(ds, outliers, err)
     direction = ds.ref_nt if ds.ref_nt is not None else err.field_after
     gaps = analysis.coverage_gaps(direction)
-    warnings += _dut_warnings(d, ds, main, fits, failures, step_rows, steps_info, gaps)
-    return DutResult(d.name, ds, main, fits, failures, err, scores, fold_text, step_rows, gaps, warnings)
+    warnings += _dut_warnings(d, ds, main, outliers, fits, failures, step_rows, steps_info, gaps)
+    return DutResult(
+        d.name,
+        ds,
+        main,
+        fits,
+        failures,
+        err,
+        scores,
+        fold_text,
+        step_rows,
+        gaps,
+        warnings,
+        d.calibration is not None,
+        outliers,
+    )
 
 
 def _with_constant_norm(ds, d: DutInput, warnings: list[str]):
@@ -154,18 +170,19 @@ def _with_constant_norm(ds, d: DutInput, warnings: list[str]):
     return dataclasses.replace(ds, ref_norm_nt=np.full(len(ds), norm))
 
 
-def _dut_warnings(d, ds, main, fits, failures, step_rows, steps_info, gaps) -> list[str]:
+def _dut_warnings(d, ds, main, outliers, fits, failures, step_rows, steps_info, gaps) -> list[str]:
     out = []
-    n_out = int((~analysis.kept_rows(main, len(ds))).sum())
+    n_out = int(outliers.sum())
+    how = "the robust fit" if main.outliers is not None else "their residual against the given calibration"
     if n_out:
         where = [f"step {r.step} ({r.temp_c:.1f} °C): {r.outliers}" for r in step_rows if r.outliers]
         points = ds.columns.get("point")
         extra = ""
         if points is not None:
-            ids = sorted({str(p) for p in np.asarray(points)[~analysis.kept_rows(main, len(ds))]})
+            ids = sorted({str(p) for p in np.asarray(points)[outliers]})
             extra = f"; points {_listed(ids)}"
         out.append(
-            f"{n_out} outlier sample(s) flagged by the robust {main.model.upper()} fit and left out "
+            f"{n_out} outlier sample(s) of the {main.model.upper()} calibration, flagged by {how}, left out "
             f"({'; '.join(where)}){extra}"
         )
     for flag, ids in sorted(d.flagged.items()):
@@ -216,7 +233,7 @@ def _summary_table(results: list[DutResult]) -> Table:
     rows = []
     for r in results:
         vec = r.errors.vector_after is not None
-        kept = analysis.kept_rows(r.main, len(r.ds))
+        kept = ~r.outliers
         before = r.errors.vector_before if vec else r.errors.norm_before
         after = r.errors.vector_after if vec else r.errors.norm_after
         rows.append(
@@ -239,10 +256,14 @@ def _safe(name: str) -> str:
     return re.sub(r"[^0-9A-Za-z_.-]+", "_", name) or "dut"
 
 
-def _dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]:
-    tag = _safe(r.name)
-    ds, e = r.ds, r.errors
-    outliers = ~analysis.kept_rows(r.main, len(ds))
+def _image(fig, caption: str, filename: str) -> Image:
+    return Image(figures.png_bytes(fig), caption, filename)
+
+
+def _dut_figures(r: DutResult) -> dict[str, Image]:
+    """The figures of one DUT, by role."""
+    tag, ds, e = _safe(r.name), r.ds, r.errors
+    outliers = r.outliers
     model = r.main.model.upper()
     if e.vector_after is not None:
         before, after, labels = e.vector_before, e.vector_after, ["x", "y", "z"]
@@ -251,103 +272,89 @@ def _dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section
     resid = np.linalg.norm(after, axis=1)
     resid[outliers] = np.nan
     direction = ds.ref_nt if ds.ref_nt is not None else e.field_after
-    points = ds.columns.get("point")
-    dirs, dir_resid = analysis.per_group_means(points, direction, resid)
-    images = [
-        Image(
-            figures.png_bytes(
-                figures.residuals_vs_temperature(
-                    ds.temp_c,
-                    before,
-                    after,
-                    labels,
-                    outliers,
-                    f"{r.name}: residuals against temperature ({model})",
-                )
+    dirs, dir_resid = analysis.per_group_means(ds.columns.get("point"), direction, resid)
+    out = {
+        "residuals": _image(
+            figures.residuals_vs_temperature(
+                ds.temp_c,
+                before,
+                after,
+                labels,
+                outliers,
+                f"{r.name}: residuals against temperature ({model})",
             ),
             f"{r.name}: error per axis against DUT temperature, before and after {model} calibration; "
-            "red crosses: outliers the robust fit left out",
+            "red crosses: outliers, left out of the RMS",
             f"{tag}_residuals_vs_temperature.png",
         ),
-        Image(
-            figures.png_bytes(
-                figures.norm_error_histogram(
-                    e.norm_before[~outliers], e.norm_after[~outliers], f"{r.name}: |B| error ({model})"
-                )
+        "histogram": _image(
+            figures.norm_error_histogram(
+                e.norm_before[~outliers], e.norm_after[~outliers], f"{r.name}: |B| error ({model})"
             ),
             f"{r.name}: field magnitude error before and after calibration (outliers left out)",
             f"{tag}_norm_error_histogram.png",
         ),
-        Image(
-            figures.png_bytes(
-                figures.direction_map(dirs, dir_resid, f"{r.name}: field directions ({model})")
+        "directions": _image(
+            figures.direction_map(
+                dirs, dir_resid, analysis.COVERAGE_GAP_DEG, f"{r.name}: field directions ({model})"
             ),
-            f"{r.name}: direction coverage and residual RMS per point by field direction",
+            f"{r.name}: direction coverage, and residual RMS per point by field direction",
             f"{tag}_directions.png",
         ),
-    ]
-    scored = [s for s in r.scores if s.folds or s.note]
-    metric = "vector" if any(np.isfinite(s.heldout_vector_rms) for s in scored) else "|B|"
-    pick_fit = (lambda s: s.fit_vector_rms) if metric == "vector" else (lambda s: s.fit_norm_rms)
-    pick_held = (lambda s: s.heldout_vector_rms) if metric == "vector" else (lambda s: s.heldout_norm_rms)
+    }
+    scored = [s for s in r.scores if s.folds]
     if scored:
-        images.append(
-            Image(
-                figures.png_bytes(
-                    figures.model_comparison(
-                        [s.model for s in scored],
-                        [pick_fit(s) for s in scored],
-                        [pick_held(s) for s in scored],
-                        metric,
-                        f"{r.name}: models on fitted and held-out points",
-                    )
-                ),
-                f"{r.name}: {metric} error RMS of each model on its fitted points and on held-out points "
-                f"({r.fold_text})",
-                f"{tag}_model_comparison.png",
-            )
+        fit_rms = {"|B|": [s.fit_norm_rms for s in scored]}
+        held_rms = {"|B|": [s.heldout_norm_rms for s in scored]}
+        if any(np.isfinite(s.heldout_vector_rms) for s in scored):
+            fit_rms = {"vector": [s.fit_vector_rms for s in scored], **fit_rms}
+            held_rms = {"vector": [s.heldout_vector_rms for s in scored], **held_rms}
+        out["models"] = _image(
+            figures.model_comparison(
+                [s.model for s in scored],
+                fit_rms,
+                held_rms,
+                f"{r.name}: models on fitted and held-out points ({r.fold_text})",
+            ),
+            f"{r.name}: error RMS of each model on its fitted points and on held-out points",
+            f"{tag}_model_comparison.png",
         )
     if len(r.steps) > 1 and ds.temp_c is not None:
-        images.append(
-            Image(
-                figures.png_bytes(
-                    figures.step_rms(
-                        [s.temp_c for s in r.steps],
-                        [s.rms_before_nt for s in r.steps],
-                        [s.rms_after_nt for s in r.steps],
-                        f"{r.name}: residual per temperature step ({model})",
-                    )
-                ),
-                f"{r.name}: residual RMS per temperature step",
-                f"{tag}_steps.png",
-            )
+        out["steps"] = _image(
+            figures.step_rms(
+                [s.temp_c for s in r.steps],
+                [s.rms_before_nt for s in r.steps],
+                [s.rms_after_nt for s in r.steps],
+                f"{r.name}: residual per temperature step ({model})",
+            ),
+            f"{r.name}: residual RMS per temperature step",
+            f"{tag}_steps.png",
         )
+    return out
 
+
+def _dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]:
+    img = _dut_figures(r)
+    given = r.given
+    intro = f"{len(r.ds)} samples; residuals shown for the {r.main.model.upper()} calibration " + (
+        "given in the calibration file." if given else "fitted here (robust)."
+    )
+    cv_text = (
+        f"Each model is fitted without one fold of the points and scored on that fold ({r.fold_text}); "
+        "the outliers of the calibration shown above are left out of every score. The scalar model "
+        "knows the field only up to a rotation, so it is scored on |B| only."
+    )
+    optional = [img[k] for k in ("models",) if k in img]
     return [
+        Section(f"DUT {r.name}", [intro, img["residuals"], img["histogram"], img["directions"]]),
         Section(
-            f"DUT {r.name}",
-            [
-                f"{len(ds)} samples; residuals shown for the {model} calibration"
-                + (
-                    " given in the calibration file."
-                    if r.main not in r.fits.values()
-                    else " fitted here (robust)."
-                ),
-                *images[:3],
-            ],
+            "Models compared on held-out points", [cv_text, _comparison_table(r.scores), *optional], level=3
         ),
         Section(
-            "Models compared on held-out points",
-            [
-                f"Each model is fitted without one fold of the points and scored on that fold "
-                f"({r.fold_text}); outliers of the calibration shown above are left out of every score. "
-                "The scalar model knows the field only up to a rotation, so it is scored on |B|.",
-                _comparison_table(r.scores),
-                *images[3:4],
-            ],
+            "Per temperature step",
+            [_step_table(r.steps, steps_info), *[img[k] for k in ("steps",) if k in img]],
             level=3,
         ),
-        Section("Per temperature step", [_step_table(r.steps, steps_info), *images[4:]], level=3),
         Section("Parameters", [_params_table(name, cal) for name, cal in _param_sets(r)], level=3),
     ]
 
@@ -389,7 +396,7 @@ def _step_table(steps: list[analysis.StepRow], info: dict[int, StepInfo]) -> Tab
             [
                 str(s.step),
                 "-" if i is None else f"{i.setpoint_c:g}",
-                _fmt(s.temp_c, 4),
+                "-" if not np.isfinite(s.temp_c) else f"{s.temp_c:.2f}",
                 str(s.samples),
                 "-" if i is None else f"{i.points_done}/{i.points_planned}",
                 settle,
@@ -417,7 +424,7 @@ def _step_table(steps: list[analysis.StepRow], info: dict[int, StepInfo]) -> Tab
 
 
 def _param_sets(r: DutResult) -> list[tuple[str, object]]:
-    sets = [] if r.main in r.fits.values() else [("given calibration", r.main)]
+    sets = [("given calibration", r.main)] if r.given else []
     return sets + [(f"fitted here ({m.upper()}, robust)", cal) for m, cal in r.fits.items()]
 
 

@@ -10,8 +10,9 @@ import io
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
+
+from rig.report.analysis import nearest_sample_deg
 
 BEFORE_COLOUR = "tab:orange"
 AFTER_COLOUR = "tab:blue"
@@ -162,34 +163,47 @@ def azimuth_elevation_deg(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return az, el
 
 
-def direction_map(direction_nt: np.ndarray, residual_nt: np.ndarray, title: str = "") -> Figure:
+def direction_map(
+    direction_nt: np.ndarray, residual_nt: np.ndarray, gap_deg: float = 35.0, title: str = ""
+) -> Figure:
     """Where the field pointed (in sensor axes) and where the error lives.
 
-    Left: sample count per 30°×(equal-area) cell, empty cells show the coverage gaps.
-    Right: each sample at its field direction, coloured by the size of its residual after calibration.
+    Left: angular distance from every direction to the nearest sample; the red contour encloses the gaps
+    (no sample within `gap_deg`). Right: each sample (or point) at its field direction, coloured by the
+    size of its residual after calibration.
     """
     az, el = azimuth_elevation_deg(direction_nt)
     resid = np.asarray(residual_nt, dtype=float)
     fig = new_figure(11, 4.0)
     ax_cov, ax_res = fig.subplots(1, 2, sharey=True)
 
-    az_edges = np.linspace(-180, 180, 13)
-    el_edges = np.degrees(np.arcsin(np.linspace(-1, 1, 7)))  # equal-area bands
-    counts, _, _ = np.histogram2d(az, el, bins=(az_edges, el_edges))
-    masked = np.ma.masked_equal(counts.T, 0)
+    grid_az, grid_el = np.meshgrid(np.linspace(-180, 180, 145), np.linspace(-90, 90, 73))
+    a, e = np.radians(grid_az.ravel()), np.radians(grid_el.ravel())
+    probes = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    dist = nearest_sample_deg(probes, direction_nt).reshape(grid_az.shape)
     mesh = ax_cov.pcolormesh(
-        az_edges, el_edges, masked, cmap="Greens", norm=LogNorm(vmin=1), edgecolors="0.7", linewidth=0.3
+        grid_az,
+        grid_el,
+        dist,
+        cmap="Reds",
+        vmin=0,
+        vmax=max(2 * gap_deg, dist.max()),
+        shading="auto",
+        rasterized=True,
     )
-    ax_cov.set_facecolor("mistyrose")  # empty cells show through in light red
-    fig.colorbar(mesh, ax=ax_cov, label="samples per cell")
-    empty = int((counts == 0).sum())
-    ax_cov.set_title(f"coverage: {empty} of {counts.size} cells empty (light red)")
+    if dist.max() > gap_deg:
+        ax_cov.contour(grid_az, grid_el, dist, levels=[gap_deg], colors="darkred", linewidths=1.2)
+    ax_cov.scatter(az, el, s=6, color="black", label="sample directions")
+    fig.colorbar(mesh, ax=ax_cov, label="angle to the nearest sample (deg)")
+    gap_share = float(np.mean(dist > gap_deg))
+    ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample")
 
     rows = _thin(len(resid))
-    order = rows[np.argsort(resid[rows])]  # largest residuals drawn last, on top
-    vmax = float(np.quantile(resid, 0.99)) if resid.size else 1.0
+    finite = rows[np.isfinite(resid[rows])]
+    order = finite[np.argsort(resid[finite])]  # largest residuals drawn last, on top
+    vmax = float(np.quantile(resid[finite], 0.99)) if finite.size else 1.0
     sc = ax_res.scatter(
-        az[order], el[order], c=resid[order], s=10, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
+        az[order], el[order], c=resid[order], s=14, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
     )
     fig.colorbar(sc, ax=ax_res, extend="max", label="|residual| after calibration (nT)")
     ax_res.set_title("residual by field direction")
@@ -207,40 +221,46 @@ def direction_map(direction_nt: np.ndarray, residual_nt: np.ndarray, title: str 
 
 
 def model_comparison(
-    models: list[str], fit_rms_nt: list[float], heldout_rms_nt: list[float], metric: str, title: str = ""
+    models: list[str],
+    fit_rms_nt: dict[str, list[float]],
+    heldout_rms_nt: dict[str, list[float]],
+    title: str = "",
 ) -> Figure:
-    """Bars per model: RMS on the points it was fitted to and on held-out points (log scale)."""
-    fig = new_figure(6.5, 3.6)
-    ax = fig.subplots()
+    """One panel per metric ("vector", "|B|"): bars per model, RMS on fitted and on held-out points (log)."""
+    metrics = list(fit_rms_nt)
+    fig = new_figure(5.0 * len(metrics) + 0.5, 3.8)
+    axes = np.atleast_1d(fig.subplots(1, len(metrics), squeeze=False)[0])
     x = np.arange(len(models))
     width = 0.38
-    drawn = []
-    for offset, values, colour, label in (
-        (-width / 2, fit_rms_nt, "0.6", "fitted points"),
-        (width / 2, heldout_rms_nt, AFTER_COLOUR, "held-out points"),
-    ):
-        vals = np.array([v if v is not None and np.isfinite(v) and v > 0 else np.nan for v in values])
-        bars = ax.bar(x + offset, np.nan_to_num(vals, nan=0.0), width, color=colour, label=label)
-        drawn.append((bars, vals))
-    finite = np.concatenate([vals[np.isfinite(vals)] for _, vals in drawn])
-    floor = float(finite.min()) / 2 if finite.size else 0.1
-    ax.set_yscale("log")
-    ax.set_ylim(floor, float(finite.max()) * 3 if finite.size else 10.0)
-    for bars, vals in drawn:
-        for bar, v in zip(bars, vals, strict=True):
-            text = "n/a" if np.isnan(v) else f"{v:.3g}"
-            ax.annotate(
-                text,
-                (bar.get_x() + bar.get_width() / 2, floor if np.isnan(v) else v),
-                ha="center",
-                va="bottom",
-                fontsize=8,
-            )
-    ax.set_xticks(x, [m.upper() for m in models])
-    ax.set_ylabel(f"{metric} RMS (nT)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, axis="y")
-    ax.set_title(title or "model comparison")
+    for ax, metric in zip(axes, metrics, strict=True):
+        drawn = []
+        for offset, values, colour, label in (
+            (-width / 2, fit_rms_nt[metric], "0.6", "fitted points"),
+            (width / 2, heldout_rms_nt[metric], AFTER_COLOUR, "held-out points"),
+        ):
+            vals = np.array([v if v is not None and np.isfinite(v) and v > 0 else np.nan for v in values])
+            bars = ax.bar(x + offset, np.nan_to_num(vals, nan=0.0), width, color=colour, label=label)
+            drawn.append((bars, vals))
+        finite = np.concatenate([vals[np.isfinite(vals)] for _, vals in drawn])
+        floor = float(finite.min()) / 2 if finite.size else 0.1
+        ax.set_yscale("log")
+        ax.set_ylim(floor, float(finite.max()) * 3 if finite.size else 10.0)
+        for bars, vals in drawn:
+            for bar, v in zip(bars, vals, strict=True):
+                text = "n/a" if np.isnan(v) else f"{v:.3g}"
+                ax.annotate(
+                    text,
+                    (bar.get_x() + bar.get_width() / 2, floor if np.isnan(v) else v),
+                    ha="center",
+                    va="bottom",
+                    fontsize=8,
+                )
+        ax.set_xticks(x, [m.upper() for m in models])
+        ax.set_ylabel(f"{metric} error RMS (nT)")
+        ax.set_title(f"{metric} error")
+        ax.legend(fontsize=8, loc="upper left")
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle(title or "model comparison")
     return fig
 
 
@@ -256,6 +276,6 @@ def step_rms(
     ax.set_xlabel("temperature step (°C)")
     ax.set_ylabel("vector error RMS (nT)")
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
+    ax.grid(alpha=0.3)
     ax.set_title(title or "residual per temperature step")
     return fig

@@ -13,6 +13,8 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from rig import __version__
 from rig.errors import DataError, SessionError
 
@@ -100,14 +102,8 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     for name in names:
         ds = store.read_dataset(path, name)
         _, rows = store.sample_rows(path, name)
-        flagged: dict[str, list[str]] = defaultdict(list)
-        flagged_rows: Counter = Counter()
-        for row in rows:
-            for flag in filter(None, row["flags"].split(",")):
-                flagged_rows[flag] += 1
-                if row["point"] not in flagged[flag]:
-                    flagged[flag].append(row["point"])
-        duts.append(DutInput(name, ds, None, dict(flagged), flagged_rows))
+        flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
+        duts.append(DutInput(name, ds, None, flagged, flagged_rows))
     steps = _steps(points)
     warnings = _session_warnings(summary, points, events, steps)
     started = utc(info["started"])
@@ -204,9 +200,10 @@ def _session_warnings(summary: dict, points: list[dict], events: list[dict], ste
     out = []
     if not summary["completed"]:
         out.append(
-            f"run not completed: exit {summary['exit_status'] or 'not recorded'}"
+            f"not every planned point was taken: {summary['points_done']} of {summary['points_planned']} "
+            "done; "
+            f"run exit status {summary['exit_status'] or 'not recorded'}"
             + (f" ({summary['exit_reason']})" if summary["exit_reason"] else "")
-            + f"; {summary['points_done']} of {summary['points_planned']} points done"
         )
     failed = [p for p in points if p["state"] == "failed"]
     if failed:
@@ -240,13 +237,20 @@ def from_calibration(
     from calib import calfile, csvio
 
     cal_path = Path(cal_path)
+    cal = calfile.load(cal_path)
     if data_path is None:
         raise DataError(
             f"{cal_path}: a calibration file needs the data it was fitted on: add --data DATA.csv"
         )
     data_path = Path(data_path)
-    cal = calfile.load(cal_path)
-    ds = csvio.read_csv(data_path)
+    # read the CSV as the calibration was fitted on it (the same defaults `rig apply` uses)
+    ds = csvio.read_csv(
+        data_path,
+        raw_unit=cal.source.get("raw_unit") or "nT",
+        counts_per_unit=cal.source.get("counts_per_unit") or None,
+        columns=csvio.parse_column_map(cal.source.get("column_map") or None),
+    )
+    ds, flagged, flagged_rows = _drop_flagged(ds)
     name = dut or cal.source.get("dut") or data_path.stem
     warnings = []
     fitted_hash = cal.source.get("sha256")
@@ -266,4 +270,27 @@ def from_calibration(
         ("report made with", f"magrig {__version__}"),
     ]
     title = f"Calibration report: {name} ({cal_path.name} on {data_path.name})"
-    return ReportInputs(title, [DutInput(name, ds, cal)], {}, warnings, provenance)
+    return ReportInputs(title, [DutInput(name, ds, cal, flagged, flagged_rows)], {}, warnings, provenance)
+
+
+def _drop_flagged(ds):
+    """Rows with a non-empty `flags` column (as `rig export --include-flagged` writes) are not judged."""
+    flags = ds.columns.get("flags")
+    if flags is None:
+        return ds, {}, Counter()
+    text = np.asarray(flags).astype(str)
+    bad = np.array([t.strip() not in ("", "nan") for t in text])
+    points = np.asarray(ds.columns.get("point", np.arange(len(ds)).astype(str)))
+    flagged, counts = collect_flags(zip(text[bad], points[bad], strict=True))
+    return (ds.subset(~bad) if bad.any() else ds), flagged, counts
+
+
+def collect_flags(flagged_rows) -> tuple[dict[str, list[str]], Counter]:
+    """From (comma-separated flags, point id) of flagged samples: flag -> point ids, flag -> sample count."""
+    points: dict[str, dict[str, None]] = defaultdict(dict)  # ordered sets
+    counts: Counter = Counter()
+    for flags, point in flagged_rows:
+        for flag in filter(None, str(flags).split(",")):
+            counts[flag] += 1
+            points[flag][str(point)] = None
+    return {flag: list(ids) for flag, ids in points.items()}, counts

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -100,7 +102,7 @@ def test_stream_n_samples_at_154_hz_then_the_stream_is_stopped(mag, sim, world):
     assert len(samples) == 20 and sim.rate_hz == 154
     for s in samples:
         assert_close_to_truth(s, world)
-    assert sim._stream_thread is None
+    assert not sim.streaming
     assert_close_to_truth(mag.read(), world)  # no stream tail left in the way
 
 
@@ -108,14 +110,14 @@ def test_stream_n_samples_at_154_hz_then_the_stream_is_stopped(mag, sim, world):
 def test_garbled_sample_lines_are_recovered(mag, sim, world, mode):
     sim.garble_next(1, mode)
     assert_close_to_truth(mag.read(), world)
-    assert sim._garble == 0
+    assert sim.garbles_pending == 0
 
 
 def test_garbled_lines_in_a_stream_are_skipped(mag, sim, world):
     mag.set_rate(154)
     sim.garble_next(2, "flip")
     samples = mag.read_stream(5)
-    assert len(samples) == 5 and sim._garble == 0
+    assert len(samples) == 5 and sim.garbles_pending == 0
     for s in samples:
         assert_close_to_truth(s, world)
 
@@ -155,5 +157,19 @@ def test_safe_state_stops_a_running_stream(mag, sim, world):
     mag.transport.write(b"*00C\r")
     mag.transport.read_line(timeout_s=0.2)  # the stream is running
     mag.safe_state()
-    assert sim._stream_thread is None
+    assert not sim.streaming
     assert_close_to_truth(mag.read(), world)
+
+
+def test_stop_leaves_no_thread_and_no_port(world):
+    before = set(threading.enumerate())
+    with SerialMagSim(world, "dut1") as s:
+        m = make_mag(s, world, set_reset="off", rate_hz=154)
+        m.connect()
+        m.transport.write(b"*00C\r")  # leave a stream running: stop() must end it
+        m.transport.read_line(timeout_s=0.2)
+        assert s.streaming
+        m.close()
+    assert set(threading.enumerate()) <= before
+    with pytest.raises(DeviceNotFound, match="No such file"):
+        make_mag(s, world).connect()

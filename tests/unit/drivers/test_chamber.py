@@ -16,7 +16,11 @@ LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0
 
 
 def transport(port: int, clock, *, rtu: bool = False) -> ModbusTransport:
-    where = {"serial_port": f"socket://127.0.0.1:{port}"} if rtu else {"host": "127.0.0.1", "port": port}
+    where = (
+        {"serial_port": f"socket://127.0.0.1:{port}", "baudrate": 115200}
+        if rtu
+        else {"host": "127.0.0.1", "port": port}
+    )
     return ModbusTransport(name="chamber", timeout_s=0.2, clock=clock, **where)
 
 
@@ -65,7 +69,12 @@ def test_f4t_read_decodes_registers(clock):
         reading = chamber.read()
         chamber.close()
     assert peer.received == [request for request, _ in script]
-    assert (reading.air_c, reading.setpoint_c, reading.input_error, reading.alarm) == (23.5, -20.0, False, True)
+    assert (reading.air_c, reading.setpoint_c, reading.input_error, reading.alarm) == (
+        23.5,
+        -20.0,
+        False,
+        True,
+    )
     assert reading.fault and reading.t == clock.now()
 
 
@@ -93,7 +102,10 @@ def test_f4_legacy_over_rtu_reads_precision_then_scales(clock):
         (bytes.fromhex("01 03 025e 0001 e460"), bytes.fromhex("01 03 02 0001 7984")),  # 606 precision = 1
         (bytes.fromhex("01 03 0385 0001 95a7"), bytes.fromhex("01 03 02 0001 7984")),  # 901 units = degC
         (bytes.fromhex("01 06 012c 0352 c8f2"), bytes.fromhex("01 06 012c 0352 c8f2")),  # SP 300 = 850
-        (bytes.fromhex("01 03 0064 0002 85d4"), bytes.fromhex("01 03 04 00e9 0000 2bc7")),  # PV 23.3, no error
+        (
+            bytes.fromhex("01 03 0064 0002 85d4"),
+            bytes.fromhex("01 03 04 00e9 0000 2bc7"),
+        ),  # PV 23.3, no error
         (bytes.fromhex("01 03 012c 0001 443f"), bytes.fromhex("01 03 02 0352 3949")),  # SP 85.0
         (bytes.fromhex("01 03 ea60 0001 b00c"), bytes.fromhex("01 03 02 0000 b844")),  # alarm (ours) 0
     ]
@@ -136,7 +148,7 @@ def test_limit_violation_writes_nothing(world, clock):
             chamber.set(-41.0)
         with pytest.raises(LimitError, match="max_ramp_c_per_min"):
             chamber.set_ramp_rate(6.0)
-        assert sim.server.requests_seen == seen + 0
+        assert sim.server.requests_seen == seen
         assert sim.register_values(F4T_SETPOINT, 2) == before and world.setpoint_c == 22.0
         chamber.close()
 

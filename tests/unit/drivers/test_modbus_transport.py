@@ -27,12 +27,19 @@ TIMEOUT_S = 0.2
 
 
 def tcp(port: int, **kw) -> ModbusTransport:
-    return ModbusTransport(name="chamber", host="127.0.0.1", port=port, timeout_s=TIMEOUT_S, clock=SimClock(), **kw)
+    return ModbusTransport(
+        name="chamber", host="127.0.0.1", port=port, timeout_s=TIMEOUT_S, clock=SimClock(), **kw
+    )
 
 
 def rtu(port: int, **kw) -> ModbusTransport:
     return ModbusTransport(
-        name="chamber", serial_port=f"socket://127.0.0.1:{port}", timeout_s=TIMEOUT_S, clock=SimClock(), **kw
+        name="chamber",
+        serial_port=f"socket://127.0.0.1:{port}",
+        baudrate=115200,
+        timeout_s=TIMEOUT_S,
+        clock=SimClock(),
+        **kw,
     )
 
 
@@ -146,13 +153,18 @@ def test_connection_refused_is_device_not_found():
 
 
 def test_frames_are_logged_at_debug(caplog):
-    script = [(bytes.fromhex("0001 0000 0006 01 03 0064 0001"), bytes.fromhex("0001 0000 0005 01 03 02 00fa"))]
+    script = [
+        (bytes.fromhex("0001 0000 0006 01 03 0064 0001"), bytes.fromhex("0001 0000 0005 01 03 02 00fa"))
+    ]
     with ScriptedPeer(script) as peer, caplog.at_level(logging.DEBUG, "magrig.transport.modbus"):
         link = tcp(peer.port)
         link.read_holding(100, 1)
         link.close()
     lines = [r.getMessage() for r in caplog.records if r.name == "magrig.transport.modbus"]
-    assert lines == ["chamber tx 00 01 00 00 00 06 01 03 00 64 00 01", "chamber rx 00 01 00 00 00 05 01 03 02 00 fa"]
+    assert lines == [
+        "chamber tx 00 01 00 00 00 06 01 03 00 64 00 01",
+        "chamber rx 00 01 00 00 00 05 01 03 02 00 fa",
+    ]
 
 
 def test_refuses_values_that_are_not_words():
@@ -206,6 +218,12 @@ def test_rtu_against_server():
         link.close()
     finally:
         srv.stop()
+
+
+def test_missing_serial_port_is_device_not_found():
+    link = ModbusTransport(name="chamber", serial_port="/dev/does-not-exist", timeout_s=0.1, clock=SimClock())
+    with pytest.raises(DeviceNotFound, match="chamber: connect: cannot open serial port /dev/does-not-exist"):
+        link.connect()
 
 
 def test_requires_exactly_one_link():

@@ -90,11 +90,13 @@ def test_shipped_plans_load(name):
 
 def test_value_error_names_file_key_path_and_line(tmp_path):
     path = write(tmp_path, "plan.yaml", PLAN.replace("BAND", "-1"))
-    assert error_of(load_plan, path) == f"{path}: temperatures.steps[2].stability.band_c: must be > 0 (line 10)"
+    expected = f"{path}: temperatures.steps[2].stability.band_c: must be > 0 (line 10)"
+    assert error_of(load_plan, path) == expected
 
 
 def test_unknown_key_is_rejected_with_its_line(tmp_path):
-    path = write(tmp_path, "plan.yaml", PLAN.replace("BAND", "0.3").replace("samples_per_point", "sample_per_point"))
+    text = PLAN.replace("BAND", "0.3").replace("samples_per_point", "sample_per_point")
+    path = write(tmp_path, "plan.yaml", text)
     msg = error_of(load_plan, path)
     assert msg.startswith(f"{path}: sample_per_point: unknown key (line 12)")
 
@@ -112,9 +114,15 @@ def test_missing_key_names_the_key_and_its_parent_line(tmp_path):
 
 
 def test_wrong_transport_kind_for_a_chamber(tmp_path):
-    text = STATION.replace("  transport: {kind: sim}\n  limits", "  transport: {kind: i2c, bus: 1, address: 3}\n  limits")
+    text = STATION.replace("  transport: {kind: sim}\n  limits",
+                           "  transport: {kind: i2c, bus: 1, address: 3}\n  limits")
     msg = error_of(load_station, write(tmp_path, "station.yaml", text))
-    assert "chamber.transport" in msg and "(line 4)" in msg
+    assert msg.endswith("chamber.transport.kind: 'i2c' is not one of 'modbus_tcp', 'modbus_rtu', 'sim' "
+                        "(line 4)")
+    no_kind = STATION.replace("duts:\n  - name: m0", "duts:\n  - name: m0\n    transport: {bus: 1}", 1)
+    no_kind = no_kind.replace("    transport: {kind: i2c, bus: 1, address: 0x30}\n", "")
+    msg = error_of(load_station, write(tmp_path, "station.yaml", no_kind))
+    assert msg.endswith("duts[0].transport: required key 'kind' is missing (line 14)")
 
 
 def test_cross_reference_error_is_blamed_on_the_key(tmp_path):
@@ -125,7 +133,7 @@ def test_cross_reference_error_is_blamed_on_the_key(tmp_path):
 
 
 def test_limits_must_be_ordered(tmp_path):
-    text = STATION.replace("min_setpoint_c: -40, max_setpoint_c: 85", "min_setpoint_c: 90, max_setpoint_c: 85")
+    text = STATION.replace("min_setpoint_c: -40,", "min_setpoint_c: 90,")
     msg = error_of(load_station, write(tmp_path, "station.yaml", text))
     assert "chamber.limits.max_setpoint_c: must be above min_setpoint_c (line 5)" in msg
 
@@ -151,8 +159,8 @@ def test_duplicate_device_names(tmp_path):
 def test_turntable_site_field_forms(tmp_path):
     base = STATION.split("field_source:")[0] + "field_source:\n  kind: turntable\n  transport: {kind: sim}\n"
     tail = "duts:" + STATION.split("duts:")[1]
-    for site, kind in [("{vector_nt: [1, 2, 3]}", "SiteFromVector"),
-                       ("{model: wmm, lat_deg: 52, lon_deg: 5, alt_km: 0.1, date: 2026-01-01}", "SiteFromModel"),
+    wmm = "{model: wmm, lat_deg: 52, lon_deg: 5, alt_km: 0.1, date: 2026-01-01}"
+    for site, kind in [("{vector_nt: [1, 2, 3]}", "SiteFromVector"), (wmm, "SiteFromModel"),
                        ("{reference_magnetometer: m0}", "SiteFromReference")]:
         station = load_station(write(tmp_path, "t.yaml", base + f"  site_field: {site}\n" + tail))
         assert type(station.field_source.site_field).__name__ == kind
@@ -172,7 +180,8 @@ def test_empty_and_missing_files(tmp_path):
 
 
 def test_steps_or_range_not_both(tmp_path):
-    text = PLAN.replace("BAND", "0.3").replace("  steps:", "  range: {start_c: 0, stop_c: 10, step_c: 5}\n  steps:")
+    text = PLAN.replace("BAND", "0.3").replace("  steps:", "  range: {start_c: 0, stop_c: 10, step_c: 5}\n"
+                                                             "  steps:")
     assert "temperatures.steps: give either steps" in error_of(load_plan, write(tmp_path, "p.yaml", text))
 
 
@@ -207,3 +216,44 @@ def test_simulation_is_explicit_per_device(tmp_path):
     station = load_station(write(tmp_path, "station.yaml", STATION))
     assert station.simulated_devices() == {"chamber": True, "coils": True, "m0": False, "tmp0": True}
     assert isinstance(station, Station)
+
+
+def test_a_key_given_twice_is_an_error(tmp_path):
+    text = PLAN.replace("BAND", "0.3") + "samples_per_point: 4\n"
+    msg = error_of(load_plan, write(tmp_path, "p.yaml", text))
+    assert msg == f"{tmp_path / 'p.yaml'}: samples_per_point: key given twice (lines 12 and 13)"
+
+
+def test_bare_off_in_yaml_means_off(tmp_path):
+    plan = load_plan(write(tmp_path, "p.yaml", PLAN.replace("BAND", "0.3") + "set_reset: off\n"))
+    assert plan.set_reset == "off"
+
+
+def test_simulated_truths_are_seeded_per_dut_and_explicit_ones_are_kept(tmp_path):
+    explicit = STATION.replace("transport: {kind: i2c, bus: 1, address: 0x30}", "transport: {kind: sim}")
+    explicit += textwrap.dedent("""\
+        sim:
+          seed: 11
+          duts:
+            m0:
+              truth: {S: [[1.01, 0, 0], [0, 0.99, 0], [0, 0, 1]], b_nt: [100, -50, 20]}
+              noise_nt: 0
+              thermal_lag_s: 120
+        """)
+    station = load_station(write(tmp_path, "s.yaml", explicit))
+    truth = station.sim_dut_truths()["m0"]
+    assert truth.S[0, 0] == 1.01 and list(truth.b_nt) == [100, -50, 20] and truth.thermal_lag_s == 120
+    assert not truth.K.any() and truth.noise_nt == 0
+    sim = load_station(DEFAULT_STATION)
+    a, b = sim.sim_dut_truths(), sim.sim_dut_truths()
+    assert set(a) == {"mmc0", "serial0"}
+    assert (a["mmc0"].S == b["mmc0"].S).all() and not (a["mmc0"].S == a["serial0"].S).all()
+    assert a["serial0"].thermal_lag_s == sim.sim.duts["serial0"].thermal_lag_s
+
+
+def test_simulated_ambient_and_site_defaults(tmp_path):
+    station = load_station(write(tmp_path, "s.yaml", STATION.replace("ambient_nt: [0, 0, 0]",
+                                                                     "ambient_nt: [1, 2, 3]")))
+    assert list(station.sim_ambient_nt()) == [1, 2, 3]  # the coils' stated ambient
+    assert list(load_station(DEFAULT_STATION).sim_ambient_nt()) == [15000, 500, 42000]
+    assert len(station.sim_site_field_nt()) == 3

@@ -164,7 +164,7 @@ def test_pause_makes_safe_then_resume_retakes_the_interrupted_point():
     result = engine.run(rig.steps(IDS))
     assert result.status == COMPLETED
     assert session.points == IDS  # the point before the pause is kept, nothing twice
-    assert len(answers) == 1 and "T01-F01" in answers[0]
+    assert len(answers) == 1 and "T01-F02" in answers[0]
     # safe on pause, and again at the end
     assert rig.coils.safe_calls == 2 and rig.chamber.safe_calls == 2
     assert ["pause", "safe_state", "resume"] == [k for k in session.kinds() if k in

@@ -1,0 +1,47 @@
+"""`rig sessions`: one line per session file, from rig.store.summarize."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rig.report.sources import utc
+
+WIDTHS = (28, 17, 16, 16, 18, 12)  # file, started, station, DUTs, points, exit; then the last fit
+
+
+def _row(*cells: str) -> str:
+    *fixed, last = cells
+    return " ".join(f"{c:<{w}}" for c, w in zip(fixed, WIDTHS, strict=True)) + " " + last
+
+
+HEADER = _row("file", "started (UTC)", "station", "DUTs", "points done", "exit", "last fit residual")
+
+
+def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    return sorted(p for p in directory.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+
+
+def session_line(path: Path) -> str:
+    """The session at a glance; raises SessionError for a file that is not a session or is damaged."""
+    from rig import store
+
+    s = store.summarize(path)
+    points = f"{s['points_done']}/{s['points_planned']}"
+    if s["points_failed"]:
+        points += f" ({s['points_failed']} failed)"
+    fit = s["last_fit"]
+    if fit is None:
+        last = "no fit"
+    else:
+        rms = fit.get("residual_rms_nt")
+        last = f"{fit['dut']} {fit['model']} " + ("(no residual)" if rms is None else f"{rms:.4g} nT RMS")
+    started = utc(s["started"]).removesuffix(" UTC")[:16]
+    exit_status = s["exit_status"] or "not finished"
+    return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, last)
+
+
+def skipped_line(path: Path, reason: str) -> str:
+    """One line for a file that could not be read; the reason without a repeated path."""
+    for prefix in (f"{path}: ", f"{path.name}: "):
+        reason = reason.removeprefix(prefix)
+    return f"{path.name:<{WIDTHS[0]}} SKIPPED: {reason}"

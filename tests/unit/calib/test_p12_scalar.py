@@ -1,0 +1,135 @@
+"""P12 and the scalar (ellipsoid) model: truth recovery, stationary points, identifiability, robust flags."""
+
+import numpy as np
+import pytest
+
+import calib
+from calib import p12, synthetic
+from rig.errors import FitError
+
+
+def test_p12_recovers_truth_within_a_few_standard_errors():
+    ds, truth = synthetic.p12_dataset(np.random.default_rng(1))
+    cal = calib.fit(ds, "p12")
+    for name, value in cal.params.items():
+        assert np.max(np.abs((value - truth.params[name]) / cal.std_errors[name])) < 4.5, name
+    # applying it: B = (QP)^-1 (h - b) gives the reference back to the noise level
+    assert cal.stats["rms_after_nt"] < 11.0
+
+
+def test_p12_standard_errors_match_monte_carlo():
+    params = synthetic.random_p12_params(np.random.default_rng(2))
+    fits = [calib.fit(synthetic.p12_dataset(np.random.default_rng(1000 + s), params=params, samples_per_point=3)[0],
+                      "p12") for s in range(200)]
+    for name in ("k", "angles_deg", "b_nt"):
+        predicted = np.mean([f.std_errors[name] for f in fits], axis=0)
+        ratio = np.std([f.params[name] for f in fits], axis=0, ddof=1) / predicted
+        assert np.all((ratio > 0.75) & (ratio < 1.3)), (name, ratio)  # 200 runs: +-5 % (1 sigma)
+
+
+def test_p12_four_stationary_points_and_the_physical_minimum():
+    ds, _ = synthetic.p12_dataset(np.random.default_rng(3))
+    points = p12.stationary_points(ds)
+    assert len(points) == 4
+    assert sorted(p["signs"] for p in points) == [(-1, -1), (-1, 1), (1, -1), (1, 1)]
+    penalties = np.array([p["penalty"] for p in points])
+    np.testing.assert_allclose(penalties, penalties[0], rtol=1e-9)  # same matrix QP, same penalty
+    physical = [p for p in points if p["physical"]]
+    assert len(physical) == 1 and physical[0]["signs"] == (1, 1)
+    chosen = calib.fit(ds, "p12").params
+    for name in ("k", "angles_deg", "b_nt"):
+        np.testing.assert_allclose(physical[0][name], chosen[name], rtol=1e-9, atol=1e-9)
+    # a stationary point that is a minimum: the penalty rises in every direction around it
+    rng = np.random.default_rng(4)
+    base = p12.penalty(ds, chosen["k"], chosen["angles_deg"], chosen["b_nt"])
+    for _ in range(50):
+        dk, da, db = rng.normal(0, 1e-5, 3), rng.normal(0, 1e-3, 3), rng.normal(0, 0.1, 3)
+        assert p12.penalty(ds, chosen["k"] + dk, chosen["angles_deg"] + da, chosen["b_nt"] + db) > base
+    # and the gradient vanishes there (central differences along each parameter)
+    x0 = np.concatenate([chosen["k"], chosen["angles_deg"], chosen["b_nt"]])
+    steps = np.array([1e-6] * 3 + [1e-4] * 3 + [1e-2] * 3)
+    for i, h in enumerate(steps):
+        xp, xm = x0.copy(), x0.copy()
+        xp[i] += h
+        xm[i] -= h
+        slope = (p12.penalty(ds, *np.split(xp, 3)) - p12.penalty(ds, *np.split(xm, 3))) / (2 * h)
+        curvature = (p12.penalty(ds, *np.split(xp, 3)) - 2 * base + p12.penalty(ds, *np.split(xm, 3))) / h**2
+        assert abs(slope) * h < 1e-3 * curvature * h**2 + 1e-6 * base
+
+
+def test_p12_needs_three_directions():
+    dirs = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], float)
+    ds, _ = synthetic.p12_dataset(np.random.default_rng(5), directions=dirs)
+    with pytest.raises(FitError, match="P12 axis 3: scale factor and angles are not identifiable"):
+        calib.fit(ds, "p12")
+
+
+def _upper(a):
+    return a[np.triu_indices(3)]
+
+
+def test_scalar_recovers_truth_with_a_known_norm():
+    ds, truth = synthetic.scalar_dataset(np.random.default_rng(6), n=1500)
+    cal = calib.fit(ds, "scalar")
+    z_a = (_upper(cal.params["A"]) - _upper(truth.params["A"])) / _upper(cal.std_errors["A"])
+    z_c = (cal.params["c_nt"] - truth.params["c_nt"]) / cal.std_errors["c_nt"]
+    assert np.max(np.abs(z_a)) < 4.5 and np.max(np.abs(z_c)) < 4.5
+    assert np.allclose(np.tril(cal.params["A"], -1), 0)  # upper-triangular by construction
+    assert cal.stats["rms_after_nt"] == pytest.approx(10.0, rel=0.1)
+
+
+def test_scalar_with_temperature_terms():
+    ds, truth = synthetic.scalar_dataset(np.random.default_rng(7), n=800, temps_c=[-20.0, 25.0, 70.0])
+    cal = calib.fit(ds, "scalar", temp_ref_c=25.0)
+    assert cal.stats["temperature_terms"]
+    for name in ("A", "KA_per_c"):
+        z = (_upper(cal.params[name]) - _upper(truth.params[name])) / _upper(cal.std_errors[name])
+        assert np.max(np.abs(z)) < 4.5, name
+    for name in ("c_nt", "kc_nt_per_c"):
+        assert np.max(np.abs((cal.params[name] - truth.params[name]) / cal.std_errors[name])) < 4.5, name
+    plain = calib.fit(ds, "scalar", temperature_terms=False)
+    assert plain.stats["rms_after_nt"] > 3 * cal.stats["rms_after_nt"]
+
+
+def test_scalar_unknown_norm_is_scaled_and_says_so():
+    ds, _ = synthetic.scalar_dataset(np.random.default_rng(8), n=1000)
+    ds.ref_norm_nt = None
+    cal = calib.fit(ds, "scalar")
+    assert "unknown" in cal.stats["field_norm"]
+    assert cal.stats["norm_spread_pct"] < 0.05  # 10 nT noise on 50000 nT
+
+
+def test_scalar_planar_data_is_refused():
+    rng = np.random.default_rng(9)
+    ang = rng.uniform(0, 2 * np.pi, 500)
+    h = np.column_stack([5e4 * np.cos(ang), 5e4 * np.sin(ang), np.zeros(500)]) + rng.normal(0, 10, (500, 3))
+    ds = calib.Dataset(h_nt=h, temp_c=None, ref_nt=None, ref_norm_nt=np.full(500, 5e4))
+    with pytest.raises(FitError, match="not identifiable"):
+        calib.fit(ds, "scalar")
+
+
+@pytest.mark.parametrize("model", ["t24", "p12", "scalar"])
+def test_robust_flags_the_outliers_and_matches_the_clean_fit(model):
+    make = {"t24": synthetic.t24_dataset, "p12": synthetic.p12_dataset, "scalar": synthetic.scalar_dataset}[model]
+    ds, truth = make(np.random.default_rng(11), outlier_fraction=0.01)
+    injected = ds.columns["is_outlier"].astype(bool)
+    cal = calib.fit(ds, model, robust=True)
+    assert cal.stats["n_outliers"] == int(cal.outliers.sum())
+    assert np.all(cal.outliers[injected])  # every injected outlier is flagged
+    assert np.sum(cal.outliers & ~injected) <= 2  # and hardly any clean sample
+    plain = calib.fit(ds, model)
+    clean = calib.fit(ds.subset(~injected), model)
+    probe = truth.apply(ds.h_nt[~injected], None if ds.temp_c is None else ds.temp_c[~injected])
+
+    def error(c):
+        return np.sqrt(np.mean((c.apply(ds.h_nt[~injected], None if ds.temp_c is None else ds.temp_c[~injected])
+                                - probe) ** 2))
+
+    assert error(cal) < 1.5 * error(clean) + 0.5
+    if model != "scalar":
+        assert error(plain) > 5 * error(cal)
+
+
+def test_robust_on_clean_data_flags_almost_nothing():
+    ds, _ = synthetic.t24_dataset(np.random.default_rng(12))
+    assert calib.fit(ds, "t24", robust=True).stats["n_outliers"] <= 2
