@@ -73,9 +73,11 @@ def main() -> None:
     reply_s = line_time_s(LINE_BYTES, baud)
     poll_wire_s = line_time_s(len(POLL_COMMAND), baud) + reply_s
     period_s = 1 / MAX_RATE_HZ
-    print(f"device limits: {MAX_RATE_HZ} Hz max output = {us(period_s)} per sample; "
-          f"28-byte line at {baud} baud 8N1 = {us(reply_s)} (at 9600: {us(line_time_s(LINE_BYTES, 9600))}, "
-          f"so 9600 baud caps the stream at {1 / line_time_s(LINE_BYTES, 9600):.0f} Hz)")
+    print(
+        f"device limits: {MAX_RATE_HZ} Hz max output = {us(period_s)} per sample; "
+        f"28-byte line at {baud} baud 8N1 = {us(reply_s)} (at 9600: {us(line_time_s(LINE_BYTES, 9600))}, "
+        f"so 9600 baud caps the stream at {1 / line_time_s(LINE_BYTES, 9600):.0f} Hz)"
+    )
 
     world = make_world()
     with SerialMagSim(world, "dut1", reply_latency_s=0.0, line_baudrate=baud) as sim:

@@ -38,5 +38,7 @@ def load(path: str | os.PathLike) -> Calibration:
     except (json.JSONDecodeError, yaml.YAMLError) as err:
         where = getattr(err, "problem_mark", None)
         line = f" line {where.line + 1}" if where is not None else f" line {getattr(err, 'lineno', '?')}"
-        raise DataError(f"{p}:{line}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}") from None
+        raise DataError(
+            f"{p}:{line}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}"
+        ) from None
     return Calibration.from_dict(data, where=str(p))

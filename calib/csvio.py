@@ -46,7 +46,9 @@ def nt_per_raw_unit(raw_unit: str = "nT", counts_per_unit: str | float | None = 
     except ValueError:
         counts = float("nan")
     if not (np.isfinite(counts) and counts > 0) or per not in NT_PER_UNIT:
-        raise DataError(f"--counts-per-unit {counts_per_unit!r}: expected a positive number, optionally /UNIT")
+        raise DataError(
+            f"--counts-per-unit {counts_per_unit!r}: expected a positive number, optionally /UNIT"
+        )
     return NT_PER_UNIT[per] / counts
 
 
@@ -60,7 +62,9 @@ def parse_column_map(text: str | None) -> dict[str, str]:
         if not sep or not ours.strip() or not theirs.strip():
             raise DataError(f"--columns item {item!r}: expected OURS=THEIRS, e.g. hx=mx_gauss")
         if ours.strip() not in (*NUMERIC_COLUMNS, "group"):
-            raise DataError(f"--columns item {item!r}: {ours.strip()!r} is not one of {', '.join(NUMERIC_COLUMNS)}, group")
+            raise DataError(
+                f"--columns item {item!r}: {ours.strip()!r} is not one of {', '.join(NUMERIC_COLUMNS)}, group"
+            )
         out[ours.strip()] = theirs.strip()
     return out
 
@@ -91,12 +95,16 @@ def read_csv(
     mapping = {name: name for name in (*NUMERIC_COLUMNS, "group") if name in header}
     for ours, theirs in (columns or {}).items():
         if theirs not in header:
-            raise DataError(f"{p} line 1: column {theirs!r} (given for {ours}) not in header {','.join(header)}")
+            raise DataError(
+                f"{p} line 1: column {theirs!r} (given for {ours}) not in header {','.join(header)}"
+            )
         mapping[ours] = theirs
     for name in RAW_COLUMNS:
         if name not in mapping:
-            raise DataError(f"{p} line 1: missing column {name!r} (header: {','.join(header)}); "
-                            "map yours with --columns hx=NAME,hy=NAME,hz=NAME")
+            raise DataError(
+                f"{p} line 1: missing column {name!r} (header: {','.join(header)}); "
+                "map yours with --columns hx=NAME,hy=NAME,hz=NAME"
+            )
     body = text[header_end + 1 :] if header_end >= 0 else ""
     if not body.strip():
         raise DataError(f"{p}: no data rows after the header")
@@ -177,7 +185,9 @@ def _parse_slow(body: str, header: list[str], numeric: list[str], p: Path) -> di
                     try:
                         float(cell)
                     except ValueError:
-                        raise DataError(f"{p} line {line_of[k]}, column {name!r}: {cell!r} is not a number") from None
+                        raise DataError(
+                            f"{p} line {line_of[k]}, column {name!r}: {cell!r} is not a number"
+                        ) from None
             cols[name] = np.array(cells, dtype=object)
     return cols
 
@@ -186,7 +196,23 @@ def _check_finite(values: np.ndarray, name: str, p: Path) -> None:
     bad = ~np.isfinite(values.astype(float))
     if bad.any():
         row = int(np.flatnonzero(bad)[0])
-        raise DataError(f"{p} data row {row + 1} (line {row + 2}), column {name!r}: {values[row]} is not finite")
+        raise DataError(
+            f"{p} data row {row + 1} (line {row + 2}), column {name!r}: {values[row]} is not finite"
+        )
+
+
+def contract_columns(ds: Dataset) -> dict[str, np.ndarray]:
+    """A dataset as CSV-contract columns (hx,hy,hz in nT, then temp, bx,by,bz, bnorm, group when present)."""
+    cols = {name: ds.h_nt[:, i] for i, name in enumerate(RAW_COLUMNS)}
+    if ds.temp_c is not None:
+        cols["temp"] = ds.temp_c
+    if ds.ref_nt is not None:
+        cols.update({name: ds.ref_nt[:, i] for i, name in enumerate(REF_COLUMNS)})
+    if ds.ref_norm_nt is not None:
+        cols["bnorm"] = ds.ref_norm_nt
+    if ds.group is not None:
+        cols["group"] = ds.group
+    return cols
 
 
 def write_csv(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:

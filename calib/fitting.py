@@ -31,15 +31,22 @@ def fit(
     """
     check_dataset(ds)
     if model == "t24":
+
         def fit_weighted(w):
             return t24.fit_weighted(ds, w, temp_ref_c)
     elif model == "p12":
+
         def fit_weighted(w):
             return p12.fit_weighted(ds, w)
     elif model == "scalar":
+
         def fit_weighted(w):
             return scalar.fit_weighted(
-                ds, w, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt, temperature_terms=temperature_terms,
+                ds,
+                w,
+                temp_ref_c=temp_ref_c,
+                field_norm_nt=field_norm_nt,
+                temperature_terms=temperature_terms,
                 balance_orientations=balance_orientations,
             )
     else:
@@ -54,7 +61,9 @@ def fit(
     stats = dict(cal.stats)
     norm = stats.get("field_norm_nt")  # scalar model with one constant |B|
     stats.update(residual_stats(ds, field, vector=model != "scalar", used=used, norm_nt=norm))
-    stats.update({"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust})
+    stats.update(
+        {"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust}
+    )
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
     cal.stats = stats

@@ -33,7 +33,7 @@ class GramAccumulator:
         self.n = 0
         self.temp_min_c = np.inf
         self.temp_max_c = -np.inf
-        self._buf = np.empty((CHUNK_ROWS, 11))
+        self._buf = np.empty((CHUNK_ROWS, 11), order="F")  # column fills are contiguous writes
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
         """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""

@@ -22,8 +22,10 @@ RCOND_SINGULAR = 1e-12
 def _row_fits(ds: Dataset, weights: np.ndarray | None):
     """Per raw axis: coefficients on (B_1..B_i, 1), their unit-variance covariance, residuals."""
     if ds.ref_nt is None:
-        raise DataError("P12 needs the reference field vector of every sample (columns bx,by,bz); "
-                        "with only |B| known use --model scalar")
+        raise DataError(
+            "P12 needs the reference field vector of every sample (columns bx,by,bz); "
+            "with only |B| known use --model scalar"
+        )
     n = len(ds)
     w = np.ones(n) if weights is None else np.asarray(weights, float)
     n_used = int(np.count_nonzero(w))
@@ -40,7 +42,8 @@ def _row_fits(ds: Dataset, weights: np.ndarray | None):
         u, s, vt = np.linalg.svd(xs, full_matrices=False)
         if np.any(scale == 0) or s[-1] < RCOND_SINGULAR**0.5 * s[0]:
             raise FitError(
-                f"P12 axis {i + 1}: scale factor and angles are not identifiable: the reference field does not "
+                f"P12 axis {i + 1}: scale factor and angles are not identifiable: the reference field "
+                f"does not "
                 f"vary independently along B1..B{i + 1}; add field directions"
             )
         coef = (vt.T @ ((u.T @ (ds.h_nt[:, i : i + 1] * sw)) / s[:, None]))[:, 0] / scale
@@ -64,7 +67,9 @@ def fit_weighted(ds: Dataset, weights: np.ndarray | None):
     m, b, covs, residuals, sigma2 = _row_fits(ds, weights)
     if np.any(np.diag(m) <= 0):
         axis = int(np.flatnonzero(np.diag(m) <= 0)[0]) + 1
-        raise FitError(f"P12 axis {axis}: the fitted scale factor is not positive (reversed axis or wrong reference)")
+        raise FitError(
+            f"P12 axis {axis}: the fitted scale factor is not positive (reversed axis or wrong reference)"
+        )
     values = _k_angles(m)
     # propagate each row's covariance through (row of M) -> (k, angles) by central differences
     var = np.zeros(6)

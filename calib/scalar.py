@@ -134,8 +134,9 @@ def _levenberg_marquardt(theta, hn, fn, t, w, temp: bool):
     return theta, r, jac
 
 
-def orientation_balance_weights(field_nt: np.ndarray, angle_deg: float = 20.0,
-                                max_reference: int = 4000) -> np.ndarray:
+def orientation_balance_weights(
+    field_nt: np.ndarray, angle_deg: float = 20.0, max_reference: int = 4000
+) -> np.ndarray:
     """Weights ~ 1 / (share of samples within angle_deg of each sample's direction), mean 1.
 
     Hand-held recordings dwell on some orientations; balancing keeps those from dominating the fit, so
@@ -145,7 +146,9 @@ def orientation_balance_weights(field_nt: np.ndarray, angle_deg: float = 20.0,
     u = field_nt / np.linalg.norm(field_nt, axis=1, keepdims=True)
     ref = u[:: max(1, len(u) // max_reference)]
     cos_limit = np.cos(np.radians(angle_deg))
-    counts = np.concatenate([np.sum(u[lo : lo + 2048] @ ref.T > cos_limit, axis=1) for lo in range(0, len(u), 2048)])
+    counts = np.concatenate(
+        [np.sum(u[lo : lo + 2048] @ ref.T > cos_limit, axis=1) for lo in range(0, len(u), 2048)]
+    )
     w = 1.0 / np.maximum(counts, 1)
     return w * (len(w) / w.sum())
 
@@ -167,8 +170,13 @@ def fit_weighted(
     weights by `orientation_balance_weights` of the field directions of a first, unbalanced fit.
     """
     if balance_orientations:
-        first, _ = fit_weighted(ds, weights, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
-                                temperature_terms=temperature_terms)
+        first, _ = fit_weighted(
+            ds,
+            weights,
+            temp_ref_c=temp_ref_c,
+            field_norm_nt=field_norm_nt,
+            temperature_terms=temperature_terms,
+        )
         balance = orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
         weights = balance if weights is None else weights * balance
     n = len(ds)
@@ -178,14 +186,19 @@ def fit_weighted(
     temp = span >= MIN_TEMP_SPAN_C if temperature_terms is None else temperature_terms
     if temp and span < MIN_TEMP_SPAN_C:
         raise FitError(
-            f"scalar: temperature span {span:.2f} degC: the temperature terms KA and kc are not identifiable; "
+            f"scalar: temperature span {span:.2f} degC: "
+            "the temperature terms KA and kc are not identifiable; "
             "add a temperature step or fit without temperature terms"
         )
     n_params = 18 if temp else 9
     if np.count_nonzero(w) <= n_params:
         raise FitError(f"scalar: {np.count_nonzero(w)} samples, more than {n_params} needed")
     if temp:
-        ref_c = round(float(0.5 * (np.min(ds.temp_c) + np.max(ds.temp_c))), 1) if temp_ref_c is None else temp_ref_c
+        ref_c = (
+            round(float(0.5 * (np.min(ds.temp_c) + np.max(ds.temp_c))), 1)
+            if temp_ref_c is None
+            else temp_ref_c
+        )
         t = ds.temp_c - ref_c
     else:
         ref_c, t = None, np.zeros(n)
@@ -201,8 +214,10 @@ def fit_weighted(
     eig, vec = np.linalg.eigh(jtj / np.outer(scale, scale))
     if eig[0] < RCOND_SINGULAR * eig[-1]:
         if temp and np.sum(vec[9:, 0] ** 2) > 0.5:
-            raise FitError("scalar: the temperature terms KA and kc are not identifiable from these samples; "
-                           "add orientations at each temperature step or fit without temperature terms")
+            raise FitError(
+                "scalar: the temperature terms KA and kc are not identifiable from these samples; "
+                "add orientations at each temperature step or fit without temperature terms"
+            )
         raise FitError(_coverage_message())
     cov = (vec / eig) @ vec.T / np.outer(scale, scale)
     sigma2 = float(np.sum(w * r**2) / (np.count_nonzero(w) - n_params))
@@ -219,8 +234,13 @@ def fit_weighted(
         params=params,
         std_errors=std_errors,
         temp_ref_c=ref_c,
-        stats={"field_norm": norm_source, **_constant_norm(fn_nt), "balance_orientations": balance_orientations,
-               "sigma_nt": float(np.sqrt(sigma2) * size), "temperature_terms": temp},
+        stats={
+            "field_norm": norm_source,
+            **_constant_norm(fn_nt),
+            "balance_orientations": balance_orientations,
+            "sigma_nt": float(np.sqrt(sigma2) * size),
+            "temperature_terms": temp,
+        },
         source={"kind": "dataset"},
     )
     return cal, r * size

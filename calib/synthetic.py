@@ -28,16 +28,25 @@ def coil_directions(n: int = 26, rng: np.random.Generator | None = None) -> np.n
 
 def _truth(model: str, params: dict, temp_ref_c: float | None = None) -> Calibration:
     zeros = {k: np.zeros_like(v) for k, v in params.items()}
-    return Calibration(model=model, params=params, std_errors=zeros, temp_ref_c=temp_ref_c,
-                       source={"kind": "synthetic truth"})
+    return Calibration(
+        model=model,
+        params=params,
+        std_errors=zeros,
+        temp_ref_c=temp_ref_c,
+        source={"kind": "synthetic truth"},
+    )
 
 
 def random_t24_params(rng: np.random.Generator) -> dict:
     """T24 errors of the size an AMR datasheet allows (~2 % scale, ~1 % cross-axis, 150 ppm/degC)."""
     s = np.eye(3) + rng.normal(0, 0.01, (3, 3))
     s[np.diag_indices(3)] = 1 + rng.normal(0, 0.02, 3)
-    return {"S": s, "K": rng.normal(0, 1.5e-4, (3, 3)), "b_nt": rng.normal(0, 400, 3),
-            "kb_nt_per_c": rng.normal(0, 5, 3)}
+    return {
+        "S": s,
+        "K": rng.normal(0, 1.5e-4, (3, 3)),
+        "b_nt": rng.normal(0, 400, 3),
+        "kb_nt_per_c": rng.normal(0, 5, 3),
+    }
 
 
 def _add_outliers(h: np.ndarray, rng, fraction: float, size_nt: float) -> np.ndarray:
@@ -73,13 +82,23 @@ def t24_dataset(
         h[i] = np.linalg.solve(p["S"] + t * p["K"], b - p["b_nt"] - t * p["kb_nt_per_c"])
     h += rng.normal(0, noise_nt, h.shape)
     outliers = _add_outliers(h, rng, outlier_fraction, outlier_nt)
-    ds = Dataset(h_nt=h, temp_c=temps, ref_nt=ref, group=group,
-                 columns={"is_outlier": outliers.astype(float)}, source={"kind": "synthetic t24"})
+    ds = Dataset(
+        h_nt=h,
+        temp_c=temps,
+        ref_nt=ref,
+        group=group,
+        columns={"is_outlier": outliers.astype(float)},
+        source={"kind": "synthetic t24"},
+    )
     return ds, _truth("t24", p)
 
 
 def random_p12_params(rng: np.random.Generator) -> dict:
-    return {"k": 1 + rng.normal(0, 0.02, 3), "angles_deg": rng.normal(0, 0.5, 3), "b_nt": rng.normal(0, 400, 3)}
+    return {
+        "k": 1 + rng.normal(0, 0.02, 3),
+        "angles_deg": rng.normal(0, 0.5, 3),
+        "b_nt": rng.normal(0, 400, 3),
+    }
 
 
 def p12_dataset(
@@ -99,8 +118,14 @@ def p12_dataset(
     ref = field_nt * np.repeat(dirs, samples_per_point, axis=0)
     h = ref @ p12_matrix(p["k"], p["angles_deg"]).T + p["b_nt"] + rng.normal(0, noise_nt, ref.shape)
     outliers = _add_outliers(h, rng, outlier_fraction, outlier_nt)
-    ds = Dataset(h_nt=h, temp_c=None, ref_nt=ref, group=np.repeat(np.arange(len(dirs)), samples_per_point),
-                 columns={"is_outlier": outliers.astype(float)}, source={"kind": "synthetic p12"})
+    ds = Dataset(
+        h_nt=h,
+        temp_c=None,
+        ref_nt=ref,
+        group=np.repeat(np.arange(len(dirs)), samples_per_point),
+        columns={"is_outlier": outliers.astype(float)},
+        source={"kind": "synthetic p12"},
+    )
     return ds, _truth("p12", p)
 
 
@@ -139,7 +164,12 @@ def scalar_dataset(
         h[i] = np.linalg.solve(a, ref[i]) + c
     h += rng.normal(0, noise_nt, h.shape)
     outliers = _add_outliers(h, rng, outlier_fraction, outlier_nt)
-    ds = Dataset(h_nt=h, temp_c=temps if temperature_terms else None, ref_nt=None,
-                 ref_norm_nt=np.full(len(ref), field_nt), columns={"is_outlier": outliers.astype(float)},
-                 source={"kind": "synthetic scalar"})
+    ds = Dataset(
+        h_nt=h,
+        temp_c=temps if temperature_terms else None,
+        ref_nt=None,
+        ref_norm_nt=np.full(len(ref), field_nt),
+        columns={"is_outlier": outliers.astype(float)},
+        source={"kind": "synthetic scalar"},
+    )
     return ds, _truth("scalar", p, temp_ref_c if temperature_terms else None)

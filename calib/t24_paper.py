@@ -42,19 +42,37 @@ def paper_solution(h_nt: np.ndarray, temp_c: np.ndarray, ref_nt: np.ndarray) -> 
     gamma = np.empty((6, 3))
     for j in range(3):
         for k in range(3):
-            alpha[j, k] = den * m_mat[k, j] + h_sum[j] * (r_sum * h_sum[k] - t_sum * g_sum[k]) + g_sum[j] * (
-                n * g_sum[k] - t_sum * h_sum[k])
-            alpha[j + 3, k] = den * p_mat[k, j] + g_sum[j] * (r_sum * h_sum[k] - t_sum * g_sum[k]) + l_sum[j] * (
-                n * g_sum[k] - t_sum * h_sum[k])
-            beta[j, k] = den * p_mat[k, j] + h_sum[j] * (r_sum * g_sum[k] - t_sum * l_sum[k]) + g_sum[j] * (
-                n * l_sum[k] - t_sum * g_sum[k])
-            beta[j + 3, k] = den * q_mat[k, j] + g_sum[j] * (r_sum * g_sum[k] - t_sum * l_sum[k]) + l_sum[j] * (
-                n * l_sum[k] - t_sum * g_sum[k])
+            alpha[j, k] = (
+                den * m_mat[k, j]
+                + h_sum[j] * (r_sum * h_sum[k] - t_sum * g_sum[k])
+                + g_sum[j] * (n * g_sum[k] - t_sum * h_sum[k])
+            )
+            alpha[j + 3, k] = (
+                den * p_mat[k, j]
+                + g_sum[j] * (r_sum * h_sum[k] - t_sum * g_sum[k])
+                + l_sum[j] * (n * g_sum[k] - t_sum * h_sum[k])
+            )
+            beta[j, k] = (
+                den * p_mat[k, j]
+                + h_sum[j] * (r_sum * g_sum[k] - t_sum * l_sum[k])
+                + g_sum[j] * (n * l_sum[k] - t_sum * g_sum[k])
+            )
+            beta[j + 3, k] = (
+                den * q_mat[k, j]
+                + g_sum[j] * (r_sum * g_sum[k] - t_sum * l_sum[k])
+                + l_sum[j] * (n * l_sum[k] - t_sum * g_sum[k])
+            )
         for i in range(3):
-            gamma[j, i] = den * d_mat[i, j] + h_sum[j] * (r_sum * a_sum[i] - t_sum * c_sum[i]) + g_sum[j] * (
-                n * c_sum[i] - t_sum * a_sum[i])
-            gamma[j + 3, i] = den * f_mat[i, j] + g_sum[j] * (r_sum * a_sum[i] - t_sum * c_sum[i]) + l_sum[j] * (
-                n * c_sum[i] - t_sum * a_sum[i])
+            gamma[j, i] = (
+                den * d_mat[i, j]
+                + h_sum[j] * (r_sum * a_sum[i] - t_sum * c_sum[i])
+                + g_sum[j] * (n * c_sum[i] - t_sum * a_sum[i])
+            )
+            gamma[j + 3, i] = (
+                den * f_mat[i, j]
+                + g_sum[j] * (r_sum * a_sum[i] - t_sum * c_sum[i])
+                + l_sum[j] * (n * c_sum[i] - t_sum * a_sum[i])
+            )
     # rows j1<j2<j3 with a non-zero 3x3 minor in the first three columns: take the largest one
     first = max(itertools.combinations(range(6), 3), key=lambda rows: abs(np.linalg.det(alpha[list(rows)])))
     rest = [j for j in range(6) if j not in first]
@@ -69,10 +87,18 @@ def paper_solution(h_nt: np.ndarray, temp_c: np.ndarray, ref_nt: np.ndarray) -> 
         lam = _cramer(schur, g2 - om21 @ om11_inv @ g1)  # (20)
         sig = _cramer(om11, g1 - om12 @ lam)  # (21)
         k_mat[i], s_mat[i] = lam, sig
-        b_vec[i] = (t_sum * c_sum[i] - r_sum * a_sum[i] + (r_sum * h_sum - t_sum * g_sum) @ sig
-                    + (r_sum * g_sum - t_sum * l_sum) @ lam) / den  # (14)
-        kb_vec[i] = (t_sum * a_sum[i] - n * c_sum[i] + (n * g_sum - t_sum * h_sum) @ sig
-                     + (n * l_sum - t_sum * g_sum) @ lam) / den
+        b_vec[i] = (
+            t_sum * c_sum[i]
+            - r_sum * a_sum[i]
+            + (r_sum * h_sum - t_sum * g_sum) @ sig
+            + (r_sum * g_sum - t_sum * l_sum) @ lam
+        ) / den  # (14)
+        kb_vec[i] = (
+            t_sum * a_sum[i]
+            - n * c_sum[i]
+            + (n * g_sum - t_sum * h_sum) @ sig
+            + (n * l_sum - t_sum * g_sum) @ lam
+        ) / den
     return {"S": s_mat, "K": k_mat, "b_nt": b_vec, "kb_nt_per_c": kb_vec}
 
 
@@ -85,8 +111,15 @@ def exact_solution(h_nt, temp_c, ref_nt, dps: int = 60) -> dict[str, np.ndarray]
 
     with mpmath.workdps(dps):
         rows = [
-            [mpmath.mpf(1), mpmath.mpf(t), *(mpmath.mpf(x) for x in hv), *(mpmath.mpf(t) * mpmath.mpf(x) for x in hv)]
-            for hv, t in zip(np.asarray(h_nt, float).tolist(), np.asarray(temp_c, float).tolist(), strict=True)
+            [
+                mpmath.mpf(1),
+                mpmath.mpf(t),
+                *(mpmath.mpf(x) for x in hv),
+                *(mpmath.mpf(t) * mpmath.mpf(x) for x in hv),
+            ]
+            for hv, t in zip(
+                np.asarray(h_nt, float).tolist(), np.asarray(temp_c, float).tolist(), strict=True
+            )
         ]
         x = mpmath.matrix(rows)
         y = mpmath.matrix(np.asarray(ref_nt, float).tolist())
@@ -96,7 +129,12 @@ def exact_solution(h_nt, temp_c, ref_nt, dps: int = 60) -> dict[str, np.ndarray]
         for i in range(3):
             col = mpmath.lu_solve(gram, rhs[:, i])
             out[:, i] = [float(v) for v in col]
-    return {"S": out[2:5].T.copy(), "K": out[5:8].T.copy(), "b_nt": out[0].copy(), "kb_nt_per_c": out[1].copy()}
+    return {
+        "S": out[2:5].T.copy(),
+        "K": out[5:8].T.copy(),
+        "b_nt": out[0].copy(),
+        "kb_nt_per_c": out[1].copy(),
+    }
 
 
 def digits_kept(estimate: dict, exact: dict) -> float:

@@ -85,7 +85,8 @@ def decode_temp_c(block: bytes) -> float:
 def config_a(averaging: int, output_rate_code: int, temperature: bool) -> int:
     """Config A byte for normal measurement (no bias)."""
     ts = CONFIG_A_TS if temperature else 0
-    return ts | AVERAGING_CODES[averaging] << CONFIG_A_AVERAGING_SHIFT | output_rate_code << CONFIG_A_RATE_SHIFT
+    averaging_bits = AVERAGING_CODES[averaging] << CONFIG_A_AVERAGING_SHIFT
+    return ts | averaging_bits | output_rate_code << CONFIG_A_RATE_SHIFT
 
 
 # --- driver -----------------------------------------------------------------------------------------
@@ -113,7 +114,9 @@ class HMC5883L(Device):
             raise ConfigError(f"{name}: averaging {averaging!r}: must be 1, 2, 4 or 8")
         max_rate_code = len(OUTPUT_RATE_HZ) - (1 if variant == "HMC5883L" else 0)
         if output_rate_code not in range(max_rate_code):
-            raise ConfigError(f"{name}: output_rate_code {output_rate_code!r}: must be 0..{max_rate_code - 1}")
+            raise ConfigError(
+                f"{name}: output_rate_code {output_rate_code!r}: must be 0..{max_rate_code - 1}"
+            )
         self._check_gain(gain)
         self.model = variant
         self.link = I2CTransport(bus, address, name=name, clock=self.clock, tries=tries)
@@ -166,7 +169,9 @@ class HMC5883L(Device):
         codes = self.measure_codes()
         field_nt = tuple(code_to_nt(c, self.gain) for c in codes)
         flags = frozenset({"overflow"}) if OVERFLOW_CODE in codes else frozenset()
-        temp_c = decode_temp_c(self.link.read_block(REG_TEMP, 2, "temperature")) if self.read_temperature else None
+        temp_c = None
+        if self.read_temperature:
+            temp_c = decode_temp_c(self.link.read_block(REG_TEMP, 2, "temperature"))
         return FieldSample(t=t, field_nt=field_nt, counts=codes, temp_c=temp_c, flags=flags)
 
     def safe_state(self) -> None:

@@ -187,15 +187,18 @@ class MMC5983MA(Device):
             codes = self.measure_codes()
             self.pulse(CONTROL0_RESET)
             codes_reset = self.measure_codes()
-            field_nt = tuple(code_to_nt(NULL_CODE + (s - r) / 2) for s, r in zip(codes, codes_reset, strict=True))
-            offset_nt = tuple(code_to_nt((s + r) / 2) for s, r in zip(codes, codes_reset, strict=True))
+            pairs = list(zip(codes, codes_reset, strict=True))
+            field_nt = tuple(code_to_nt(NULL_CODE + (s - r) / 2) for s, r in pairs)
+            offset_nt = tuple(code_to_nt((s + r) / 2) for s, r in pairs)
         else:
             codes = self.measure_codes()
             field_nt = tuple(code_to_nt(c) for c in codes)
         temp_c = self.measure_temp_c() if self.read_temperature else None
         saturated = any(c in (0, CODE_MAX) for c in codes + codes_reset)
         flags = frozenset({"saturated"}) if saturated else frozenset()
-        return FieldSample(t=t, field_nt=field_nt, counts=codes, temp_c=temp_c, offset_nt=offset_nt, flags=flags)
+        return FieldSample(
+            t=t, field_nt=field_nt, counts=codes, temp_c=temp_c, offset_nt=offset_nt, flags=flags
+        )
 
     def safe_state(self) -> None:
         """Stop continuous mode and automatic SET/RESET; the chip then idles. Never raises."""

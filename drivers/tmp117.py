@@ -66,7 +66,11 @@ def decode_temp_c(word: bytes) -> float:
 
 def config_word(mode: int, averaging: int, conversion_code: int = 0) -> bytes:
     """CONFIGURATION register value (big-endian bytes) for a mode, averaging count and CONV code."""
-    value = mode << CONFIG_MODE_SHIFT | conversion_code << CONFIG_CONV_SHIFT | AVG_CODES[averaging] << CONFIG_AVG_SHIFT
+    value = (
+        mode << CONFIG_MODE_SHIFT
+        | conversion_code << CONFIG_CONV_SHIFT
+        | AVG_CODES[averaging] << CONFIG_AVG_SHIFT
+    )
     return value.to_bytes(2, "big")
 
 
@@ -154,7 +158,8 @@ class TMP117(Device):
             first_wait_s=first_wait_s, timeout_s=timeout_s,
         )
         word = self._read_word(REG_TEMP_RESULT, "temperature result")
-        flags = frozenset({"no_result"}) if int.from_bytes(word, "big", signed=True) == NO_RESULT_CODE else frozenset()
+        no_result = int.from_bytes(word, "big", signed=True) == NO_RESULT_CODE
+        flags = frozenset({"no_result"}) if no_result else frozenset()
         return TempSample(t=t, temp_c=decode_temp_c(word), flags=flags)
 
     def safe_state(self) -> None:

@@ -196,7 +196,7 @@ class Turntable(Device):
     transport: ModbusTransport
     unit: int = Field(1, ge=0, le=247)
     az_limits_deg: tuple[float, float] = (-360.0, 360.0)
-    el_limits_deg: tuple[float, float] = (-90.0, 90.0)
+    el_limits_deg: tuple[float, float] = (-180.0, 180.0)
     rate_deg_s: PositiveFloat = 10.0
     site_field: SiteField
 
@@ -220,7 +220,10 @@ DUT_OPTIONS: dict[str, set[str]] = {
     "serialmag": {"rate_hz", "set_reset"},
 }
 DUT_HAS_TEMPERATURE = {"mmc5983ma", "hmc5983", "serialmag"}
-MMC_MEASURE_S = {100: 0.008, 200: 0.004, 400: 0.002, 800: 0.0005}
+MMC_MEASURE_S = {100: 0.008, 200: 0.004, 400: 0.002, 800: 0.0005}  # datasheet, by bandwidth
+MMC_BANDWIDTH_CODE = {100: 0, 200: 1, 400: 2, 800: 3}  # BW[1:0] of Internal Control 1
+HMC_RATES_HZ = (0.75, 1.5, 3.0, 7.5, 15.0, 30.0, 75.0, 220.0)  # by DO code; 220 Hz on the HMC5983 only
+SERIALMAG_RATES_HZ = (10, 20, 25, 30, 40, 50, 60, 100, 123, 154)
 
 
 class DutOptions(Strict):
@@ -247,7 +250,29 @@ class Dut(Device):
                 raise KeyPathError(("options", key), f"not an option of {self.type} (allowed: {allowed})")
         if self.temp_source == "self" and self.type not in DUT_HAS_TEMPERATURE:
             raise KeyPathError(("temp_source",), f"{self.type} has no temperature sensor; name a TMP117")
+        rate = self.options.rate_hz
+        rates = SERIALMAG_RATES_HZ if self.type == "serialmag" else HMC_RATES_HZ[:-1]
+        rates += (220.0,) if self.type == "hmc5983" else ()
+        if rate is not None and rate not in rates:
+            raise KeyPathError(("options", "rate_hz"),
+                               f"{self.type} runs at one of {', '.join(f'{r:g}' for r in rates)} Hz")
         return self
+
+    def driver_options(self, set_reset: bool = True) -> dict:
+        """Keyword arguments for the DUT's driver class. `set_reset=False` (the plan's `set_reset: off`)
+        turns SET/RESET off even where the DUT's own option leaves it on (its default)."""
+        o = self.options
+        use_sr = set_reset and o.set_reset is not False
+        if self.type == "mmc5983ma":
+            return {"bandwidth": MMC_BANDWIDTH_CODE[o.bandwidth_hz or 100], "set_reset": use_sr}
+        if self.type == "serialmag":
+            return {"rate_hz": int(o.rate_hz or 20), "set_reset": "pulse" if use_sr else "off"}
+        return {
+            "variant": self.type.upper(),
+            "gain": 1 if o.gain is None else o.gain,
+            "averaging": o.averaging or 8,
+            "output_rate_code": HMC_RATES_HZ.index(o.rate_hz or 15.0),
+        }
 
     def sample_time_s(self, set_reset_pair: bool) -> float:
         """Estimated time for one reading (for duration estimates; the drivers set the real pace)."""
@@ -497,8 +522,8 @@ class GridOrientations(Strict):
     that a two-axis table can reach)."""
 
     kind: Literal["grid"]
-    az_deg: list[float] = [0.0, 90.0, 180.0, 270.0]
-    el_deg: list[float] = [0.0, 90.0, 180.0, 270.0]
+    az_deg: list[float] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
+    el_deg: list[float] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
 
 
 class ListOrientations(Strict):

@@ -2,6 +2,7 @@
 
     points = compile_plan(plan, station)       # [Point], temperature-major
     report = check_plan(plan, station)         # limits checked without hardware; raises LimitError
+    report.summary_lines()                     # what `rig check` prints (sizes, duration, warnings)
 
 Point ids are stable: `T03-F07` is temperature step 3, field 7 (coils); `T03-O07` orientation 7
 (turntable). Numbers are 1-based and zero-padded to at least 2 digits (3 when there are > 99).
@@ -20,6 +21,7 @@ from rig import fieldsets
 from rig.config import (
     COIL_FIELD_KINDS,
     TABLE_FIELD_KINDS,
+    TYPICAL_FIELD_NT,
     Coils,
     Cube24Fields,
     DirectionFields,
@@ -32,7 +34,7 @@ from rig.config import (
     Turntable,
 )
 from rig.errors import ConfigError, LimitError
-from rig.reference import currents_for_field
+from rig.reference import currents_for_field, station_site_field_nt, table_field_nt
 
 ASSUMED_START_C = 22.0
 ASSUMED_THERMAL_LAG_S = 600.0  # for real DUT mounts, whose lag the station does not state
@@ -244,6 +246,24 @@ def estimate_duration(plan: Plan, station: Station, points: list[Point],
     return {"ramps": ramp_s, "stability": stable_s, "moves+settle": move_s, "sampling": sampling_s}
 
 
+def t24_design_problem(points: list[Point], station: Station) -> str | None:
+    """What a T24 fit could not identify from this plan (None if all is fine), judged on the nominal
+    fields and setpoints with calib's own Gram test: the sensor's axes are taken as the lab's."""
+    from calib.gram import GramAccumulator
+
+    if isinstance(station.field_source, Coils):
+        fields = np.array([p.field_nt for p in points])
+    else:
+        site = station_site_field_nt(station.field_source)
+        site = np.asarray(TYPICAL_FIELD_NT) if site is None else site
+        fields = np.array([table_field_nt(site, *p.angles_deg) for p in points])
+    temps = np.array([p.setpoint_c for p in points])
+    samples = [p.samples for p in points]
+    acc = GramAccumulator(temp_ref_c=float(temps.mean()))
+    acc.add(np.repeat(fields, samples, axis=0), np.repeat(temps, samples), np.repeat(fields, samples, axis=0))
+    return acc.identifiability()
+
+
 def check_plan(plan: Plan, station: Station) -> PlanCheck:
     """Validate `plan` against `station` without touching hardware. Raises LimitError naming the limit."""
     points = compile_plan(plan, station)
@@ -261,8 +281,10 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
                             "terms will be poorly determined")
     else:
         _check_angles(plan, source, points)
-    if n_temps < 2 and "t24" in plan.fit.models:
-        warnings.append("one temperature step only: the T24 temperature terms K and kb are not identifiable")
+    if "t24" in plan.fit.models:
+        problem = t24_design_problem(points, station)
+        if problem:
+            warnings.append(problem)
     breakdown = estimate_duration(plan, station, points, n_fields)
     return PlanCheck(
         points=points,

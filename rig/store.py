@@ -122,10 +122,16 @@ class SampleRow:
         )
 
     def as_params(self, point_id: str) -> tuple:
-        c = self.counts or (None, None, None)
-        o = self.offset_nt or (None, None, None)
-        return (point_id, self.dut, self.t, *self.field_nt, *c, *o, self.temp_c, self.ref_temp_c,
-                *self.ref_field_nt, ",".join(sorted(self.flags)))
+        """Values for _INSERT_SAMPLE, as plain Python numbers (numpy scalars in, SQLite types out)."""
+        c = (None,) * 3 if self.counts is None else tuple(int(x) for x in self.counts)
+        o = (None,) * 3 if self.offset_nt is None else tuple(float(x) for x in self.offset_nt)
+        return (point_id, self.dut, float(self.t), *map(float, self.field_nt), *c, *o,
+                _opt_float(self.temp_c), _opt_float(self.ref_temp_c), *map(float, self.ref_field_nt),
+                ",".join(sorted(self.flags)))
+
+
+def _opt_float(value) -> float | None:
+    return None if value is None else float(value)
 
 
 _INSERT_SAMPLE = (
@@ -231,7 +237,8 @@ class Session:
             conn.execute("COMMIT")
         except BaseException:
             conn.close()
-            path.unlink(missing_ok=True)
+            for leftover in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
+                leftover.unlink(missing_ok=True)
             raise
         return cls(conn, path, clock)
 

@@ -1,10 +1,11 @@
 """Register-level HMC5883L / HMC5983: `HMC5883LSim(world, dut, variant="HMC5883L"|"HMC5983")` at 0x1E.
 
 Faithful where the driver can tell: id 'H43'; single-measurement mode clears RDY, sets it after the
-measurement time on the world's clock and returns to idle; data in X, Z, Y order, big-endian int16,
-12-bit range -2048..2047 with -4096 on overflow; a gain write takes effect from the second
-measurement after it; the HMC5983 fills 0x31/0x32 with the DUT temperature when TS is set.
-The bridge sees world.dut_raw_nt(dut, +1): the part's own SET pulse leaves the offset in.
+measurement time on the world's clock and returns to idle; continuous mode (MD 00) measures at the
+Config A output rate; data in X, Z, Y order, big-endian int16, 12-bit range -2048..2047 with -4096 on
+overflow; a gain write takes effect from the second measurement after it; the HMC5983 fills
+0x31/0x32 with the DUT temperature when TS is set. The bridge sees world.dut_raw_nt(dut, +1): the
+part's own SET pulse leaves the offset in.
 
 Fault hook: `never_ready = True` (RDY never sets; the driver must time out).
 """
@@ -53,22 +54,33 @@ class HMC5883LSim(RegisterChip):
         self.registers[hmc.REG_ID:hmc.REG_ID + 3] = hmc.ID_BYTES
         self.active_gain = POWER_ON_CONFIG_B >> hmc.CONFIG_B_GAIN_SHIFT
         self.done_at: float | None = None
+        self.continuous_start: float | None = None
+        self.continuous_count = 0
 
     def update(self) -> None:
-        if self.done_at is not None and self.world.clock.now() >= self.done_at:
+        now = self.world.clock.now()
+        if self.done_at is not None and now >= self.done_at:
             self.done_at = None
             self._latch()
+            self.registers[hmc.REG_MODE] = hmc.MODE_IDLE
+        if self.continuous_start is not None and not self.never_ready:
+            rate_code = (self.registers[hmc.REG_CONFIG_A] >> hmc.CONFIG_A_RATE_SHIFT) & 0b111
+            count = math.floor((now - self.continuous_start) * hmc.OUTPUT_RATE_HZ[rate_code])
+            if count > self.continuous_count:
+                self.continuous_count = count
+                self._latch()
 
     def _latch(self) -> None:
         raw_nt = self.world.dut_raw_nt(self.dut, 1)
-        self.registers[hmc.REG_DATA:hmc.REG_DATA + hmc.DATA_BYTES] = encode_xzy(field_to_codes(raw_nt, self.active_gain))
+        codes = field_to_codes(raw_nt, self.active_gain)
+        self.registers[hmc.REG_DATA:hmc.REG_DATA + hmc.DATA_BYTES] = encode_xzy(codes)
         self.active_gain = self.registers[hmc.REG_CONFIG_B] >> hmc.CONFIG_B_GAIN_SHIFT  # from the next one on
         if self.variant == "HMC5983" and self.registers[hmc.REG_CONFIG_A] & hmc.CONFIG_A_TS:
             temp_c = self.world.dut_temp_c(self.dut)
             raw = round((temp_c - hmc.TEMP_ZERO_C) * hmc.TEMP_COUNTS_PER_C)
-            self.registers[hmc.REG_TEMP:hmc.REG_TEMP + 2] = max(-32768, min(32767, raw)).to_bytes(2, "big", signed=True)
+            raw = max(-32768, min(32767, raw))
+            self.registers[hmc.REG_TEMP:hmc.REG_TEMP + 2] = raw.to_bytes(2, "big", signed=True)
         self.registers[hmc.REG_STATUS] |= hmc.STATUS_RDY
-        self.registers[hmc.REG_MODE] = hmc.MODE_IDLE
 
     def read_register(self, register: int) -> int:
         if self.variant != "HMC5983" and register in (hmc.REG_TEMP, hmc.REG_TEMP + 1):
@@ -81,6 +93,13 @@ class HMC5883LSim(RegisterChip):
         if register == hmc.REG_CONFIG_B:
             value &= 0xE0  # bits 4:0 must be 0
         self.registers[register] = value
-        if register == hmc.REG_MODE and value & 0x03 == hmc.MODE_SINGLE:
+        if register != hmc.REG_MODE:
+            return
+        now = self.world.clock.now()
+        mode = value & 0x03
+        self.continuous_start = now if mode == hmc.MODE_CONTINUOUS else None
+        self.continuous_count = 0
+        self.done_at = None
+        if mode == hmc.MODE_SINGLE:
             self.registers[hmc.REG_STATUS] &= ~hmc.STATUS_RDY
-            self.done_at = math.inf if self.never_ready else self.world.clock.now() + hmc.MEASUREMENT_TIME_S
+            self.done_at = math.inf if self.never_ready else now + hmc.MEASUREMENT_TIME_S

@@ -14,6 +14,7 @@ and answering each read, so tests can hold drivers to the datasheet's bytes.
 from __future__ import annotations
 
 import errno
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -165,7 +166,18 @@ class RecordingSMBus:
         self.inner = inner
         self.calls: list[I2CCall] = []
 
-    def _record(self, op: str, address: int, register: int, run) -> bytes:
+    @classmethod
+    def with_chip(cls, address: int, chip: I2CChip) -> RecordingSMBus:
+        """A recorder around a fresh FakeSMBus holding one chip."""
+        bus = FakeSMBus()
+        bus.attach(address, chip)
+        return cls(bus)
+
+    def transcript(self) -> list[tuple[str, int, bytes]]:
+        """The calls as (op, register, data), the form ScriptedSMBus and transcript tests use."""
+        return [(c.op, c.register, c.data) for c in self.calls]
+
+    def _record(self, op: str, address: int, register: int, run: Callable[[], bytes]) -> bytes:
         try:
             data = run()
         except OSError:
@@ -183,7 +195,9 @@ class RecordingSMBus:
     def read_i2c_block_data(
         self, i2c_addr: int, register: int, length: int, force: bool | None = None
     ) -> list[int]:
-        run = lambda: bytes(self.inner.read_i2c_block_data(i2c_addr, register, length))  # noqa: E731
+        def run() -> bytes:
+            return bytes(self.inner.read_i2c_block_data(i2c_addr, register, length))
+
         return list(self._record("read", i2c_addr, register, run))
 
     def write_i2c_block_data(
@@ -208,20 +222,26 @@ class ScriptedSMBus:
         self.calls: list[I2CCall] = []
 
     def _next(self, op: str, address: int, register: int, data: bytes, length: int) -> bytes:
-        got = f"{op} 0x{register:02X} ({length} bytes{': ' + data.hex(' ') if op == 'write' else ''})"
-        if address != self.address:
-            raise AssertionError(f"step {self.step}: {got} sent to 0x{address:02X}, not 0x{self.address:02X}")
-        if self.step >= len(self.script):
-            raise AssertionError(f"step {self.step}: {got} after the end of the transcript")
-        want_op, want_register, want_data = self.script[self.step]
-        want = f"{want_op} 0x{want_register:02X} ({len(want_data)} bytes: {want_data.hex(' ')})"
-        same = want_op == op and want_register == register and len(want_data) == length
-        if not same or (op == "write" and want_data != data):
-            raise AssertionError(f"step {self.step}: expected {want}, got {got}")
+        want = self.script[self.step] if self.step < len(self.script) else None
+        if (
+            address != self.address or want is None or want[0] != op or want[1] != register
+            or len(want[2]) != length or (op == "write" and want[2] != data)
+        ):
+            raise AssertionError(self._mismatch(op, address, register, data, length))
         self.step += 1
-        reply = want_data if op == "read" else data
+        reply = want[2] if op == "read" else data
         self.calls.append(I2CCall(op, address, register, reply))
         return reply
+
+    def _mismatch(self, op: str, address: int, register: int, data: bytes, length: int) -> str:
+        got = f"{op} 0x{register:02X} ({length} bytes{': ' + data.hex(' ') if op == 'write' else ''})"
+        if address != self.address:
+            return f"step {self.step}: {got} sent to 0x{address:02X}, not 0x{self.address:02X}"
+        if self.step >= len(self.script):
+            return f"step {self.step}: {got} after the end of the transcript"
+        want_op, want_register, want_data = self.script[self.step]
+        want = f"{want_op} 0x{want_register:02X} ({len(want_data)} bytes: {want_data.hex(' ')})"
+        return f"step {self.step}: expected {want}, got {got}"
 
     def assert_done(self) -> None:
         left = self.script[self.step:]

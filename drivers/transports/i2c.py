@@ -37,7 +37,9 @@ class SMBusLike(Protocol):
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int: ...
 
-    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None: ...
+    def write_byte_data(
+        self, i2c_addr: int, register: int, value: int, force: bool | None = None
+    ) -> None: ...
 
     def read_i2c_block_data(
         self, i2c_addr: int, register: int, length: int, force: bool | None = None

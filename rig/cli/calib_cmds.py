@@ -12,12 +12,23 @@ MODEL_CHOICE = click.Choice(["t24", "p12", "scalar"])
 
 
 def _unit_options(f):
-    f = click.option("--columns", "column_map", metavar="OURS=THEIRS,...",
-                     help="Map CSV columns, e.g. hx=mx_gauss,hy=my_gauss,hz=mz_gauss.")(f)
-    f = click.option("--counts-per-unit", metavar="X[/UNIT]",
-                     help="With --raw-unit counts: counts per UNIT (default per gauss), e.g. 1090/gauss.")(f)
-    return click.option("--raw-unit", metavar="nT|uT|mT|gauss|counts", default=None,
-                        help="Unit of hx,hy,hz in the input (refit default nT; apply default: as fitted).")(f)
+    f = click.option(
+        "--columns",
+        "column_map",
+        metavar="OURS=THEIRS,...",
+        help="Map CSV columns, e.g. hx=mx_gauss,hy=my_gauss,hz=mz_gauss.",
+    )(f)
+    f = click.option(
+        "--counts-per-unit",
+        metavar="X[/UNIT]",
+        help="With --raw-unit counts: counts per UNIT (default per gauss), e.g. 1090/gauss.",
+    )(f)
+    return click.option(
+        "--raw-unit",
+        metavar="nT|uT|mT|gauss|counts",
+        default=None,
+        help="Unit of hx,hy,hz in the input (refit default nT; apply default: as fitted).",
+    )(f)
 
 
 def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None):
@@ -35,12 +46,15 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
         try:
             from rig.store import read_dataset
         except ImportError:
-            raise DataError(f"{p}: is a session file, but session reading (rig.store) is not available") from None
+            raise DataError(
+                f"{p}: is a session file, but session reading (rig.store) is not available"
+            ) from None
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
-    ds = csvio.read_csv(p, raw_unit=raw_unit, counts_per_unit=counts_per_unit,
-                        columns=csvio.parse_column_map(column_map))
+    ds = csvio.read_csv(
+        p, raw_unit=raw_unit, counts_per_unit=counts_per_unit, columns=csvio.parse_column_map(column_map)
+    )
     ds.source["column_map"] = column_map or ""
     ds.source["counts_per_unit"] = "" if counts_per_unit is None else str(counts_per_unit)
     return ds
@@ -53,23 +67,49 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
 @click.option("--dut", metavar="NAME", help="DUT to fit, when DATA is a session file.")
 @_unit_options
 @click.option("--field-norm-nt", type=float, help="Scalar model: the known constant |B| in nT.")
-@click.option("--balance-orientations", is_flag=True,
-              help="Scalar model: weight samples so over-visited orientations do not dominate.")
+@click.option(
+    "--balance-orientations",
+    is_flag=True,
+    help="Scalar model: weight samples so over-visited orientations do not dominate.",
+)
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Calibration file to write (.yaml, or .json).")
-def refit(data, model, robust, dut, raw_unit, counts_per_unit, column_map, field_norm_nt, balance_orientations,
-          temp_ref_c, output):
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Calibration file to write (.yaml, or .json).",
+)
+def refit(
+    data,
+    model,
+    robust,
+    dut,
+    raw_unit,
+    counts_per_unit,
+    column_map,
+    field_norm_nt,
+    balance_orientations,
+    temp_ref_c,
+    output,
+):
     """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT."""
     import calib
     from calib import calfile
 
-    ds = load_dataset(data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit,
-                      column_map=column_map)
+    ds = load_dataset(
+        data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit, column_map=column_map
+    )
     if model != "scalar" and (field_norm_nt is not None or balance_orientations):
         raise click.UsageError("--field-norm-nt and --balance-orientations apply to --model scalar only")
-    cal = calib.fit(ds, model, robust=robust, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
-                    balance_orientations=balance_orientations)
+    cal = calib.fit(
+        ds,
+        model,
+        robust=robust,
+        temp_ref_c=temp_ref_c,
+        field_norm_nt=field_norm_nt,
+        balance_orientations=balance_orientations,
+    )
     calfile.save(cal, output)
     print_summary(cal)
     click.echo(f"wrote {output}")
@@ -94,7 +134,9 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
         raw_unit = cal.source.get("raw_unit", "nT")
         counts_per_unit = counts_per_unit or cal.source.get("counts_per_unit") or None
     column_map = column_map if column_map is not None else cal.source.get("column_map") or None
-    ds = load_dataset(data, dut=None, raw_unit=raw_unit, counts_per_unit=counts_per_unit, column_map=column_map)
+    ds = load_dataset(
+        data, dut=None, raw_unit=raw_unit, counts_per_unit=counts_per_unit, column_map=column_map
+    )
     field = cal.apply(ds.h_nt, ds.temp_c)
     out = {}
     for name, values in ds.columns.items():
@@ -133,19 +175,31 @@ def print_summary(cal) -> None:
     fit = Table("rows", "n", "RMS before (nT)", "RMS after (nT)", title="residuals")
     fit.add_row("all used", str(st.get("n_used")), f"{st['rms_before_nt']:.4g}", f"{st['rms_after_nt']:.4g}")
     for axis, entry in st.get("per_axis", {}).items():
-        fit.add_row(f"axis {axis}", "", f"{entry.get('rms_before_nt', float('nan')):.4g}",
-                    f"{entry['rms_after_nt']:.4g}")
+        fit.add_row(
+            f"axis {axis}",
+            "",
+            f"{entry.get('rms_before_nt', float('nan')):.4g}",
+            f"{entry['rms_after_nt']:.4g}",
+        )
     for label, entry in st.get("per_group", {}).items():
         temp = f" ({entry['temp_c']:.1f} degC)" if "temp_c" in entry else ""
-        fit.add_row(f"step {label}{temp}", str(entry["n"]), f"{entry['rms_before_nt']:.4g}",
-                    f"{entry['rms_after_nt']:.4g}")
+        fit.add_row(
+            f"step {label}{temp}",
+            str(entry["n"]),
+            f"{entry['rms_before_nt']:.4g}",
+            f"{entry['rms_after_nt']:.4g}",
+        )
     console.print(fit)
     if "norm_spread_pct" in st:
-        console.print(f"|B| spread after calibration: {st['norm_spread_pct']:.3f} % (std/mean); "
-                      f"field norm: {st.get('field_norm')}")
+        console.print(
+            f"|B| spread after calibration: {st['norm_spread_pct']:.3f} % (std/mean); "
+            f"field norm: {st.get('field_norm')}"
+        )
     if st.get("robust"):
-        console.print(f"robust: {st['n_outliers']} rows flagged as outliers and left out of the fit"
-                      + (f" (first rows: {st['outlier_rows_first']})" if st.get("outlier_rows_first") else ""))
+        console.print(
+            f"robust: {st['n_outliers']} rows flagged as outliers and left out of the fit"
+            + (f" (first rows: {st['outlier_rows_first']})" if st.get("outlier_rows_first") else "")
+        )
     for warning in st.get("warnings", []):
         console.print(f"[yellow]warning:[/yellow] {warning}")
 

@@ -250,6 +250,7 @@ def from_calibration(
         counts_per_unit=cal.source.get("counts_per_unit") or None,
         columns=csvio.parse_column_map(cal.source.get("column_map") or None),
     )
+    rows_total = len(ds)
     ds, flagged, flagged_rows = _drop_flagged(ds)
     name = dut or cal.source.get("dut") or data_path.stem
     warnings = []
@@ -264,7 +265,11 @@ def from_calibration(
         ("calibration file", f"{cal_path.name} (model {cal.model}, fitted {cal.created_utc or '-'})"),
         ("calibration file sha256", sha256_of(cal_path)),
         ("calibration fitted on", f"{cal.source.get('path', '-')} (sha256 {fitted_hash or '-'})"),
-        ("data file", f"{data_path.name}: {len(ds)} rows used of {ds.source.get('rows_total', len(ds))}"),
+        (
+            "data file",
+            f"{data_path.name}: {rows_total} rows, {len(ds)} judged"
+            + (f" ({rows_total - len(ds)} flagged left out)" if rows_total > len(ds) else ""),
+        ),
         ("data file sha256", data_hash),
         ("fitted with", f"magrig {cal.software_version}"),
         ("report made with", f"magrig {__version__}"),

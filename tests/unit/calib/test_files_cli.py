@@ -17,9 +17,8 @@ from rig.errors import DataError
 def t24_csv(tmp_path):
     ds, truth = synthetic.t24_dataset(np.random.default_rng(1), samples_per_point=4)
     path = tmp_path / "t24.csv"
-    csvio.write_csv(path, {"hx": ds.h_nt[:, 0], "hy": ds.h_nt[:, 1], "hz": ds.h_nt[:, 2], "temp": ds.temp_c,
-                           "bx": ds.ref_nt[:, 0], "by": ds.ref_nt[:, 1], "bz": ds.ref_nt[:, 2],
-                           "note": np.array(["coil"] * len(ds), dtype=object)})
+    ds.group = None
+    csvio.write_csv(path, {**csvio.contract_columns(ds), "note": np.array(["coil"] * len(ds), dtype=object)})
     return path, ds, truth
 
 
@@ -66,7 +65,9 @@ def test_corrupted_and_foreign_calibration_files_name_the_key(tmp_path):
 def test_read_csv_with_column_map_and_units(tmp_path):
     path = tmp_path / "real.csv"
     path.write_text("t_s,mx_gauss,my_gauss,mz_gauss\n0.1,0.25,-0.5,0.125\n0.2,0.5,0.0,-1e-3\n")
-    ds = csvio.read_csv(path, raw_unit="gauss", columns=csvio.parse_column_map("hx=mx_gauss,hy=my_gauss,hz=mz_gauss"))
+    ds = csvio.read_csv(
+        path, raw_unit="gauss", columns=csvio.parse_column_map("hx=mx_gauss,hy=my_gauss,hz=mz_gauss")
+    )
     np.testing.assert_allclose(ds.h_nt, [[25000, -50000, 12500], [50000, 0, -100]])
     assert ds.temp_c is None and ds.ref_nt is None
     assert list(ds.columns) == ["t_s", "mx_gauss", "my_gauss", "mz_gauss"]
@@ -130,8 +131,7 @@ def test_refit_too_few_rows_and_singular_design(tmp_path, capsys):
     assert code != 0 and "5 samples, more than 8 needed" in err
     one_temp = tmp_path / "onetemp.csv"
     ds, _ = synthetic.t24_dataset(np.random.default_rng(4), temps_c=[25.0], samples_per_point=2)
-    csvio.write_csv(one_temp, {"hx": ds.h_nt[:, 0], "hy": ds.h_nt[:, 1], "hz": ds.h_nt[:, 2], "temp": ds.temp_c,
-                               "bx": ds.ref_nt[:, 0], "by": ds.ref_nt[:, 1], "bz": ds.ref_nt[:, 2]})
+    csvio.write_csv(one_temp, csvio.contract_columns(ds))
     code, _, err = _run(capsys, "refit", one_temp, "--model", "t24", "-o", tmp_path / "c.yaml")
     assert code != 0 and "K and kb" in err and "fit P12" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "c.yaml").exists()
@@ -156,9 +156,23 @@ def test_scalar_refit_with_constant_norm_and_counts(tmp_path, capsys):
     counts = np.round(ds.h_nt / 100.0)  # 1000 counts per gauss = 100 nT per count
     path = tmp_path / "counts.csv"
     csvio.write_csv(path, {"mx": counts[:, 0], "my": counts[:, 1], "mz": counts[:, 2]})
-    code, out, err = _run(capsys, "refit", path, "--model", "scalar", "--raw-unit", "counts", "--counts-per-unit",
-                          "1000/gauss", "--columns", "hx=mx,hy=my,hz=mz", "--field-norm-nt", "50000",
-                          "-o", tmp_path / "s.json")
+    code, out, err = _run(
+        capsys,
+        "refit",
+        path,
+        "--model",
+        "scalar",
+        "--raw-unit",
+        "counts",
+        "--counts-per-unit",
+        "1000/gauss",
+        "--columns",
+        "hx=mx,hy=my,hz=mz",
+        "--field-norm-nt",
+        "50000",
+        "-o",
+        tmp_path / "s.json",
+    )
     assert code == 0, err
     cal = calfile.load(tmp_path / "s.json")
     assert cal.stats["norm_spread_pct"] < 0.1 and "given constant 50000 nT" in cal.stats["field_norm"]

@@ -106,14 +106,18 @@ def test_planar_directions_are_named():
     dirs = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0.7, 0.7, 0], [-0.7, 0.7, 0]], float)
     ds, _ = _dataset(8, directions=dirs)
     # noisy raw readings scatter out of the plane; the reference field does not
-    with pytest.raises(FitError, match=r"spans fewer than three directions \(nothing along \[0.00, 0.00, 1.00\]"):
+    with pytest.raises(
+        FitError, match=r"spans fewer than three directions \(nothing along \[0.00, 0.00, 1.00\]"
+    ):
         calib.fit(ds, "t24")
 
 
 def test_directions_only_at_one_temperature_name_k_and_kb():
     ds_a, _ = _dataset(9, temps_c=[0.0], noise_nt=0.0, temp_jitter_c=0.0)
     # at the second temperature the field always points the same way
-    ds_b, _ = _dataset(9, temps_c=[50.0], directions=np.array([[0.0, 0.0, 1.0]]), noise_nt=0.0, temp_jitter_c=0.0)
+    ds_b, _ = _dataset(
+        9, temps_c=[50.0], directions=np.array([[0.0, 0.0, 1.0]]), noise_nt=0.0, temp_jitter_c=0.0
+    )
     acc = GramAccumulator(25.0)
     acc.add(ds_a.h_nt, ds_a.temp_c, ds_a.ref_nt)
     acc.add(ds_b.h_nt, ds_b.temp_c, ds_b.ref_nt)

@@ -19,8 +19,13 @@ def test_p12_recovers_truth_within_a_few_standard_errors():
 
 def test_p12_standard_errors_match_monte_carlo():
     params = synthetic.random_p12_params(np.random.default_rng(2))
-    fits = [calib.fit(synthetic.p12_dataset(np.random.default_rng(1000 + s), params=params, samples_per_point=3)[0],
-                      "p12") for s in range(200)]
+    fits = [
+        calib.fit(
+            synthetic.p12_dataset(np.random.default_rng(1000 + s), params=params, samples_per_point=3)[0],
+            "p12",
+        )
+        for s in range(200)
+    ]
     for name in ("k", "angles_deg", "b_nt"):
         predicted = np.mean([f.std_errors[name] for f in fits], axis=0)
         ratio = np.std([f.params[name] for f in fits], axis=0, ddof=1) / predicted
@@ -110,7 +115,9 @@ def test_scalar_planar_data_is_refused():
 
 @pytest.mark.parametrize("model", ["t24", "p12", "scalar"])
 def test_robust_flags_the_outliers_and_matches_the_clean_fit(model):
-    make = {"t24": synthetic.t24_dataset, "p12": synthetic.p12_dataset, "scalar": synthetic.scalar_dataset}[model]
+    make = {"t24": synthetic.t24_dataset, "p12": synthetic.p12_dataset, "scalar": synthetic.scalar_dataset}[
+        model
+    ]
     ds, truth = make(np.random.default_rng(11), outlier_fraction=0.01)
     injected = ds.columns["is_outlier"].astype(bool)
     cal = calib.fit(ds, model, robust=True)
@@ -122,8 +129,12 @@ def test_robust_flags_the_outliers_and_matches_the_clean_fit(model):
     probe = truth.apply(ds.h_nt[~injected], None if ds.temp_c is None else ds.temp_c[~injected])
 
     def error(c):
-        return np.sqrt(np.mean((c.apply(ds.h_nt[~injected], None if ds.temp_c is None else ds.temp_c[~injected])
-                                - probe) ** 2))
+        return np.sqrt(
+            np.mean(
+                (c.apply(ds.h_nt[~injected], None if ds.temp_c is None else ds.temp_c[~injected]) - probe)
+                ** 2
+            )
+        )
 
     assert error(cal) < 1.5 * error(clean) + 0.5
     if model != "scalar":

@@ -1,4 +1,4 @@
-"""Real HMC5883L full-sphere recording (third-party, see /work/shared/realdata/README.md); skipped when absent."""
+"""Real HMC5883L full-sphere recording (third-party, /work/shared/realdata/README.md); skipped if absent."""
 
 from pathlib import Path
 
@@ -18,7 +18,9 @@ def _spread_pct(cal, ds):
 
 
 def test_scalar_fit_holds_out_of_sample_on_real_hmc5883l():
-    ds = csvio.read_csv(REAL, raw_unit="gauss", columns={"hx": "mx_gauss", "hy": "my_gauss", "hz": "mz_gauss"})
+    ds = csvio.read_csv(
+        REAL, raw_unit="gauss", columns={"hx": "mx_gauss", "hy": "my_gauss", "hz": "mz_gauss"}
+    )
     half = len(ds) // 2
     first, second = ds.subset(slice(0, half)), ds.subset(slice(half, None))
     raw = np.linalg.norm(second.h_nt, axis=1)

@@ -7,8 +7,13 @@ from calib.gram import GramAccumulator
 
 
 def _case(temps_c, seed=0):
-    ds, _ = synthetic.t24_dataset(np.random.default_rng(seed), temps_c=temps_c, field_nt=100_000.0,
-                                  samples_per_point=2, temp_jitter_c=0.0)
+    ds, _ = synthetic.t24_dataset(
+        np.random.default_rng(seed),
+        temps_c=temps_c,
+        field_nt=100_000.0,
+        samples_per_point=2,
+        temp_jitter_c=0.0,
+    )
     exact = t24_paper.exact_solution(ds.h_nt, ds.temp_c, ds.ref_nt)
     paper = t24_paper.paper_solution(ds.h_nt, ds.temp_c, ds.ref_nt)
     acc = GramAccumulator(round(float(np.mean(temps_c)), 1))

@@ -10,7 +10,7 @@ import pytest
 
 from drivers.hmc5883l import HMC5883L, code_to_nt, config_a, decode_temp_c, decode_xzy
 from drivers.sim.hmc5883l import HMC5883LSim
-from drivers.sim.i2c_bus import FakeSMBus, ScriptedSMBus
+from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
 from drivers.sim.world import DutTruth, World
 from rig.clock import SimClock
 from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, ProtocolError
@@ -40,6 +40,8 @@ def scripted(script, **kw) -> tuple[HMC5883L, ScriptedSMBus, SimClock]:
     bus = ScriptedSMBus(0x1E, script)
     clock = SimClock()
     return HMC5883L(bus, name="dut2", clock=clock, **kw), bus, clock
+
+IDEAL = DutTruth(S=np.eye(3), K=np.zeros((3, 3)), b_nt=np.zeros(3), kb_nt_per_c=np.zeros(3))  # no noise
 
 
 # --- pure functions ---------------------------------------------------------------------------------
@@ -91,7 +93,8 @@ def test_gain_change_discards_one_measurement() -> None:
 
 def test_wrong_id_is_a_clear_protocol_error() -> None:
     dev, _, _ = scripted([("read", 0x0A, b"H44")])
-    with pytest.raises(ProtocolError, match=r"dut2: check id \(registers 0x0A..0x0C\): read b'H44', expected b'H43'"):
+    expected = r"dut2: check id \(registers 0x0A..0x0C\): read b'H44', expected b'H43'"
+    with pytest.raises(ProtocolError, match=expected):
         dev.connect()
 
 
@@ -194,7 +197,9 @@ def test_nack_then_replug(world: World, caplog) -> None:
     bus.nack(0x1E)
     with pytest.raises(DeviceNotFound) as err:
         dev.read()
-    assert str(err.value) == "dut2: write mode (single measurement) register 0x02: no ACK at 0x1E (after 3 tries)"
+    assert str(err.value) == (
+        "dut2: write mode (single measurement) register 0x02: no ACK at 0x1E (after 3 tries)"
+    )
     with caplog.at_level(logging.WARNING, logger="magrig.drivers.hmc5883l"):
         dev.safe_state()
     assert "dut2: safe state not confirmed" in caplog.text
@@ -202,11 +207,21 @@ def test_nack_then_replug(world: World, caplog) -> None:
     assert not math.isnan(dev.read().field_nt[0])
 
 
-def test_safe_state_leaves_the_chip_idle(world: World) -> None:
-    dev, bus, _ = make_rig(world)
-    bus.write_byte_data(0x1E, 0x02, 0x00)  # continuous
+def test_safe_state_stops_continuous_measurements(world: World) -> None:
+    dev, bus, _ = make_rig(world)  # Config A: 15 Hz
+    bus.write_byte_data(0x1E, 0x02, 0x00)  # MD 00: continuous
+    world.clock.sleep(0.07)
+    assert bus.read_byte_data(0x1E, 0x09) & 0x01 == 1  # a measurement came by itself
+    first = bus.read_i2c_block_data(0x1E, 0x03, 6)
+    world.ambient_nt = world.ambient_nt + 20_000.0
+    world.clock.sleep(0.07)
+    assert bus.read_i2c_block_data(0x1E, 0x03, 6) != first  # and the next one
     dev.safe_state()
     assert bus.read_byte_data(0x1E, 0x02) == 0x03
+    stopped = bus.read_i2c_block_data(0x1E, 0x03, 6)
+    world.ambient_nt = world.ambient_nt + 20_000.0
+    world.clock.sleep(1.0)
+    assert bus.read_i2c_block_data(0x1E, 0x03, 6) == stopped  # idle: no new data
 
 
 def test_describe(world: World) -> None:
@@ -223,3 +238,21 @@ def test_bad_options_are_config_errors() -> None:
         HMC5883L(FakeSMBus(), variant="HMC5843")
     with pytest.raises(ConfigError, match="output_rate_code 7: must be 0..6"):
         HMC5883L(FakeSMBus(), output_rate_code=7)
+
+
+def test_simulator_speaks_the_datasheet_bytes() -> None:
+    """Ideal DUT in +1 G, -0.5 G, +0.2 G at gain 1 (1090 LSB/Ga): the simulator's bytes, literally."""
+    world = World(SimClock(), ambient_nt=(100_000.0, -50_000.0, 20_000.0))
+    world.add_dut("dut2", IDEAL)
+    recorder = RecordingSMBus.with_chip(0x1E, HMC5883LSim(world, "dut2"))
+    dev = HMC5883L(recorder, name="dut2", clock=world.clock)
+    dev.connect()
+    dev.read()
+    recorder.calls.clear()
+    sample = dev.read()
+    assert recorder.transcript() == [
+        ("write", 0x02, b"\x01"),
+        ("read", 0x09, b"\x01"),
+        ("read", 0x03, bytes([0x04, 0x42, 0x00, 0xDA, 0xFD, 0xDF])),  # X 1090, Z 218, Y -545
+    ]
+    assert sample.counts == (1090, -545, 218)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.mmc5983ma import MMC5983MA, code_to_nt, decode_field_codes, decode_temp_c, status_timeout_s
-from drivers.sim.i2c_bus import FakeSMBus, ScriptedSMBus
+from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
 from drivers.sim.mmc5983ma import MMC5983MASim
 from drivers.sim.world import DutTruth, World
 from rig.clock import SimClock
@@ -56,6 +56,8 @@ def scripted(script, **kw) -> tuple[MMC5983MA, ScriptedSMBus, SimClock]:
     kw.setdefault("read_temperature", False)
     return MMC5983MA(bus, name="dut1", clock=clock, **kw), bus, clock
 
+IDEAL = DutTruth(S=np.eye(3), K=np.zeros((3, 3)), b_nt=np.zeros(3), kb_nt_per_c=np.zeros(3))  # no noise
+
 
 # --- pure functions ---------------------------------------------------------------------------------
 def test_decode_burst_to_codes_and_field() -> None:
@@ -87,7 +89,8 @@ def test_connect_transcript() -> None:
 
 def test_wrong_product_id_is_a_clear_protocol_error() -> None:
     dev, _, _ = scripted([("read", 0x2F, b"\x31")])
-    with pytest.raises(ProtocolError, match=r"dut1: check product id \(register 0x2F\): read 0x31, expected 0x30"):
+    expected = r"dut1: check product id \(register 0x2F\): read 0x31, expected 0x30"
+    with pytest.raises(ProtocolError, match=expected):
         dev.connect()
 
 
@@ -271,7 +274,8 @@ def test_safe_state_on_a_failed_bus_logs_instead_of_raising(rig, caplog) -> None
 def test_measurement_that_never_completes_times_out(rig) -> None:
     dev, _, sim = rig
     sim.never_done = True
-    with pytest.raises(DeviceTimeout, match=r"dut1: wait for Meas_M_Done \(status 0x08\): not ready after 33\.0 ms"):
+    expected = r"dut1: wait for Meas_M_Done \(status 0x08\): not ready after 33\.0 ms"
+    with pytest.raises(DeviceTimeout, match=expected):
         dev.read()
 
 
@@ -281,3 +285,35 @@ def test_describe(rig) -> None:
     assert info["range_nt"] == 800_000.0
     assert info["noise_rms_nt"] == pytest.approx(40.0)
     assert info["resolution_nt"] == pytest.approx(6.1035, abs=1e-4)
+
+
+def test_simulator_speaks_the_datasheet_bytes() -> None:
+    """Ideal DUT in +1 G, -0.5 G, 0 at 22 degC: the simulator's own bytes, checked literally."""
+    world = World(SimClock(), ambient_nt=(100_000.0, -50_000.0, 0.0), air_c=22.0)
+    world.add_dut("dut1", IDEAL)
+    recorder = RecordingSMBus.with_chip(0x30, MMC5983MASim(world, "dut1"))
+    dev = MMC5983MA(recorder, name="dut1", clock=world.clock)
+    dev.connect()
+    recorder.calls.clear()
+    sample = dev.read()
+    assert recorder.transcript() == [
+        ("write", 0x09, b"\x08"),
+        ("write", 0x09, b"\x01"),
+        ("read", 0x08, b"\x11"),  # OTP_Read_Done (since power-on) | Meas_M_Done
+        ("read", 0x00, bytes([0x90, 0x00, 0x78, 0x00, 0x80, 0x00, 0x00])),  # +H after SET
+        ("write", 0x09, b"\x10"),
+        ("write", 0x09, b"\x01"),
+        ("read", 0x08, b"\x11"),
+        ("read", 0x00, bytes([0x70, 0x00, 0x88, 0x00, 0x80, 0x00, 0x00])),  # -H after RESET
+        ("write", 0x09, b"\x02"),
+        ("read", 0x08, b"\x13"),  # Meas_T_Done too
+        ("read", 0x07, b"\x7c"),  # 124: (22 + 75) * 255 / 200 rounded
+    ]
+    assert sample.field_nt == (100_000.0, -50_000.0, 0.0)
+    assert sample.offset_nt == (0.0, 0.0, 0.0)
+
+
+def test_connect_on_an_empty_bus_names_the_operation() -> None:
+    with pytest.raises(DeviceNotFound) as err:
+        MMC5983MA(FakeSMBus(), name="dut1", clock=SimClock()).connect()
+    assert str(err.value) == "dut1: read product id register 0x2F: no ACK at 0x30 (after 3 tries)"

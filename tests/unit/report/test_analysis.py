@@ -35,13 +35,19 @@ def test_coverage_gaps_found_in_the_empty_hemisphere():
 
 
 def test_nearest_sample_angle():
-    got = analysis.nearest_sample_deg(np.array([[0.0, 0, 1], [1.0, 0, 0]]), np.array([[1.0, 0, 0], [0, 1.0, 1.0]]))
+    got = analysis.nearest_sample_deg(
+        np.array([[0.0, 0, 1], [1.0, 0, 0]]), np.array([[1.0, 0, 0], [0, 1.0, 1.0]])
+    )
     np.testing.assert_allclose(got, [45.0, 0.0], atol=0.05)  # directions are deduplicated at 1e-3
 
 
 def test_steps_from_integer_groups_plan_ids_or_temperatures():
-    ds = calib.Dataset(h_nt=np.zeros((4, 3)), temp_c=np.array([25.0, 25.2, -10.0, 60.0]), ref_nt=None,
-                       group=np.array([3, 3, 1, 5]))
+    ds = calib.Dataset(
+        h_nt=np.zeros((4, 3)),
+        temp_c=np.array([25.0, 25.2, -10.0, 60.0]),
+        ref_nt=None,
+        group=np.array([3, 3, 1, 5]),
+    )
     assert analysis.step_of_each_row(ds).tolist() == [3, 3, 1, 5]
     ds.group = np.array(["T02-F01", "T02-F02", "T01-F01", "T07-O03"])
     assert analysis.step_of_each_row(ds).tolist() == [2, 2, 1, 7]
@@ -115,6 +121,8 @@ def test_step_table(t24_data):
 
 def test_per_group_means():
     d = np.array([[1.0, 0, 0], [3.0, 0, 0], [0, 2.0, 0], [0, 4.0, 0]])
-    mean_dir, r = analysis.per_group_means(np.array(["a", "a", "b", "b"]), d, np.array([3.0, 4.0, 1.0, np.nan]))
+    mean_dir, r = analysis.per_group_means(
+        np.array(["a", "a", "b", "b"]), d, np.array([3.0, 4.0, 1.0, np.nan])
+    )
     np.testing.assert_allclose(mean_dir, [[2, 0, 0], [0, 3, 0]])
     np.testing.assert_allclose(r, [np.sqrt(12.5), 1.0])

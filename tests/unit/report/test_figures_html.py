@@ -24,13 +24,15 @@ def test_residual_figure_has_units_and_one_row_per_axis():
     temp, _, before, after = _data()
     outliers = np.zeros(len(temp), bool)
     outliers[:3] = True
+    after[:3] = 1e4
     fig = figures.residuals_vs_temperature(temp, before, after, ["x", "y", "z"], outliers)
     axes = fig.get_axes()
     assert len(axes) == 6
     assert axes[-1].get_xlabel() == "DUT temperature (°C)"
     assert all("(nT)" in ax.get_ylabel() for ax in axes)
     legend = [t.get_text() for t in axes[1].get_legend().get_texts()]
-    assert any("outliers (3)" in t for t in legend)
+    assert any("outliers (3, 3 off-scale at the edge)" in t for t in legend)
+    assert axes[1].get_ylim()[1] < 200  # the good samples are not squashed by the outliers
     # RMS in the legend is computed without the outliers
     want = np.sqrt(np.mean(after[~outliers, 0] ** 2))
     assert f"RMS {want:.1f} nT" in legend[0]
@@ -55,14 +57,16 @@ def test_histogram_range_ignores_a_few_outliers():
     assert ax.get_xlabel() == "|B| error (nT)"
 
 
-def test_direction_map_counts_empty_cells():
+def test_direction_map_shows_coverage_gaps():
     rng = np.random.default_rng(2)
     d = rng.normal(size=(4000, 3))
-    d[:, 2] = np.abs(d[:, 2])  # upper hemisphere only: half the equal-area cells must be empty
-    fig = figures.direction_map(d, np.abs(rng.normal(0, 20, 4000)))
-    title = fig.get_axes()[0].get_title()
-    empty, total = map(int, re.search(r"(\d+) of (\d+) cells empty", title).groups())
-    assert total == 72 and empty == 36
+    full = figures.direction_map(d, np.abs(rng.normal(0, 20, 4000)), gap_deg=35)
+    assert full.get_axes()[0].get_title().startswith("coverage: 0 %")
+    d[:, 2] = np.abs(d[:, 2])  # upper hemisphere only: the map below about -35 deg is a gap
+    half = figures.direction_map(d, np.abs(rng.normal(0, 20, 4000)), gap_deg=35)
+    share = int(re.search(r"coverage: (\d+) %", half.get_axes()[0].get_title()).group(1))
+    assert 20 <= share <= 40
+    assert half.get_axes()[0].get_ylabel() == "field elevation in sensor axes (deg)"
 
 
 def test_azimuth_elevation():
@@ -72,10 +76,17 @@ def test_azimuth_elevation():
 
 
 def test_model_comparison_marks_missing_values():
-    fig = figures.model_comparison(["t24", "p12", "scalar"], [20, 300, 40], [21, 310, float("nan")], "vector")
-    texts = [t.get_text() for t in fig.get_axes()[0].texts]
-    assert texts.count("n/a") == 1 and "310" in texts
-    assert fig.get_axes()[0].get_yscale() == "log"
+    nan = float("nan")
+    fig = figures.model_comparison(
+        ["t24", "p12", "scalar"],
+        {"vector": [20, 300, nan], "|B|": [19, 290, 25]},
+        {"vector": [21, 310, nan], "|B|": [20, 300, 26]},
+    )
+    vector, norm = fig.get_axes()[:2]
+    texts = [t.get_text() for t in vector.texts]
+    assert texts.count("n/a") == 2 and "310" in texts
+    assert "n/a" not in [t.get_text() for t in norm.texts]
+    assert vector.get_yscale() == "log" and norm.get_ylabel() == "|B| error RMS (nT)"
 
 
 def test_html_is_self_contained_and_escaped():

@@ -257,3 +257,30 @@ def test_simulated_ambient_and_site_defaults(tmp_path):
     assert list(station.sim_ambient_nt()) == [1, 2, 3]  # the coils' stated ambient
     assert list(load_station(DEFAULT_STATION).sim_ambient_nt()) == [15000, 500, 42000]
     assert len(station.sim_site_field_nt()) == 3
+
+
+def test_dut_options_become_valid_driver_arguments():
+    from drivers.hmc5883l import HMC5883L, OUTPUT_RATE_HZ
+    from drivers.mmc5983ma import MMC5983MA
+    from drivers.serialmag import SerialMagnetometer
+    from rig.clock import SimClock
+
+    classes = {"mmc5983ma": MMC5983MA, "hmc5983": HMC5883L, "serialmag": SerialMagnetometer}
+    station = load_station(CONFIGS_DIR / "stations" / "lab-example.yaml")
+    for dut in station.duts:
+        for set_reset in (True, False):
+            kwargs = dut.driver_options(set_reset)
+            driver = classes[dut.type](object(), name=dut.name, clock=SimClock(), **kwargs)  # no I/O yet
+            assert driver.name == dut.name
+    hmc = station.dut("hmc-b")
+    assert OUTPUT_RATE_HZ[hmc.driver_options()["output_rate_code"]] == hmc.options.rate_hz
+    assert station.dut("mmc-a").driver_options(set_reset=False)["set_reset"] is False
+
+
+def test_rates_a_device_cannot_run_at_are_refused(tmp_path):
+    text = STATION.replace("    temp_source: tmp0", "    options: {bandwidth_hz: 300}\n    temp_source: tmp0")
+    assert "duts[0].options.bandwidth_hz" in error_of(load_station, write(tmp_path, "s.yaml", text))
+    hmc = STATION.replace("type: mmc5983ma", "type: hmc5883l").replace(
+        "    temp_source: tmp0", "    options: {rate_hz: 220}\n    temp_source: tmp0")
+    msg = error_of(load_station, write(tmp_path, "s.yaml", hmc))
+    assert "duts[0].options.rate_hz: hmc5883l runs at one of 0.75, 1.5, 3, 7.5, 15, 30, 75 Hz" in msg

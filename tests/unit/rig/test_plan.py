@@ -38,7 +38,7 @@ def coil_station(**coil_overrides) -> Station:
                     "limits": {"min_setpoint_c": -40, "max_setpoint_c": 85, "max_ramp_c_per_min": 5}},
         "field_source": coils,
         "duts": [{"name": "m", "type": "hmc5883l", "transport": {"kind": "sim"}, "temp_source": "t",
-                  "options": {"rate_hz": 10}}],
+                  "options": {"rate_hz": 7.5}}],
         "temperature_sensors": [{"name": "t", "type": "tmp117", "transport": {"kind": "sim"}, "beside": "m"}],
     })
 
@@ -107,8 +107,8 @@ def test_turntable_orientations_and_ids():
     plan = make_plan(fields={"kind": "grid"})
     points = compile_plan(plan, table_station())
     assert len(points) == 4 * 16 and points[0].id == "T01-O01"
-    assert points[1].angles_deg == (90.0, 0.0) and points[4].angles_deg == (0.0, 90.0)
-    assert points[1].target == {"az_deg": 90.0, "el_deg": 0.0}
+    assert points[1].angles_deg == (0.0, -90.0) and points[4].angles_deg == (-90.0, 0.0)  # a turn per tilt
+    assert points[1].target == {"az_deg": 0.0, "el_deg": -90.0}
 
 
 def test_field_kind_must_suit_the_field_source():
@@ -175,7 +175,7 @@ def test_duration_estimate_adds_up_from_its_parts():
     lag = 600.0
     assert b["stability"] == pytest.approx(lag * np.log(10 / 0.5) + 100 + lag * np.log(20 / 0.5) + 100)
     assert b["moves+settle"] == pytest.approx(6 * 2.0)
-    assert b["sampling"] == pytest.approx(6 * 4 / 10.0)  # hmc5883l at rate_hz 10
+    assert b["sampling"] == pytest.approx(6 * 4 / 7.5)  # hmc5883l at rate_hz 7.5
     assert report.duration_s == pytest.approx(sum(b.values()))
     assert report.samples_per_dut == 24 and report.n_temperatures == 2 and report.n_fields == 3
 
@@ -185,7 +185,14 @@ def test_turntable_moves_count_in_the_estimate():
                                                           "angles_deg": [[90, 0], [90, 45]]}, settle_s=0)
     report = check_plan(plan, table_station())
     assert report.breakdown_s["moves+settle"] == pytest.approx((90 + 45) / 10.0)
-    assert any("one temperature step only" in w for w in report.warnings)
+    assert any(w.startswith("T24: ") and "not identifiable" in w for w in report.warnings)
+
+
+def test_a_single_temperature_cannot_identify_the_t24_temperature_terms():
+    report = check_plan(make_plan(temperatures={"steps": [25]}), coil_station())
+    assert any("K and kb are not identifiable" in w for w in report.warnings)
+    assert check_plan(make_plan(fit={"models": ["p12"]}, temperatures={"steps": [25]}),
+                      coil_station()).warnings == []
 
 
 def test_coplanar_field_set_is_warned_about():
@@ -204,3 +211,12 @@ def test_shipped_plans_pass_against_the_default_station():
     assert min(temps) <= -20 and max(temps) >= 60
     full = check_plan(load_plan(CONFIGS_DIR / "plans" / "full-campaign.yaml"), station)
     assert (full.n_temperatures, full.n_fields, full.points[0].samples) == (8, 48, 50)
+
+
+def test_the_default_turntable_grid_is_enough_for_t24():
+    data = table_station().model_dump()
+    data["field_source"]["el_limits_deg"] = [-180, 180]
+    report = check_plan(make_plan(fields={"kind": "grid"}), Station.model_validate(data))
+    assert report.n_fields == 16 and report.warnings == []
+    tilted_only = make_plan(fields={"kind": "grid", "az_deg": [0], "el_deg": [0, 90]})
+    assert any(w.startswith("T24: ") for w in check_plan(tilted_only, Station.model_validate(data)).warnings)

@@ -186,6 +186,16 @@ def test_read_dataset_round_trip(tmp_path, campaign, points):
     assert serial.n == 5
 
 
+def test_numpy_values_are_stored_as_plain_numbers(tmp_path, campaign, points):
+    s = new_session(tmp_path, campaign, points)
+    row = SampleRow("mmc0", np.float64(1.5), np.array([1.0, 2.0, 3.0]), np.array(points[0].field_nt),
+                    temp_c=np.float32(20.25), counts=np.array([131072, 5, -7], dtype=np.int64))
+    s.record_point(points[0].id, [row])
+    stored = s._conn.execute("SELECT t, hx, cx, cz, temp_c, typeof(cx) FROM samples").fetchone()
+    assert tuple(stored) == (1.5, 1.0, 131072, -7, 20.25, "integer")
+    s.close()
+
+
 def test_dut_choice_errors_list_the_duts(tmp_path, campaign, points):
     s = new_session(tmp_path, campaign, points)
     path = tmp_path / "s.magrig"

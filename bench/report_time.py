@@ -1,0 +1,81 @@
+"""Time to build the calibration report of a full campaign.
+
+    python bench/report_time.py [--temps 8] [--fields 48] [--samples 50] [--duts 2] [--keep DIR]
+
+The session is the size of configs/plans/full-campaign.yaml (8 temperatures x 48 field vectors, the cube's
+24 rotations at 30 and 60 uT, x 50 samples x 2 DUTs = 38 400 samples). It is written synthetically through
+the store API (rig.store.Session) with calib's synthetic T24 data, 1 % outliers and a few flagged samples,
+then `rig report` is built from it: three models fitted per DUT, 5-fold held-out comparison of each, the
+figures and the HTML page. Printed: wall seconds for the session file and for the report, and where the
+report's time goes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rig import fieldsets
+from rig.report import build
+from rig.report.synthetic_session import SynthOptions, build_session
+
+TEMPS_C = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
+
+
+def field_vectors(n: int) -> np.ndarray:
+    """The full campaign's field set: 24 cube rotations at 30 and 60 uT (48); other n: Fibonacci at 50 uT."""
+    if n == 48:
+        return fieldsets.scaled(fieldsets.cube24_directions(), [30_000.0, 60_000.0])
+    return 50_000.0 * fieldsets.fibonacci_directions(n)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--temps", type=int, default=8)
+    ap.add_argument("--fields", type=int, default=48)
+    ap.add_argument("--samples", type=int, default=50)
+    ap.add_argument("--duts", type=int, default=2)
+    ap.add_argument("--keep", type=Path, help="Write the session and report here (default: a temp folder).")
+    args = ap.parse_args()
+    temps = TEMPS_C[: args.temps] if args.temps <= len(TEMPS_C) else tuple(np.linspace(-30, 70, args.temps))
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        session = folder / "full-campaign.sqlite"
+        session.unlink(missing_ok=True)
+        opts = SynthOptions(temps_c=temps, field_vectors_nt=field_vectors(args.fields), samples=args.samples,
+                            duts=tuple(f"dut{i + 1}" for i in range(args.duts)), outlier_fraction=0.01,
+                            saturated_points=("T03-F07", "T05-F30"), finish="completed")
+        t0 = time.perf_counter()
+        build_session(session, opts)
+        t_session = time.perf_counter() - t0
+        n = args.temps * args.fields * args.samples * args.duts
+        print(f"session: {args.temps} temperatures x {args.fields} fields x {args.samples} samples x "
+              f"{args.duts} DUTs = {n} samples, {session.stat().st_size / 1e6:.1f} MB, "
+              f"written in {t_session:.2f} s")
+
+        t0 = time.perf_counter()
+        inputs = build.read_inputs(session)
+        t_read = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        results = [build.analyse_dut(d, inputs.steps) for d in inputs.duts]
+        t_analyse = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for r in results:
+            build._dut_figures(r)
+        t_figures = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        page = build.build_report(session, out_dir=folder / "report")
+        t_total = time.perf_counter() - t0
+        print(f"report: {t_total:.2f} s wall for the whole `rig report` ({page.stat().st_size / 1e6:.1f} MB HTML)")
+        print(f"  of which: read session {t_read:.2f} s, fits + 5-fold comparison {t_analyse:.2f} s, "
+              f"figures {t_figures:.2f} s (measured separately)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,98 @@
+"""Throughput of the streaming T24 fit, against the time numpy needs just to sum the same input arrays.
+
+Also the end-to-end time per row of `rig refit` on a 1e6-row CSV (read, fit, statistics, write).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from calib import csvio, synthetic
+from calib.gram import GramAccumulator
+from rig.cli import main as rig_main
+
+
+def _best_of(fn, repeat: int = 3) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _inputs(n: int, rng: np.random.Generator):
+    params = synthetic.random_t24_params(rng)
+    tau = rng.uniform(-30, 70, n)
+    h = rng.normal(0, 30_000, (n, 3))
+    ref = (
+        h @ params["S"].T
+        + tau[:, None] * (h @ params["K"].T)
+        + params["b_nt"]
+        + tau[:, None] * params["kb_nt_per_c"]
+    )
+    ref += rng.normal(0, 10, ref.shape)
+    return h, tau, ref
+
+
+def streaming(n: int) -> None:
+    h, tau, ref = _inputs(n, np.random.default_rng(0))
+
+    def fit():
+        acc = GramAccumulator(20.0)
+        acc.add(h, tau, ref)
+        return acc.solve()
+
+    t_fit = _best_of(fit)
+    t_sum = _best_of(lambda: (np.sum(h), np.sum(tau), np.sum(ref)))
+    tracemalloc.start()
+    fit()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    print(
+        f"N = {n:.0e}: fit {t_fit * 1e3:.0f} ms, np.sum {t_sum * 1e3:.0f} ms, "
+        f"extra peak memory {peak / 1e6:.2f} MB"
+    )
+    print(f"  throughput: {n / t_fit:.3g} samples/s, {t_fit / t_sum:.2f} x np.sum")
+
+
+def end_to_end(rows: int = 1_000_000) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.csv"
+        h, tau, ref = _inputs(rows, np.random.default_rng(1))
+        csvio.write_csv(
+            path,
+            {
+                "hx": h[:, 0],
+                "hy": h[:, 1],
+                "hz": h[:, 2],
+                "temp": tau,
+                "bx": ref[:, 0],
+                "by": ref[:, 1],
+                "bz": ref[:, 2],
+            },
+        )
+        t0 = time.perf_counter()
+        csvio.read_csv(path)
+        t_read = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        code = rig_main(["refit", str(path), "--model", "t24", "-o", str(Path(tmp) / "cal.yaml")])
+        t_total = time.perf_counter() - t0
+    if code:
+        sys.exit(code)
+    print(
+        f"rig refit on {rows:.0e} CSV rows: {t_total / rows * 1e6:.2f} us/row end to end "
+        f"(CSV read alone {t_read / rows * 1e6:.2f} us/row)"
+    )
+
+
+if __name__ == "__main__":
+    streaming(1_000_000)
+    streaming(10_000_000)
+    end_to_end()

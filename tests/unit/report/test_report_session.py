@@ -1,0 +1,114 @@
+"""`rig report` on a session file: figures, tables, warnings and provenance in one self-contained page."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import re
+from html import unescape
+
+import pytest
+
+from rig.cli import main
+from rig.report.build import build_report
+from rig.report.synthetic_session import SynthOptions, build_session
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    path = tmp_path_factory.mktemp("s") / "run.sqlite"
+    opts = SynthOptions(
+        temps_c=(-20.0, 10.0, 40.0),
+        directions=14,
+        samples=3,
+        outlier_fraction=0.03,
+        saturated_points=("T02-F03",),
+        unstable_step=2,
+        failed_point="T03-F05",
+        seed=7,
+    )
+    build_session(path, opts)
+    return path
+
+
+@pytest.fixture(scope="module")
+def report(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("r")
+    page = build_report(session, out_dir=out)
+    return page, page.read_text(encoding="utf-8")
+
+
+def _text(html: str) -> str:
+    return re.sub(r"\s+", " ", unescape(re.sub(r"<[^>]+>", " ", html)))
+
+
+def test_page_is_self_contained(report):
+    page, html = report
+    sources = re.findall(r'src="([^"]*)"', html)
+    assert len(sources) == 5 and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert "<script" not in html and "<link" not in html
+    pngs = sorted(page.parent.glob("*.png"))
+    assert len(pngs) == 5
+    embedded = {base64.b64decode(s.split(",", 1)[1]) for s in sources}
+    assert {p.read_bytes() for p in pngs} == embedded
+    assert all(p.read_bytes().startswith(PNG_MAGIC) for p in pngs)
+
+
+def test_warnings_name_every_problem(report):
+    text = _text(report[1])
+    warnings = text[text.index("Data-quality warnings") : text.index("DUT dut1")]
+    assert "temperature step 2 (10 °C) did not reach stability" in warnings
+    assert "settle timeout" in warnings
+    assert "1 point(s) failed: T03-F05 (coil compliance fault)" in warnings
+    assert "1 sample(s) flagged 'saturated' (not fitted) at points T02-F03" in warnings
+    assert re.search(r"\d+ outlier sample\(s\) of the T24 calibration, flagged by the robust fit", warnings)
+    assert "direction coverage:" in warnings  # 14 random directions leave gaps
+
+
+def test_models_steps_and_parameters(report):
+    text = _text(report[1])
+    assert "5-fold over 41 points" in text  # 3 x 14 points, one failed
+    for model in ("T24: fitted here", "P12: fitted here", "SCALAR: fitted here"):
+        assert model in text
+    assert "kb_nt_per_c[3]" in text and "angles_deg[1]" in text
+    # step 2: setpoint 10, 14 of 14 points, settle 1920 s = 32.0 min, not stable
+    assert re.search(r" 2 10 \d+\.\d\d \d+ 14/14 32\.0 NO ", text)
+    assert re.search(r" 3 40 \d+\.\d\d \d+ 13/14 33\.0 yes ", text)
+
+
+def test_provenance(report, session):
+    text = _text(report[1])
+    digest = hashlib.sha256(session.read_bytes()).hexdigest()
+    assert f"session file sha256 {digest}" in text
+    assert "station simstation" in text and "plan synth" in text
+    assert "plan text sha256 " + hashlib.sha256(b"name: synth\n").hexdigest() in text
+    assert "recorded with magrig" in text and "report made with magrig" in text
+
+
+def test_report_cli_on_one_dut(session, tmp_path, capsys):
+    assert main(["report", str(session), "--dut", "dut1", "-o", str(tmp_path / "r")]) == 0
+    assert "5 figures" in capsys.readouterr().out
+    assert main(["report", str(session), "--dut", "nobody", "-o", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no DUT named 'nobody'" in err and str(session) in err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["missing.sqlite"], "missing.sqlite: no such file"),
+        (["{session}", "--data", "x.csv"], "--data is only for a calibration file"),
+        (["{damaged}"], "damaged"),
+    ],
+)
+def test_bad_input_is_one_line(args, message, session, tmp_path, capsys):
+    damaged = tmp_path / "damaged.sqlite"
+    damaged.write_bytes(session.read_bytes()[:3000])
+    argv = (
+        ["report"] + [a.format(session=session, damaged=damaged) for a in args] + ["-o", str(tmp_path / "o")]
+    )
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err
