@@ -2,8 +2,8 @@
 
 excess = RMS over fresh validation readings of (our calibrated field - the true calibration applied to the
 same noisy readings), divided by the RMS an efficient estimator would have there (sigma^2 G^-1 propagated
-to those points), pooled over 20 seeds. 1.00 is the limit. Also: digits kept by our solver and by the
-paper's closed form against a 60-digit solution.
+to those points), pooled over 20 seeds (P12: 100). 1.00 is the limit. Also: digits kept by our solver
+and by the paper's closed form against a 60-digit solution.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from calib.gram import GramAccumulator
 from calib.models import p12_matrix
 
 SEEDS = range(20)
+P12_SEEDS = range(100)  # P12 fits are cheap; 20 seeds leave the ratio uncertain by ~3 %
 NOISE_NT = 10.0
 
 
@@ -54,7 +55,7 @@ def t24_excess(outlier_fraction: float = 0.0, robust: bool = False) -> float:
 
 def p12_excess(outlier_fraction: float = 0.0, robust: bool = False) -> float:
     err2 = pred2 = 0.0
-    for seed in SEEDS:
+    for seed in P12_SEEDS:
         rng = np.random.default_rng(1000 + seed)
         ds, truth = synthetic.p12_dataset(rng, noise_nt=NOISE_NT, outlier_fraction=outlier_fraction)
         cal = calib.fit(ds, "p12", robust=robust)
@@ -110,7 +111,7 @@ def main() -> None:
         f"    1 % outliers of 5000 nT, robust        excess {t24_excess(0.01, True):.3f}   (target <= 1.10)"
     )
     print(f"    1 % outliers of 5000 nT, plain LS      excess {t24_excess(0.01, False):.1f}")
-    print("  P12, 26 directions x 20 samples, 10 nT noise:")
+    print("  P12, 26 directions x 20 samples, 10 nT noise (100 seeds):")
     print(f"    least squares                          excess {p12_excess():.3f}")
     print(f"    1 % outliers of 5000 nT, robust        excess {p12_excess(0.01, True):.3f}")
     print(f"    1 % outliers of 5000 nT, plain LS      excess {p12_excess(0.01, False):.1f}")

@@ -17,7 +17,7 @@ OUT = Path(__file__).resolve().parent.parent / "examples" / "t24_synthetic.csv"
 def main() -> None:
     ds, _ = synthetic.t24_dataset(np.random.default_rng(2024), samples_per_point=3)
     OUT.parent.mkdir(exist_ok=True)
-    columns = {"step": ds.group, "temp": np.round(ds.temp_c, 3)}
+    columns = {"group": ds.group, "temp": np.round(ds.temp_c, 3)}
     for i, axis in enumerate("xyz"):
         columns[f"h{axis}"] = np.round(ds.h_nt[:, i], 1)
     for i, axis in enumerate("xyz"):

@@ -8,26 +8,27 @@ the store API (rig.store.Session) with calib's synthetic T24 data, 1 % outliers 
 then `rig report` is built from it: three models fitted per DUT, 5-fold held-out comparison of each, the
 figures and the HTML page. Printed: wall seconds for the session file and for the report, and where the
 report's time goes.
+
+--blas-threads (default 1) sets OPENBLAS_NUM_THREADS before numpy loads: on a small machine shared with
+other work, OpenBLAS's own threads fight for the cores and the scalar model's fits slow down by 10x or
+more; "auto" leaves the library's default.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-from rig import fieldsets
-from rig.report import build
-from rig.report.synthetic_session import SynthOptions, build_session
-
 TEMPS_C = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
 
 
-def field_vectors(n: int) -> np.ndarray:
+def field_vectors(n: int):
     """The full campaign's field set: 24 cube rotations at 30 and 60 uT (48); other n: Fibonacci at 50 uT."""
+    from rig import fieldsets
+
     if n == 48:
         return fieldsets.scaled(fieldsets.cube24_directions(), [30_000.0, 60_000.0])
     return 50_000.0 * fieldsets.fibonacci_directions(n)
@@ -40,23 +41,43 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=50)
     ap.add_argument("--duts", type=int, default=2)
     ap.add_argument("--keep", type=Path, help="Write the session and report here (default: a temp folder).")
+    ap.add_argument("--blas-threads", default="1", help="OPENBLAS_NUM_THREADS for this run, or 'auto'.")
     args = ap.parse_args()
+    if args.blas_threads != "auto":
+        os.environ["OPENBLAS_NUM_THREADS"] = args.blas_threads  # before numpy is imported below
+    import numpy as np
+
+    from rig.report import build
+    from rig.report.synthetic_session import SynthOptions, build_session
+
+    print(
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset (library default)')}, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
+    )
     temps = TEMPS_C[: args.temps] if args.temps <= len(TEMPS_C) else tuple(np.linspace(-30, 70, args.temps))
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         session = folder / "full-campaign.sqlite"
         session.unlink(missing_ok=True)
-        opts = SynthOptions(temps_c=temps, field_vectors_nt=field_vectors(args.fields), samples=args.samples,
-                            duts=tuple(f"dut{i + 1}" for i in range(args.duts)), outlier_fraction=0.01,
-                            saturated_points=("T03-F07", "T05-F30"), finish="completed")
+        opts = SynthOptions(
+            temps_c=temps,
+            field_vectors_nt=field_vectors(args.fields),
+            samples=args.samples,
+            duts=tuple(f"dut{i + 1}" for i in range(args.duts)),
+            outlier_fraction=0.01,
+            saturated_points=("T03-F07", "T05-F30"),
+            finish="completed",
+        )
         t0 = time.perf_counter()
         build_session(session, opts)
         t_session = time.perf_counter() - t0
         n = args.temps * args.fields * args.samples * args.duts
-        print(f"session: {args.temps} temperatures x {args.fields} fields x {args.samples} samples x "
-              f"{args.duts} DUTs = {n} samples, {session.stat().st_size / 1e6:.1f} MB, "
-              f"written in {t_session:.2f} s")
+        print(
+            f"session: {args.temps} temperatures x {args.fields} fields x {args.samples} samples x "
+            f"{args.duts} DUTs = {n} samples, {session.stat().st_size / 1e6:.1f} MB, "
+            f"written in {t_session:.2f} s"
+        )
 
         t0 = time.perf_counter()
         inputs = build.read_inputs(session)
@@ -72,9 +93,12 @@ def main() -> None:
         t0 = time.perf_counter()
         page = build.build_report(session, out_dir=folder / "report")
         t_total = time.perf_counter() - t0
-        print(f"report: {t_total:.2f} s wall for the whole `rig report` ({page.stat().st_size / 1e6:.1f} MB HTML)")
-        print(f"  of which: read session {t_read:.2f} s, fits + 5-fold comparison {t_analyse:.2f} s, "
-              f"figures {t_figures:.2f} s (measured separately)")
+        size_mb = page.stat().st_size / 1e6
+        print(f"report: {t_total:.2f} s wall for the whole `rig report` ({size_mb:.1f} MB HTML)")
+        print(
+            f"  of which: read session {t_read:.2f} s, fits + 5-fold comparison {t_analyse:.2f} s, "
+            f"figures {t_figures:.2f} s (measured separately)"
+        )
 
 
 if __name__ == "__main__":

@@ -26,31 +26,25 @@ def fit(
 
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
-    (default: middle of the data's range). field_norm_nt / temperature_terms: scalar model only (see
-    calib.scalar.fit_weighted).
+    (default: middle of the data's range). field_norm_nt, temperature_terms, balance_orientations:
+    scalar model only (see calib.scalar.fit_weighted).
     """
     check_dataset(ds)
-    if model == "t24":
-
-        def fit_weighted(w):
-            return t24.fit_weighted(ds, w, temp_ref_c)
-    elif model == "p12":
-
-        def fit_weighted(w):
-            return p12.fit_weighted(ds, w)
-    elif model == "scalar":
-
-        def fit_weighted(w):
-            return scalar.fit_weighted(
-                ds,
-                w,
-                temp_ref_c=temp_ref_c,
-                field_norm_nt=field_norm_nt,
-                temperature_terms=temperature_terms,
-                balance_orientations=balance_orientations,
-            )
-    else:
+    fitters = {
+        "t24": lambda w: t24.fit_weighted(ds, w, temp_ref_c),
+        "p12": lambda w: p12.fit_weighted(ds, w),
+        "scalar": lambda w: scalar.fit_weighted(
+            ds,
+            w,
+            temp_ref_c=temp_ref_c,
+            field_norm_nt=field_norm_nt,
+            temperature_terms=temperature_terms,
+            balance_orientations=balance_orientations,
+        ),
+    }
+    if model not in fitters:
         raise DataError(f"unknown model {model!r}: choose t24, p12 or scalar")
+    fit_weighted = fitters[model]
     if robust:
         cal, _, flagged = irls(fit_weighted, len(ds))
     else:
@@ -67,7 +61,11 @@ def fit(
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
     cal.stats = stats
-    cal.source = {**ds.source, "rows_used": int(used.sum()), "rows_rejected": int(flagged.sum())}
+    cal.source = {
+        **ds.source,
+        "rows_used": int(used.sum()),
+        "rows_rejected": int(ds.source.get("rows_rejected", 0)) + int(flagged.sum()),
+    }
     cal.outliers = flagged
     return cal
 

@@ -15,7 +15,7 @@ from calib.calibration import Calibration
 from rig.errors import DataError, FitError
 
 N_PARAMS = 8  # per output axis: b, kb, S_i1..3, K_i1..3
-CHUNK_ROWS = 8192  # rows per BLAS product: big enough to be fast, small enough to stay in cache
+CHUNK_ROWS = 16384  # rows per BLAS product: big enough to be fast, small enough to stay in cache
 MIN_TEMP_SPAN_C = 0.5  # below this the temperature terms are not identifiable
 RCOND_SINGULAR = 1e-13  # of the column-scaled Gram: below it the design is treated as singular
 RCOND_WARN = 1e-9
@@ -34,6 +34,7 @@ class GramAccumulator:
         self.temp_min_c = np.inf
         self.temp_max_c = -np.inf
         self._buf = np.empty((CHUNK_ROWS, 11), order="F")  # column fills are contiguous writes
+        self._buf[:, 0] = 1.0
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
         """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""
@@ -56,14 +57,16 @@ class GramAccumulator:
         for lo in range(0, h.shape[0], CHUNK_ROWS):
             hi = min(lo + CHUNK_ROWS, h.shape[0])
             z = buf[: hi - lo]
-            z[:, 0] = 1.0
             np.subtract(t[lo:hi], self.temp_ref_c, out=z[:, 1])
             z[:, 2:5] = h[lo:hi]
             np.multiply(z[:, 1:2], z[:, 2:5], out=z[:, 5:8])
             z[:, 8:11] = ref[lo:hi]
             if sw is not None:
-                z *= sw[lo:hi, None]
+                z[:, 1:] *= sw[lo:hi, None]
+                z[:, 0] = sw[lo:hi]
             self.gram += z.T @ z
+        if sw is not None:
+            buf[:, 0] = 1.0
         self.n += used.size  # rows with zero weight (flagged outliers) do not count
         self.temp_min_c = min(self.temp_min_c, float(used.min()))
         self.temp_max_c = max(self.temp_max_c, float(used.max()))
@@ -151,11 +154,11 @@ class _ScaledSystem:
         hb = np.diag(g[2:5, N_PARAMS:])
         return np.maximum(hh - 2 * hb + bb, 0.0)
 
-    def calibration(self, rss: np.ndarray | None = None, dof: float | None = None) -> Calibration:
+    def calibration(self) -> Calibration:
+        """Parameters in the absolute-tau convention, covariance sigma^2 G^-1 carried over to them."""
         acc = self.acc
-        rss = self.residual_ss() if rss is None else rss
-        dof = acc.n - N_PARAMS if dof is None else dof
-        sigma2 = rss / dof
+        rss = self.residual_ss()
+        sigma2 = rss / (acc.n - N_PARAMS)
         cov_centred = self.gs_inv / np.outer(self.d, self.d)
         tr = acc.temp_ref_c
         to_abs = np.eye(N_PARAMS)
@@ -188,10 +191,6 @@ class _ScaledSystem:
             stats=stats,
             source={"kind": "gram"},
         )
-
-    def centred_covariance(self) -> np.ndarray:
-        """Unit-variance covariance (G^-1) of the centred per-axis parameters [b', kb, S'_i., K_i.]."""
-        return self.gs_inv / np.outer(self.d, self.d)
 
 
 def _unpack(beta: np.ndarray) -> dict[str, np.ndarray]:

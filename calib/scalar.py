@@ -46,12 +46,11 @@ def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarra
     quad = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, -2 * x, -2 * y, -2 * z])
     sw = np.sqrt(w)[:, None]
     constant_norm = np.ptp(fn) <= 1e-9 * np.max(fn)
+    d = np.column_stack([quad, np.ones(len(hn))]) * sw
     if constant_norm:
-        # homogeneous: quadric through the points, scale fixed afterwards by the known norm
-        d = np.column_stack([quad, np.ones(len(hn))]) * sw
+        # homogeneous: the quadric through the points, its scale fixed afterwards by the known norm
         v = np.linalg.svd(d, full_matrices=False)[2][-1]
     else:
-        d = np.column_stack([quad, np.ones(len(hn))]) * sw
         v = np.linalg.lstsq(d, (fn**2)[:, None] * sw, rcond=None)[0][:, 0]
     wm = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
     if np.trace(wm) < 0:

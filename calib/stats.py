@@ -83,9 +83,16 @@ def residual_stats(
             }
             if ds.temp_c is not None and rows.any():
                 entry["temp_c"] = float(np.mean(ds.temp_c[rows]))
-            per_group[str(label)] = entry
+            per_group[_label_text(label)] = entry
         stats["per_group"] = per_group
     return stats
+
+
+def _label_text(label) -> str:
+    """Group labels read from a CSV arrive as floats: 3.0 prints as '3'."""
+    if isinstance(label, float) and label.is_integer():
+        return str(int(label))
+    return str(label)
 
 
 def _ordered_unique(labels: np.ndarray) -> list:

@@ -50,6 +50,7 @@ FAILED = "failed"
 @dataclass(frozen=True)
 class SetChamber:
     temp_c: float
+    ramp_c_per_min: float | None = None
 
 
 @dataclass(frozen=True)
@@ -284,9 +285,12 @@ class Engine:
         gen = step.make(retake)
         try:
             reply = None
+            recorded = False  # after CollectPoint the point is stored: run to its end, never retake it
             while True:
-                self.check_interrupt()
+                if not recorded:
+                    self.check_interrupt()
                 command = gen.send(reply)
+                recorded = recorded or isinstance(command, CollectPoint)
                 handler = self.handlers.get(type(command))
                 if handler is None:
                     raise MagrigError(f"no handler for command {type(command).__name__}")

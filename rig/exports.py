@@ -16,11 +16,13 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
+from calib.calibration import to_plain
 from rig import __version__
 from rig.errors import DataError
 
@@ -205,18 +207,17 @@ def form_dict(form: FlightForm) -> dict:
 
 
 def to_jsonable(x):
-    """numpy arrays and scalars to plain lists and numbers, recursively; NaN and inf to None."""
+    """numpy arrays and scalars to plain lists and numbers (calib's to_plain); NaN and inf, which JSON
+    cannot spell, to None."""
+    return _finite_or_none(to_plain(x))
+
+
+def _finite_or_none(x):
     if isinstance(x, dict):
-        return {str(k): to_jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [to_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return to_jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
+        return {k: _finite_or_none(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite_or_none(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
 
 
 def json_export(form: FlightForm, params: dict, std_errors: dict, extra: dict) -> str:

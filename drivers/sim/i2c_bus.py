@@ -27,8 +27,9 @@ class I2CChip(Protocol):
     def on_write(self, register: int, data: bytes) -> None: ...
 
 
-def _nack(address: int) -> OSError:
-    return OSError(errno.EREMOTEIO, "Remote I/O error", f"i2c address 0x{address:02X}")
+def _nack() -> OSError:
+    """What the Linux i2c-dev ioctl raises through smbus2 when no chip ACKs."""
+    return OSError(errno.EREMOTEIO, "Remote I/O error")
 
 
 def _check_byte(value: int) -> None:
@@ -99,10 +100,10 @@ class FakeSMBus:
                     del self._nacks[address]
                 else:
                     self._nacks[address] = left - 1
-            raise _nack(address)
+            raise _nack()
         chip = self.chips.get(address)
         if chip is None:
-            raise _nack(address)
+            raise _nack()
         return chip
 
     # --- smbus2 API -------------------------------------------------------------------------------

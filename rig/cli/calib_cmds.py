@@ -163,14 +163,14 @@ def print_summary(cal) -> None:
     st = cal.stats
     ref = "" if cal.temp_ref_c is None else f", temperature terms centred at {cal.temp_ref_c:g} degC"
     console.print(f"[bold]{cal.model}[/bold] fit of {st.get('n_used')} of {st.get('n')} samples{ref}")
-    params = Table("parameter", "value ± std error", title="parameters (absolute-temperature convention)")
+    title = "parameters ± std errors" + (" (absolute temperature)" if cal.temp_ref_c is not None else "")
+    params = Table("parameter", "1 / x", "2 / y", "3 / z", title=title)
     for name, value in cal.params.items():
-        err = np.broadcast_to(cal.std_errors[name], np.shape(value))
         value = np.atleast_2d(value)
-        err = np.atleast_2d(err)
+        err = np.atleast_2d(cal.std_errors[name])
         for i, (row, erow) in enumerate(zip(value, err, strict=True)):
-            label = name if value.shape[0] == 1 else f"{name}[{i + 1},:]"
-            params.add_row(label, "   ".join(_fmt_with_error(v, e) for v, e in zip(row, erow, strict=True)))
+            label = name if value.shape[0] == 1 else f"{name} row {i + 1}"
+            params.add_row(label, *(_fmt_with_error(v, e) for v, e in zip(row, erow, strict=True)))
     console.print(params)
     fit = Table("rows", "n", "RMS before (nT)", "RMS after (nT)", title="residuals")
     fit.add_row("all used", str(st.get("n_used")), f"{st['rms_before_nt']:.4g}", f"{st['rms_after_nt']:.4g}")

@@ -2,8 +2,85 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import click
+from rich.console import Console
+from rich.table import Table
+
+from rig.errors import ConfigError
+
+
+class RunNotCompleted(click.ClickException):
+    """The run ended without taking every point (aborted or failed): exit code 1, one line."""
+
+    exit_code = 1
+
+    def show(self, file=None) -> None:
+        click.echo(f"run not completed: {self.message}", err=True)
+
+
+def _print_summary(outcome) -> None:
+    console = Console()
+    r = outcome.result
+    console.print(f"session {outcome.session_path}: {r.status} ({r.reason}); "
+                  f"{r.points_done} points; wall time {outcome.wall_s:.1f} s")
+    if outcome.stale_lock_pid is not None:
+        console.print(f"note: took over the lock of dead run pid {outcome.stale_lock_pid} after making "
+                      "the hardware safe")
+    if not outcome.fits:
+        return
+    table = Table(title="calibrations")
+    for col in ("DUT", "model", "samples", "rms after (nT)", "file / error"):
+        table.add_column(col)
+    for f in outcome.fits:
+        rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
+        table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, str(f.get("path") or f.get("error")))
+    console.print(table)
 
 
 def register(group: click.Group) -> None:
     """Add this module's commands to the `rig` group."""
+
+    @group.command("run")
+    @click.argument("plan", required=False, type=click.Path(dir_okay=False))
+    @click.option("--station", type=click.Path(dir_okay=False), help="Station file (default: the plan's, "
+                  "else configs/stations/sim.yaml).")
+    @click.option("--session", "session_path", type=click.Path(dir_okay=False),
+                  help="Session file to create.")
+    @click.option("--out", "out_dir", type=click.Path(file_okay=False),
+                  help="Directory for the session and calibration files (default: the plan's outputs.dir).")
+    @click.option("--resume", "resume_path", type=click.Path(dir_okay=False),
+                  help="Continue this session at its first incomplete point (plan and station from it).")
+    @click.option("--no-live", is_flag=True, help="Plain log lines instead of the live display.")
+    def run(plan, station, session_path, out_dir, resume_path, no_live):
+        """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
+        from rig.campaign import default_session_path, run_campaign
+        from rig.config import load_campaign
+        from rig.display import make_display
+        from rig.engine import COMPLETED, prompt_from_tty
+
+        if resume_path:
+            if plan or station or session_path or out_dir:
+                raise ConfigError("rig run --resume SESSION takes the plan and the station from the "
+                                  "session: give no PLAN, --station, --session or --out with it")
+            campaign, path = None, Path(resume_path)
+        else:
+            if not plan:
+                raise ConfigError("rig run: give a PLAN file, or --resume SESSION")
+            if session_path and out_dir:
+                raise ConfigError("rig run: give --session PATH or --out DIR, not both")
+            campaign = load_campaign(plan, station)
+            path = Path(session_path) if session_path else default_session_path(
+                out_dir or campaign.plan.outputs.dir, campaign.plan.name)
+        interactive = sys.stdin.isatty()
+        outcome = run_campaign(
+            campaign=campaign, session_path=path, resume=bool(resume_path),
+            prompt=prompt_from_tty if interactive else None,
+            display_factory=lambda status, runner: make_display(status, runner, live=not no_live),
+        )
+        _print_summary(outcome)
+        if outcome.result.status != COMPLETED:
+            raise RunNotCompleted(f"{outcome.result.status}: {outcome.result.reason}; continue with: "
+                                  f"rig run --resume {outcome.session_path}")

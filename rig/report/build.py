@@ -269,10 +269,11 @@ def _dut_figures(r: DutResult) -> dict[str, Image]:
         before, after, labels = e.vector_before, e.vector_after, ["x", "y", "z"]
     else:
         before, after, labels = e.norm_before[:, None], e.norm_after[:, None], ["|B|"]
-    resid = np.linalg.norm(after, axis=1)
-    resid[outliers] = np.nan
     direction = ds.ref_nt if ds.ref_nt is not None else e.field_after
-    dirs, dir_resid = analysis.per_group_means(ds.columns.get("point"), direction, resid)
+    dirs, dir_resid, per_point = analysis.systematic_error_by_point(
+        ds.columns.get("point"), direction, after, ~outliers
+    )
+    resid_label = "|mean residual| of each point (nT)" if per_point else "|residual| after calibration (nT)"
     out = {
         "residuals": _image(
             figures.residuals_vs_temperature(
@@ -296,9 +297,14 @@ def _dut_figures(r: DutResult) -> dict[str, Image]:
         ),
         "directions": _image(
             figures.direction_map(
-                dirs, dir_resid, analysis.COVERAGE_GAP_DEG, f"{r.name}: field directions ({model})"
+                dirs,
+                dir_resid,
+                analysis.COVERAGE_GAP_DEG,
+                f"{r.name}: field directions ({model})",
+                resid_label,
             ),
-            f"{r.name}: direction coverage, and residual RMS per point by field direction",
+            f"{r.name}: direction coverage (left) and the error the calibration leaves at each field "
+            "direction (right; the mean over a point's samples, so the noise averages out)",
             f"{tag}_directions.png",
         ),
     }
@@ -386,41 +392,59 @@ def _comparison_table(scores: list[analysis.ModelScore]) -> Table:
     )
 
 
+STEP_HEADERS = [
+    "step",
+    "setpoint (°C)",
+    "mean DUT temp (°C)",
+    "samples",
+    "points done",
+    "settle time (min)",
+    "stable",
+    "RMS before (nT)",
+    "RMS after (nT)",
+    "outliers",
+]
+
+
+def _stability(i: StepInfo | None) -> str:
+    if i is None or i.stable is None:
+        return "-"
+    if not i.stable:
+        return f"NO ({i.settle_timeouts} timeout(s))"
+    return f"yes, after {i.settle_timeouts} timeout(s)" if i.settle_timeouts else "yes"
+
+
 def _step_table(steps: list[analysis.StepRow], info: dict[int, StepInfo]) -> Table:
+    """One row per temperature step: the data's numbers with what the session recorded about the step;
+    planned steps without any sample are listed too."""
+    by_step = {s.step: s for s in steps}
     rows = []
-    for s in steps:
-        i = info.get(s.step)
+    for number in sorted(set(by_step) | set(info)):
+        s, i = by_step.get(number), info.get(number)
         settle = "-" if i is None or i.settle_s is None else f"{i.settle_s / 60:.1f}"
-        stable = "-" if i is None or i.stable is None else ("yes" if i.stable else "NO")
-        rows.append(
-            [
-                str(s.step),
-                "-" if i is None else f"{i.setpoint_c:g}",
+        data = (
+            ["-", "0", "-", "-", "0"]
+            if s is None
+            else [
                 "-" if not np.isfinite(s.temp_c) else f"{s.temp_c:.2f}",
                 str(s.samples),
-                "-" if i is None else f"{i.points_done}/{i.points_planned}",
-                settle,
-                stable,
                 _fmt(s.rms_before_nt),
                 _fmt(s.rms_after_nt),
                 str(s.outliers),
             ]
         )
-    return Table(
-        [
-            "step",
-            "setpoint (°C)",
-            "mean DUT temp (°C)",
-            "samples",
-            "points done",
-            "settle time (min)",
-            "stable",
-            "RMS before (nT)",
-            "RMS after (nT)",
-            "outliers",
-        ],
-        rows,
-    )
+        rows.append(
+            [
+                str(number),
+                "-" if i is None else f"{i.setpoint_c:g}",
+                *data[:2],
+                "-" if i is None else f"{i.points_done}/{i.points_planned}",
+                settle,
+                _stability(i),
+                *data[2:],
+            ]
+        )
+    return Table(STEP_HEADERS, rows)
 
 
 def _param_sets(r: DutResult) -> list[tuple[str, object]]:

@@ -164,13 +164,17 @@ def azimuth_elevation_deg(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def direction_map(
-    direction_nt: np.ndarray, residual_nt: np.ndarray, gap_deg: float = 35.0, title: str = ""
+    direction_nt: np.ndarray,
+    residual_nt: np.ndarray,
+    gap_deg: float = 40.0,
+    title: str = "",
+    residual_label: str = "|residual| after calibration (nT)",
 ) -> Figure:
     """Where the field pointed (in sensor axes) and where the error lives.
 
     Left: angular distance from every direction to the nearest sample; the red contour encloses the gaps
     (no sample within `gap_deg`). Right: each sample (or point) at its field direction, coloured by the
-    size of its residual after calibration.
+    size of its residual after calibration (`residual_label` says which residual).
     """
     az, el = azimuth_elevation_deg(direction_nt)
     resid = np.asarray(residual_nt, dtype=float)
@@ -205,8 +209,8 @@ def direction_map(
     sc = ax_res.scatter(
         az[order], el[order], c=resid[order], s=14, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
     )
-    fig.colorbar(sc, ax=ax_res, extend="max", label="|residual| after calibration (nT)")
-    ax_res.set_title("residual by field direction")
+    fig.colorbar(sc, ax=ax_res, extend="max", label=residual_label)
+    ax_res.set_title("error after calibration, by field direction")
     for ax in (ax_cov, ax_res):
         ax.set_xlim(-180, 180)
         ax.set_ylim(-90, 90)

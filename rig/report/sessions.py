@@ -35,7 +35,7 @@ def session_line(path: Path) -> str:
     else:
         rms = fit.get("residual_rms_nt")
         last = f"{fit['dut']} {fit['model']} " + ("(no residual)" if rms is None else f"{rms:.4g} nT RMS")
-    started = utc(s["started"]).removesuffix(" UTC")[:16]
+    started = utc(s.get("wall_started") or s["started"]).removesuffix(" UTC")[:16]
     exit_status = s["exit_status"] or "not finished"
     return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, last)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
+import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,7 @@ from rig.errors import DataError, SessionError
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
 MAX_LISTED = 5  # how many point ids a warning names before "and N more"
+HOLD_POINT = re.compile(r"point (\S+?):")  # the engine's hold events start "point T03-F01: ..."
 
 
 @dataclass
@@ -32,7 +34,8 @@ class StepInfo:
     points_done: int = 0
     points_failed: int = 0
     settle_s: float | None = None
-    stable: bool | None = None  # False: the step was sampled although the DUT never met the criteria
+    stable: bool | None = None  # True: a point was taken after the DUTs were stable; False: never stable
+    settle_timeouts: int = 0  # holds because a DUT was not stable within max_wait_s
 
 
 @dataclass
@@ -62,11 +65,8 @@ def is_session_file(path: Path) -> bool:
 
 
 def sha256_of(path: Path) -> str:
-    digest = hashlib.sha256()
     with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def sha256_text(text: str) -> str:
@@ -77,6 +77,12 @@ def utc(t: float | None) -> str:
     if t is None:
         return "-"
     return dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def _duration(start: float | None, end: float | None) -> str:
+    if start is None or end is None:
+        return "not finished"
+    return f"{(end - start) / 3600:.2f} h"
 
 
 def listed(items: list[str]) -> str:
@@ -104,9 +110,9 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         _, rows = store.sample_rows(path, name)
         flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
         duts.append(DutInput(name, ds, None, flagged, flagged_rows))
-    steps = _steps(points)
+    steps = _steps(points, events)
     warnings = _session_warnings(summary, points, events, steps)
-    started = utc(info["started"])
+    started = utc(info.get("wall_started") or info["started"])
     provenance = [
         ("session", f"{path.name} (started {started})"),
         ("session file sha256", duts[0].dataset.source.get("sha256") or sha256_of(path)),
@@ -121,7 +127,9 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         ),
         (
             "run",
-            f"{started} to {utc(info['ended'])}; exit {info['exit_status'] or 'not recorded'}"
+            f"{started} to {utc(info.get('wall_ended') or info['ended'])} (wall clock); "
+            f"{_duration(info['started'], info['ended'])} on the rig's clock; "
+            f"exit {info['exit_status'] or 'not recorded'}"
             + (f" ({info['exit_reason']})" if info["exit_reason"] else ""),
         ),
         (
@@ -137,62 +145,48 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
 
 
 def _session_tables(path: Path) -> tuple[dict, list[dict], list[dict]]:
-    """Session record, points and events. The store has no public reader for these, so they are read
-    through its verified read-only connection."""
-    import sqlite3
-
+    """Session record, points and events (rig.store reads them read-only and checks the file)."""
     from rig import store
 
-    try:
-        with store._read_only(path) as conn:
-            info = dict(conn.execute("SELECT * FROM session").fetchone())
-            points = [dict(r) for r in conn.execute("SELECT * FROM points ORDER BY idx")]
-            events = [dict(r) for r in conn.execute("SELECT * FROM events ORDER BY id")]
-    except sqlite3.Error as exc:
-        raise SessionError(f"{path}: damaged session file: {exc}") from None
-    return info, points, events
+    tables = store.session_tables(path)
+    return tables["session"], tables["points"], tables["events"]
 
 
-def _settle_fields(settle_json: str | None) -> tuple[float | None, bool | None]:
-    """(settle seconds, stable?) from a point's settle statistics, whatever subset of keys it has."""
-    if not settle_json:
-        return None, None
+def _waited_s(settle_json: str | None) -> float | None:
+    """Seconds the step waited for thermal stability, from a point's settle statistics (the campaign
+    records them once the DUTs are stable: {"target_c", "waited_s", "duts": {...}})."""
     try:
-        d = json.loads(settle_json)
+        d = json.loads(settle_json or "{}")
     except ValueError:
-        return None, None
-    if not isinstance(d, dict):
-        return None, None
-    seconds = next(
-        (d[k] for k in ("settle_s", "temp_settle_s", "wait_s", "elapsed_s") if _num(d.get(k))), None
-    )
-    state = d.get("state", d.get("status", d.get("settle_state")))
-    stable = (
-        d.get("stable")
-        if isinstance(d.get("stable"), bool)
-        else (None if state is None else str(state).lower() == "stable")
-    )
-    if d.get("timed_out") is True or d.get("timeout") is True:
-        stable = False
-    return (None if seconds is None else float(seconds)), stable
+        return None
+    value = d.get("waited_s") if isinstance(d, dict) else None
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def _num(x) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool)
+def _timeout_holds(events: list[dict]) -> list[dict]:
+    """Holds raised because a DUT was not stable within max_wait_s (the engine retakes the point)."""
+    return [e for e in events if e["kind"] == "hold" and "not stable" in e["message"]]
 
 
-def _steps(points: list[dict]) -> dict[int, StepInfo]:
+def _steps(points: list[dict], events: list[dict]) -> dict[int, StepInfo]:
     steps: dict[int, StepInfo] = {}
+    step_of_point = {p["id"]: p["temp_index"] for p in points}
     for p in points:
         s = steps.setdefault(p["temp_index"], StepInfo(p["temp_index"], p["setpoint_c"]))
         s.points_planned += 1
         s.points_done += p["state"] == "done"
         s.points_failed += p["state"] == "failed"
-        seconds, stable = _settle_fields(p["settle_json"])
-        if seconds is not None:
-            s.settle_s = max(s.settle_s or 0.0, seconds)
-        if stable is not None:
-            s.stable = stable if s.stable is None else (s.stable and stable)
+        waited = _waited_s(p["settle_json"]) if p["state"] == "done" else None
+        if waited is not None:
+            s.settle_s = max(s.settle_s or 0.0, waited)
+            s.stable = True
+    for e in _timeout_holds(events):
+        m = HOLD_POINT.search(e["message"])
+        if m and m.group(1) in step_of_point:
+            s = steps[step_of_point[m.group(1)]]
+            s.settle_timeouts += 1
+            if s.stable is None:
+                s.stable = False
     return steps
 
 
@@ -212,13 +206,11 @@ def _session_warnings(summary: dict, points: list[dict], events: list[dict], ste
         )
     for s in steps.values():
         if s.stable is False:
-            out.append(f"temperature step {s.temp_index} ({s.setpoint_c:g} °C) did not reach stability")
-    timeouts = [
-        e
-        for e in events
-        if "timeout" in (e["kind"] + " " + e["message"]).lower()
-        and ("settl" in (e["kind"] + " " + e["message"]).lower() or "stab" in e["message"].lower())
-    ]
+            out.append(
+                f"temperature step {s.temp_index} ({s.setpoint_c:g} °C) did not reach stability "
+                f"({s.settle_timeouts} settle timeout(s)); none of its points was taken"
+            )
+    timeouts = _timeout_holds(events)
     if timeouts:
         out.append(f"{len(timeouts)} settle timeout(s): " + listed([e["message"] for e in timeouts]))
     holds = [e for e in events if e["kind"] == "hold" and e not in timeouts]

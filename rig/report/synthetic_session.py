@@ -39,7 +39,8 @@ class SynthOptions:
     noise_nt: float = 10.0
     outlier_fraction: float = 0.0
     saturated_points: tuple[str, ...] = ()  # point ids whose first sample of the first DUT is flagged
-    unstable_step: int | None = None  # temperature index whose settle stats say it timed out
+    timeout_step: int | None = None  # this temperature step has one settle timeout (hold), then settles
+    abort_at_step: int | None = None  # this step never settles: 3 timeouts, then the run aborts
     failed_point: str | None = None  # recorded as failed instead of done
     finish: str | None = "completed"
     seed: int = 1
@@ -90,18 +91,26 @@ def build_session(path: Path, opts: SynthOptions | None = None) -> dict:
         clock=clock,
     )
     with session:
+        settle: dict = {}
         for p in points:
-            rows_of_point = slice(p.index * o.samples, (p.index + 1) * o.samples)
+            if p.field_index == 1:  # a new temperature step: wait for stability, as the campaign does
+                if p.temp_index in (o.timeout_step, o.abort_at_step):
+                    _log_timeouts(session, p, 3 if p.temp_index == o.abort_at_step else 1)
+                if p.temp_index == o.abort_at_step:
+                    session.finish("aborted", f"point {p.id}: not stable (gave up after 3 retakes)")
+                    return truths
+                waited_s = 1800.0 + 60 * p.temp_index
+                clock.sleep(waited_s)
+                session.log_event("stable", f"stable at {p.setpoint_c:g} degC after {waited_s:.0f} s")
+                settle = {"target_c": p.setpoint_c, "waited_s": waited_s, "duts": {d: {} for d in o.duts}}
             if p.id == o.failed_point:
                 session.mark_point_failed(p.id, "coil compliance fault")
                 continue
             rows = []
             for dut, ds in data.items():
-                for k, i in enumerate(range(*rows_of_point.indices(len(ds)))):
+                for k, i in enumerate(range(p.index * o.samples, (p.index + 1) * o.samples)):
                     clock.sleep(0.1)
-                    flags = (
-                        {"saturated"} if p.id in o.saturated_points and k == 0 and dut == o.duts[0] else set()
-                    )
+                    flagged = p.id in o.saturated_points and k == 0 and dut == o.duts[0]
                     rows.append(
                         SampleRow(
                             dut=dut,
@@ -109,23 +118,22 @@ def build_session(path: Path, opts: SynthOptions | None = None) -> dict:
                             field_nt=tuple(ds.h_nt[i]),
                             ref_field_nt=tuple(ds.ref_nt[i]),
                             temp_c=float(ds.temp_c[i]),
-                            flags=frozenset(flags),
+                            flags=frozenset({"saturated"} if flagged else ()),
                         )
                     )
-            first = p.field_index == 1
-            timed_out = first and p.temp_index == o.unstable_step
-            settle = (
-                {"settle_s": 1800.0 + 60 * p.temp_index, "state": "timeout" if timed_out else "stable"}
-                if first
-                else {}
-            )
-            if timed_out:
-                session.log_event(
-                    "settle_timeout",
-                    f"step {p.temp_index}: DUT temperature not stable after 4 h (settle timeout)",
-                    level="WARNING",
-                )
             session.record_point(p.id, rows, settle)
         if o.finish:
             session.finish(o.finish, "all points taken" if o.finish == "completed" else "stopped")
     return truths
+
+
+def _log_timeouts(session: Session, p: SynthPoint, n: int) -> None:
+    """Holds worded as the engine words them when a DUT does not settle within max_wait_s."""
+    for retake in range(1, n + 1):
+        session.clock.sleep(10800.0)
+        session.log_event(
+            "hold",
+            f"point {p.id}: dut1 not stable at {p.setpoint_c:g} degC within max_wait_s "
+            f"10800 s; retake {retake} of 3",
+            level="WARNING",
+        )

@@ -156,26 +156,36 @@ def test_scalar_refit_with_constant_norm_and_counts(tmp_path, capsys):
     counts = np.round(ds.h_nt / 100.0)  # 1000 counts per gauss = 100 nT per count
     path = tmp_path / "counts.csv"
     csvio.write_csv(path, {"mx": counts[:, 0], "my": counts[:, 1], "mz": counts[:, 2]})
+    options = "--model scalar --raw-unit counts --counts-per-unit 1000/gauss --columns hx=mx,hy=my,hz=mz"
     code, out, err = _run(
-        capsys,
-        "refit",
-        path,
-        "--model",
-        "scalar",
-        "--raw-unit",
-        "counts",
-        "--counts-per-unit",
-        "1000/gauss",
-        "--columns",
-        "hx=mx,hy=my,hz=mz",
-        "--field-norm-nt",
-        "50000",
-        "-o",
-        tmp_path / "s.json",
+        capsys, "refit", path, *options.split(), "--field-norm-nt", "50000", "-o", tmp_path / "s.json"
     )
     assert code == 0, err
     cal = calfile.load(tmp_path / "s.json")
     assert cal.stats["norm_spread_pct"] < 0.1 and "given constant 50000 nT" in cal.stats["field_norm"]
+
+
+def test_apply_reuses_the_fitted_raw_unit_and_column_map(tmp_path, capsys):
+    ds, truth = synthetic.scalar_dataset(np.random.default_rng(6), n=400)
+    path = tmp_path / "gauss.csv"
+    csvio.write_csv(
+        path,
+        {
+            "t_s": np.arange(len(ds)) * 0.1,
+            "mx": ds.h_nt[:, 0] / 1e5,
+            "my": ds.h_nt[:, 1] / 1e5,
+            "mz": ds.h_nt[:, 2] / 1e5,
+        },
+    )
+    cal_path, out = tmp_path / "s.yaml", tmp_path / "out.csv"
+    options = "--model scalar --raw-unit gauss --columns hx=mx,hy=my,hz=mz --field-norm-nt 50000"
+    code, _, err = _run(capsys, "refit", path, *options.split(), "-o", cal_path)
+    assert code == 0, err
+    code, _, err = _run(capsys, "apply", cal_path, path, "-o", out)  # no unit or mapping given again
+    assert code == 0, err
+    result = csvio.read_csv(out, columns={"hx": "mx", "hy": "my", "hz": "mz"})
+    norm = np.linalg.norm(np.column_stack([result.columns[c] for c in ("bx", "by", "bz")]), axis=1)
+    assert abs(norm.mean() - 50000) < 5 and norm.std() < 15
 
 
 def test_session_file_goes_to_the_store(tmp_path, capsys):
@@ -183,3 +193,43 @@ def test_session_file_goes_to_the_store(tmp_path, capsys):
     sqlite3.connect(session).execute("create table t (x)").connection.commit()
     code, _, err = _run(capsys, "refit", session, "--dut", "dut1", "-o", tmp_path / "c.yaml")
     assert code != 0 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_refit_reads_a_real_session_file(tmp_path, capsys):
+    from pathlib import Path
+
+    from rig.clock import SimClock
+    from rig.config import load_campaign
+    from rig.plan import compile_plan
+    from rig.store import SampleRow, Session
+
+    demo = Path(__file__).resolve().parents[3] / "configs" / "plans" / "demo.yaml"
+    campaign = load_campaign(demo)
+    points = compile_plan(campaign.plan, campaign.station)
+    rng = np.random.default_rng(7)
+    truth = synthetic.random_t24_params(rng)
+    path = tmp_path / "run.magrig"
+    with Session.create_for(path, campaign, points, clock=SimClock()) as session:
+        for point in points:
+            temp = point.setpoint_c + 0.1
+            field = np.asarray(point.field_nt, float)
+            m = truth["S"] + temp * truth["K"]
+            h_true = np.linalg.solve(m, field - truth["b_nt"] - temp * truth["kb_nt_per_c"])
+            rows = [
+                SampleRow(
+                    dut="dut1",
+                    t=10.0 * point.index + i,
+                    field_nt=tuple(h_true + rng.normal(0, 10, 3)),
+                    ref_field_nt=tuple(field),
+                    temp_c=temp,
+                )
+                for i in range(5)
+            ]
+            session.record_point(point.id, rows)
+    cal_path = tmp_path / "cal.yaml"
+    code, out, err = _run(capsys, "refit", path, "--dut", "dut1", "--model", "t24", "-o", cal_path)
+    assert code == 0, err
+    cal = calfile.load(cal_path)
+    assert cal.source["kind"] == "session" and cal.source["rows_used"] == 5 * len(points)
+    for name in ("S", "b_nt"):
+        assert np.max(np.abs((cal.params[name] - truth[name]) / cal.std_errors[name])) < 4.5

@@ -83,6 +83,21 @@ def test_scalar_recovers_truth_with_a_known_norm():
     assert cal.stats["rms_after_nt"] == pytest.approx(10.0, rel=0.1)
 
 
+def test_scalar_standard_errors_match_monte_carlo():
+    params = synthetic.random_scalar_params(np.random.default_rng(20))
+    fits = [
+        calib.fit(
+            synthetic.scalar_dataset(np.random.default_rng(2000 + s), params=params, n=300)[0], "scalar"
+        )
+        for s in range(120)
+    ]
+    for name in ("A", "c_nt"):
+        values = np.array([_upper(f.params[name]) if name == "A" else f.params[name] for f in fits])
+        errors = np.array([_upper(f.std_errors[name]) if name == "A" else f.std_errors[name] for f in fits])
+        ratio = values.std(axis=0, ddof=1) / errors.mean(axis=0)
+        assert np.all((ratio > 0.7) & (ratio < 1.35)), (name, ratio)
+
+
 def test_scalar_with_temperature_terms():
     ds, truth = synthetic.scalar_dataset(np.random.default_rng(7), n=800, temps_c=[-20.0, 25.0, 70.0])
     cal = calib.fit(ds, "scalar", temp_ref_c=25.0)

@@ -119,10 +119,14 @@ def test_step_table(t24_data):
     assert sum(r.samples for r in rows) == len(ds) and rows[0].outliers == 3
 
 
-def test_per_group_means():
-    d = np.array([[1.0, 0, 0], [3.0, 0, 0], [0, 2.0, 0], [0, 4.0, 0]])
-    mean_dir, r = analysis.per_group_means(
-        np.array(["a", "a", "b", "b"]), d, np.array([3.0, 4.0, 1.0, np.nan])
-    )
+def test_systematic_error_by_point():
+    d = np.array([[1.0, 0, 0], [3.0, 0, 0], [0, 2.0, 0], [0, 4.0, 0], [0, 9.0, 0]])
+    res = np.array([[3.0, 0, 0], [5.0, 0, 0], [1.0, 1.0, 0], [-1.0, 1.0, 0], [500.0, 0, 0]])
+    keep = np.array([True, True, True, True, False])  # the outlier row is left out
+    groups = np.array(["a", "a", "b", "b", "b"])
+    mean_dir, err, per_point = analysis.systematic_error_by_point(groups, d, res, keep)
+    assert per_point
     np.testing.assert_allclose(mean_dir, [[2, 0, 0], [0, 3, 0]])
-    np.testing.assert_allclose(r, [np.sqrt(12.5), 1.0])
+    np.testing.assert_allclose(err, [4.0, 1.0])  # |mean residual|: the +-1 in x of point b cancels
+    _, err, per_point = analysis.systematic_error_by_point(None, d, res, keep)
+    assert not per_point and err.tolist() == pytest.approx([3, 5, np.sqrt(2), np.sqrt(2)])

@@ -10,7 +10,8 @@ from html import unescape
 import pytest
 
 from rig.cli import main
-from rig.report.build import build_report
+from rig.report.build import _step_table, analyse_dut, build_report
+from rig.report.sources import from_session
 from rig.report.synthetic_session import SynthOptions, build_session
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -25,7 +26,7 @@ def session(tmp_path_factory):
         samples=3,
         outlier_fraction=0.03,
         saturated_points=("T02-F03",),
-        unstable_step=2,
+        timeout_step=2,
         failed_point="T03-F05",
         seed=7,
     )
@@ -59,8 +60,8 @@ def test_page_is_self_contained(report):
 def test_warnings_name_every_problem(report):
     text = _text(report[1])
     warnings = text[text.index("Data-quality warnings") : text.index("DUT dut1")]
-    assert "temperature step 2 (10 °C) did not reach stability" in warnings
-    assert "settle timeout" in warnings
+    assert "1 settle timeout(s): point T02-F01: dut1 not stable at 10 degC within max_wait_s" in warnings
+    assert "did not reach stability" not in warnings  # it settled on the retake
     assert "1 point(s) failed: T03-F05 (coil compliance fault)" in warnings
     assert "1 sample(s) flagged 'saturated' (not fitted) at points T02-F03" in warnings
     assert re.search(r"\d+ outlier sample\(s\) of the T24 calibration, flagged by the robust fit", warnings)
@@ -73,9 +74,22 @@ def test_models_steps_and_parameters(report):
     for model in ("T24: fitted here", "P12: fitted here", "SCALAR: fitted here"):
         assert model in text
     assert "kb_nt_per_c[3]" in text and "angles_deg[1]" in text
-    # step 2: setpoint 10, 14 of 14 points, settle 1920 s = 32.0 min, not stable
-    assert re.search(r" 2 10 \d+\.\d\d \d+ 14/14 32\.0 NO ", text)
+    # step 2: setpoint 10, 14 of 14 points, settled in 1920 s = 32.0 min after one timeout
+    assert re.search(r" 2 10 \d+\.\d\d \d+ 14/14 32\.0 yes, after 1 timeout\(s\) ", text)
     assert re.search(r" 3 40 \d+\.\d\d \d+ 13/14 33\.0 yes ", text)
+
+
+def test_a_step_that_never_settles(tmp_path):
+    path = tmp_path / "aborted.session"
+    build_session(path, SynthOptions(temps_c=(0.0, 20.0, 40.0), directions=6, samples=1, abort_at_step=3))
+    inputs = from_session(path)
+    assert inputs.steps[3].stable is False and inputs.steps[3].settle_timeouts == 3
+    assert inputs.steps[2].stable is True and inputs.steps[2].settle_s == 1920.0
+    text = " | ".join(inputs.warnings)
+    assert "temperature step 3 (40 °C) did not reach stability (3 settle timeout(s))" in text
+    assert "12 of 18 done; run exit status aborted" in text
+    table = _step_table(analyse_dut(inputs.duts[0], inputs.steps).steps, inputs.steps)
+    assert table.rows[-1][:7] == ["3", "40", "-", "0", "0/6", "-", "NO (3 timeout(s))"]
 
 
 def test_provenance(report, session):

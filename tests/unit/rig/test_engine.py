@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import logging
+import os
+import signal
+from types import SimpleNamespace
 
 import pytest
 
@@ -20,6 +24,7 @@ from rig.engine import (
     Step,
 )
 from rig.errors import DeviceTimeout
+from rig.store import Session, session_tables
 
 
 class FakeDevice:
@@ -34,19 +39,33 @@ class FakeDevice:
             raise OSError("bus gone")
 
 
-class MemorySession:
-    """Keeps what the engine records, like rig.store.Session does (events, exit status)."""
+class RecordingSession:
+    """A real session file (rig.store) with helpers to read back what the engine recorded."""
 
-    def __init__(self):
-        self.events: list[tuple[str, str, dict]] = []
-        self.points: list[str] = []
-        self.finished: tuple[str, str] | None = None
+    def __init__(self, path, ids):
+        points = [SimpleNamespace(id=pid, index=i, temp_index=1, setpoint_c=25.0, field_index=i + 1,
+                                  target={"field_nt": [1.0, 0.0, 0.0]}) for i, pid in enumerate(ids)]
+        self.path = path
+        self.store = Session.create(path, plan_text="p", station_text="s", plan_name="p", station_name="s",
+                                    points=points, simulated={"coils": True}, clock=SimClock())
 
-    def log_event(self, kind, message, **data):
-        self.events.append((kind, message, data))
+    def __getattr__(self, name):
+        return getattr(self.store, name)
 
-    def finish(self, status, reason):
-        self.finished = (status, reason)
+    @property
+    def events(self) -> list[tuple[str, str, dict]]:
+        return [(e["kind"], e["message"], {**json.loads(e["data_json"]), "device": e["device"]})
+                for e in session_tables(self.path)["events"]]
+
+    @property
+    def points(self) -> list[str]:
+        """Done points, in plan order."""
+        return [r["id"] for r in session_tables(self.path)["points"] if r["state"] == "done"]
+
+    @property
+    def finished(self) -> tuple[str, str] | None:
+        s = session_tables(self.path)["session"]
+        return None if s["exit_status"] is None else (s["exit_status"], s["exit_reason"])
 
     def kinds(self) -> list[str]:
         return [k for k, _, _ in self.events]
@@ -55,7 +74,7 @@ class MemorySession:
 class Rig:
     """Handlers over fake devices; `faults` maps point id -> exceptions to raise on successive takes."""
 
-    def __init__(self, session: MemorySession, faults=None, on_collect=None):
+    def __init__(self, session: RecordingSession, faults=None, on_collect=None):
         self.session = session
         self.coils = FakeDevice("coils")
         self.chamber = FakeDevice("chamber")
@@ -71,7 +90,7 @@ class Rig:
             pending = self.faults.get(command.point)
             if pending:
                 raise pending.pop(0)
-            self.session.points.append(command.point)
+            self.session.record_point(command.point, [])
             if self.on_collect:
                 self.on_collect(command.point)
         return None
@@ -91,7 +110,7 @@ class Rig:
         return [Step(pid, make(pid)) for pid in ids]
 
 
-def make_engine(rig: Rig, session: MemorySession, **kw) -> Engine:
+def make_engine(rig: Rig, session: RecordingSession, **kw) -> Engine:
     kw.setdefault("hold_wait_s", 30.0)
     return Engine(rig.handlers(), devices=rig.devices, clock=SimClock(), session=session, **kw)
 
@@ -99,8 +118,22 @@ def make_engine(rig: Rig, session: MemorySession, **kw) -> Engine:
 IDS = ["T01-F01", "T01-F02", "T02-F01", "T02-F02"]
 
 
-def test_completed_run_takes_every_point_once_and_ends_safe():
-    session = MemorySession()
+@pytest.fixture
+def new_session(tmp_path):
+    made = []
+
+    def make():
+        session = RecordingSession(tmp_path / f"s{len(made)}.session", IDS)
+        made.append(session)
+        return session
+
+    yield make
+    for session in made:
+        session.close()
+
+
+def test_completed_run_takes_every_point_once_and_ends_safe(new_session):
+    session = new_session()
     rig = Rig(session)
     result = make_engine(rig, session).run(rig.steps(IDS))
     assert result.status == COMPLETED and result.points_done == 4
@@ -110,16 +143,16 @@ def test_completed_run_takes_every_point_once_and_ends_safe():
     assert session.kinds()[-2:] == ["safe_state", "exit"]
 
 
-def test_resume_skips_done_points():
-    session = MemorySession()
+def test_resume_skips_done_points(new_session):
+    session = new_session()
     rig = Rig(session)
     result = make_engine(rig, session).run(rig.steps(IDS), done_ids={"T01-F01", "T01-F02"})
     assert session.points == ["T02-F01", "T02-F02"]
     assert result.points_done == 4
 
 
-def test_hold_retakes_the_point_with_resettle_then_continues():
-    session = MemorySession()
+def test_hold_retakes_the_point_with_resettle_then_continues(new_session):
+    session = new_session()
     rig = Rig(session, faults={"T01-F02": [Hold("chamber alarm"), DeviceTimeout("dut1", "read", "no reply")]})
     engine = make_engine(rig, session, max_retakes=3)
     clock = engine.clock
@@ -133,8 +166,8 @@ def test_hold_retakes_the_point_with_resettle_then_continues():
     assert clock.now() - t0 >= 2 * 30.0  # held on the clock before each retake
 
 
-def test_too_many_retakes_abort_with_the_reason_and_end_safe():
-    session = MemorySession()
+def test_too_many_retakes_abort_with_the_reason_and_end_safe(new_session):
+    session = new_session()
     rig = Rig(session, faults={"T02-F01": [Hold("DUT temperature out of band")] * 5})
     result = make_engine(rig, session, max_retakes=2).run(rig.steps(IDS))
     assert result.status == ABORTED
@@ -144,8 +177,8 @@ def test_too_many_retakes_abort_with_the_reason_and_end_safe():
     assert rig.coils.safe_calls == 1 and rig.chamber.safe_calls == 1
 
 
-def test_pause_makes_safe_then_resume_retakes_the_interrupted_point():
-    session = MemorySession()
+def test_pause_makes_safe_then_resume_retakes_the_interrupted_point(new_session):
+    session = new_session()
     answers = []
     engine_box = {}
 
@@ -172,8 +205,8 @@ def test_pause_makes_safe_then_resume_retakes_the_interrupted_point():
     assert ("T01-F02", True) in rig.takes  # resumed with a re-settle
 
 
-def test_pause_without_prompt_aborts_cleanly():
-    session = MemorySession()
+def test_pause_without_prompt_aborts_cleanly(new_session):
+    session = new_session()
     engine_box = {}
     rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_pause())
     engine = make_engine(rig, session, prompt=None)
@@ -185,8 +218,8 @@ def test_pause_without_prompt_aborts_cleanly():
     assert rig.coils.safe_calls >= 1 and rig.chamber.safe_calls >= 1
 
 
-def test_sigterm_style_abort_stops_before_the_next_command():
-    session = MemorySession()
+def test_sigterm_style_abort_stops_before_the_next_command(new_session):
+    session = new_session()
     engine_box = {}
     rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_abort("SIGTERM"))
     engine = make_engine(rig, session)
@@ -197,8 +230,8 @@ def test_sigterm_style_abort_stops_before_the_next_command():
     assert not any(isinstance(c, SetChamber) for c in rig.commands[4:])
 
 
-def test_unexpected_error_fails_the_run_and_one_failing_device_does_not_skip_the_others():
-    session = MemorySession()
+def test_unexpected_error_fails_the_run_and_one_failing_device_does_not_skip_the_others(new_session):
+    session = new_session()
     rig = Rig(session, faults={"T01-F01": [ZeroDivisionError("bug")]})
     rig.coils.fail_safe = True
     result = make_engine(rig, session).run(rig.steps(IDS))
@@ -208,11 +241,12 @@ def test_unexpected_error_fails_the_run_and_one_failing_device_does_not_skip_the
     assert "FAILED on coils" in safe_events[-1]
 
 
-def test_magrig_warnings_become_session_events_during_the_run():
-    session = MemorySession()
+def test_magrig_warnings_become_session_events_during_the_run(new_session):
+    session = new_session()
 
     def warn(pid):
-        logging.getLogger("magrig.transport").warning("dut1: read: try 1 of 3 failed", extra={"device": "dut1"})
+        logging.getLogger("magrig.transport").warning("dut1: read: try 1 of 3 failed",
+                                                      extra={"device": "dut1"})
         logging.getLogger("other").warning("not ours")
 
     rig = Rig(session, on_collect=warn)
@@ -225,10 +259,25 @@ def test_magrig_warnings_become_session_events_during_the_run():
 
 
 @pytest.mark.parametrize("answer", ["abort", "anything"])
-def test_only_resume_resumes(answer):
-    session = MemorySession()
+def test_only_resume_resumes(new_session, answer):
+    session = new_session()
     engine_box = {}
     rig = Rig(session, on_collect=lambda pid: engine_box["engine"].request_pause())
     engine = make_engine(rig, session, prompt=lambda m: answer)
     engine_box["engine"] = engine
     assert engine.run(rig.steps(IDS)).status == ABORTED
+
+
+def test_a_real_sigint_pauses_at_the_next_safe_point_instead_of_raising(new_session):
+    session = new_session()
+    prompts = []
+
+    def ctrl_c(pid):
+        if pid == "T01-F01":
+            os.kill(os.getpid(), signal.SIGINT)
+
+    rig = Rig(session, on_collect=ctrl_c)
+    engine = make_engine(rig, session, prompt=lambda m: prompts.append(m) or "resume")
+    assert engine.run(rig.steps(IDS)).status == COMPLETED
+    assert len(prompts) == 1 and session.points == IDS
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored

@@ -1,0 +1,437 @@
+"""The campaign: plan points as step generators, and the rig-aware handlers the engine calls.
+
+    runner = CampaignRunner(rig, plan, points, session, status=RunStatus())
+    engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session, ...)
+    runner.engine = engine
+    engine.run(runner.steps(), done_ids=session.done_point_ids())
+
+Step and dwell: a point sets the chamber and waits for every DUT's temperature to be stable when the
+temperature step changes (or when it is retaken after a hold or a pause), then moves the field, lets it
+settle and collects `samples` readings from every DUT with each DUT's temperature and the reference
+field of that very sample. The point is stored in one transaction.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import time
+from collections.abc import Generator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.chamber import WatlowF4T
+from rig import config as cfg
+from rig.clock import Clock
+from rig.engine import (
+    COMPLETED,
+    Checkpoint,
+    CollectPoint,
+    Engine,
+    Hold,
+    MoveField,
+    RunResult,
+    RunStatus,
+    SetChamber,
+    Settle,
+    Step,
+    WaitStable,
+)
+from rig.errors import ConfigError, MagrigError, SessionError
+from rig.plan import Point, compile_plan
+from rig.reference import CoilReference, TableReference, reference_for
+from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
+from rig.station import Rig, RunLock, open_rig
+from rig.store import SampleRow
+
+log = logging.getLogger("magrig.campaign")
+
+HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many settling bands before the point is held
+FIELD_SETTLE_TIMEOUT_S = 5.0  # coils; a turntable gets its travel time on top
+
+
+def poll_interval_s(criteria: SettleCriteria) -> float:
+    """Temperature poll while settling: about 8 samples per dwell window, between 2 and 30 s."""
+    return min(30.0, max(2.0, criteria.dwell_s / 8.0))
+
+
+def criteria_of(stability: cfg.Stability) -> SettleCriteria:
+    return SettleCriteria(band_c=stability.band_c, max_rate_c_per_min=stability.rate_c_per_min,
+                          dwell_s=stability.dwell_s, max_wait_s=stability.max_wait_s)
+
+
+class LiveFit:
+    """The streaming T24 fit of one DUT, updated after every point (for the live display)."""
+
+    def __init__(self, temp_ref_c: float):
+        from calib.gram import GramAccumulator
+
+        self.acc = GramAccumulator(temp_ref_c)
+
+    def add(self, h_nt, temp_c, ref_nt) -> None:
+        if len(h_nt):
+            self.acc.add(h_nt, temp_c, ref_nt)
+
+    def summary(self) -> str:
+        if self.acc.n == 0:
+            return "no data yet"
+        if self.acc.identifiability() is not None:
+            return f"n={self.acc.n}: not yet identifiable"
+        try:
+            cal = self.acc.solve()
+        except MagrigError:
+            return f"n={self.acc.n}: not yet identifiable"
+        se = cal.std_errors
+        return (f"n={self.acc.n}: rms {cal.stats['rms_after_nt']:.1f} nT, largest se: "
+                f"b {np.max(se['b_nt']):.2f} nT, S {np.max(se['S']) * 1e6:.0f} ppm, "
+                f"K {np.max(se['K']) * 1e6:.2f} ppm/C")
+
+
+class CampaignRunner:
+    def __init__(self, rig: Rig, plan: cfg.Plan, points: list[Point], session,
+                 status: RunStatus | None = None):
+        self.rig = rig
+        self.plan = plan
+        self.points = points
+        self.session = session
+        self.status = status or RunStatus()
+        self.engine: Engine | None = None
+        self.reference: CoilReference | TableReference = reference_for(rig.station)
+        self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
+        temps = [p.setpoint_c for p in points] or [25.0]
+        self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
+        self.live_summaries = {name: "no data yet" for name in rig.duts}
+        self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
+        self._settle_stats: dict = {}
+
+    # --- the plan as generators -------------------------------------------------------------------
+    def steps(self) -> list[Step]:
+        return [Step(p.id, self._maker(p)) for p in self.points]
+
+    def _maker(self, point: Point):
+        def make(retake: bool) -> Generator[Any, Any, None]:
+            return self.point_steps(point, retake)
+        return make
+
+    def point_steps(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
+        criteria = criteria_of(point.stability)
+        if retake or self.stable_at_c != point.setpoint_c:
+            self.stable_at_c = None
+            yield SetChamber(point.setpoint_c, point.ramp_c_per_min)
+            self._settle_stats = yield WaitStable(point.setpoint_c, criteria)
+            self.stable_at_c = point.setpoint_c
+        target = point.field_nt if point.field_nt is not None else point.angles_deg
+        yield MoveField(tuple(target))
+        yield Settle(point.settle_s)
+        yield CollectPoint(point, criteria.band_c * HOLD_BAND_FACTOR)
+        yield Checkpoint(point.id)
+
+    # --- handlers ---------------------------------------------------------------------------------
+    def handlers(self) -> dict:
+        return {SetChamber: self.set_chamber, WaitStable: self.wait_stable, MoveField: self.move_field,
+                Settle: self.settle, CollectPoint: self.collect_point, Checkpoint: self.checkpoint}
+
+    def set_chamber(self, cmd: SetChamber) -> None:
+        chamber = self.rig.chamber
+        if cmd.ramp_c_per_min is not None and isinstance(chamber, WatlowF4T):
+            chamber.set_ramp_rate(cmd.ramp_c_per_min)
+        chamber.set(cmd.temp_c)
+        self.status.settling = f"chamber -> {cmd.temp_c:g} degC"
+
+    def _check_chamber(self) -> None:
+        reading = self.rig.chamber.read()
+        self.status.chamber_c = reading.air_c
+        if reading.fault:
+            what = "alarm" if reading.alarm else "temperature input error"
+            raise Hold(f"chamber {what}")
+
+    def _dut_temps(self, cache: dict | None = None) -> dict[str, float | None]:
+        """Each DUT's temperature from its temp source (a sensor is read once per call)."""
+        cache = {} if cache is None else cache
+        out = {}
+        for dut, source in self.rig.temp_sources.items():
+            if source.name not in cache:
+                cache[source.name] = source.read()
+            out[dut] = cache[source.name].temp_c
+        return out
+
+    def wait_stable(self, cmd: WaitStable) -> dict:
+        """Poll the DUT temperatures until all are stable; Hold on alarm or at the hard maximum wait."""
+        clock = self.rig.clock
+        detectors = {dut: StabilityDetector(cmd.target_c, cmd.criteria) for dut in self.rig.duts}
+        poll_s = poll_interval_s(cmd.criteria)
+        start = clock.now()
+        while True:
+            self._check_chamber()
+            temps = self._dut_temps()
+            t = clock.now()
+            for dut, temp_c in temps.items():
+                if temp_c is None:
+                    raise Hold(f"{dut}: its temperature source gives no temperature")
+                detectors[dut].add(t, temp_c)
+            self.status.dut_temps_c = dict(temps)
+            states = {dut: d.state for dut, d in detectors.items()}
+            self.status.settling = ", ".join(
+                f"{dut} {d.state} ({d.last_temp_c:.2f} C, {d.rate_c_per_min:+.2f} C/min, "
+                f"in band {d.in_band_s:.0f} s)" for dut, d in detectors.items())
+            if all(s == STABLE for s in states.values()):
+                waited = t - start
+                self.engine.event("stable", f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
+                                  temps=temps)
+                return {"target_c": cmd.target_c, "waited_s": waited,
+                        "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
+                                       "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
+            late = [dut for dut, s in states.items() if s == TIMEOUT]
+            if late:
+                raise Hold(f"{', '.join(late)} not stable at {cmd.target_c:g} degC within "
+                           f"max_wait_s {cmd.criteria.max_wait_s:g} s")
+            self.engine.wait(poll_s, poll_s)
+
+    def move_field(self, cmd: MoveField) -> None:
+        if isinstance(self.reference, CoilReference):
+            self.rig.field_source.set(self.reference.currents_for(cmd.target))
+        else:
+            self.rig.field_source.set(cmd.target)
+
+    def settle(self, cmd: Settle) -> None:
+        source = self.rig.field_source
+        if isinstance(self.reference, CoilReference):
+            source.wait_settled(FIELD_SETTLE_TIMEOUT_S)
+        else:
+            travel_s = 360.0 / self.rig.station.field_source.rate_deg_s
+            source.wait_settled(FIELD_SETTLE_TIMEOUT_S + travel_s)
+        self.engine.wait(cmd.seconds, max(cmd.seconds, 1e-3))
+
+    def _reference_now(self) -> np.ndarray:
+        """The reference field from what the field source reports now (readback currents / angles)."""
+        reading = self.rig.field_source.read()
+        if isinstance(self.reference, CoilReference):
+            return self.reference.field_nt(reading.currents_a)
+        return self.reference.field_nt((reading.az_deg, reading.el_deg))
+
+    def collect_point(self, cmd: CollectPoint) -> None:
+        point: Point = cmd.point
+        started = self.rig.clock.now()
+        self._check_chamber()
+        rows: list[SampleRow] = []
+        own_sources = {dut for dut, src in self.rig.temp_sources.items() if src is self.rig.duts[dut]}
+        for _ in range(point.samples):
+            cache: dict = {}  # each temperature sensor is read once per sample round
+            ref_nt = self._reference_now()
+            for dut, dev in self.rig.duts.items():
+                sample = dev.read()
+                if dut in own_sources:
+                    temp_c, other_c = sample.temp_c, None
+                else:
+                    src = self.rig.temp_sources[dut]
+                    if src.name not in cache:
+                        cache[src.name] = src.read()
+                    temp_c, other_c = cache[src.name].temp_c, sample.temp_c
+                if temp_c is None:
+                    raise Hold(f"{dut}: its temperature source gives no temperature")
+                if cmd.temp_band_c is not None and abs(temp_c - point.setpoint_c) > cmd.temp_band_c:
+                    raise Hold(f"{dut} temperature {temp_c:.2f} degC left {point.setpoint_c:g} +- "
+                               f"{cmd.temp_band_c:g} degC during point {point.id}")
+                rows.append(SampleRow.from_field_sample(dut, sample, ref_nt, temp_c=temp_c,
+                                                        ref_temp_c=other_c))
+                self.status.dut_temps_c[dut] = temp_c
+        self._check_chamber()
+        self.session.record_point(point.id, rows, self._settle_stats, started=started)
+        self._feed_live(rows)
+
+    def _feed_live(self, rows: list[SampleRow]) -> None:
+        for dut, live in self.live.items():
+            mine = [r for r in rows if r.dut == dut and not r.flags]
+            live.add(np.array([r.field_nt for r in mine]).reshape(-1, 3),
+                     np.array([r.temp_c for r in mine], float),
+                     np.array([r.ref_field_nt for r in mine]).reshape(-1, 3))
+            self.live_summaries[dut] = live.summary()
+
+    def preload_live(self, session_path) -> None:
+        """On resume: start the live fits from what the session already holds."""
+        from rig.store import read_dataset
+
+        for dut, live in self.live.items():
+            try:
+                ds = read_dataset(session_path, dut)
+            except MagrigError:
+                continue
+            live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
+            self.live_summaries[dut] = live.summary()
+
+    def checkpoint(self, cmd: Checkpoint) -> None:
+        log.info("point %s recorded", cmd.point_id)
+        for callback in self.on_point:
+            callback(cmd.point_id)
+
+
+# --- a whole run: session, lock, rig, engine, fits ------------------------------------------------
+@dataclass
+class RunOutcome:
+    session_path: Path
+    result: RunResult
+    fits: list[dict] = field(default_factory=list)  # {dut, model, path, rms_nt, error}
+    stale_lock_pid: int | None = None
+    wall_s: float = 0.0
+
+
+def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    return Path(out_dir) / f"{plan_name}-{stamp}.session"
+
+
+def load_from_session(path: str | Path) -> tuple[cfg.Plan, cfg.Station]:
+    """The plan and the station exactly as the session recorded them (a resume never rereads files)."""
+    from rig.store import Session
+    from rig.yamlload import load_model
+
+    with Session.open(path) as s:
+        info = s.info()
+    plan = load_model(cfg.Plan, f"{path} (recorded plan)", info["plan_text"])
+    station = load_model(cfg.Station, f"{path} (recorded station)", info["station_text"])
+    return plan, station
+
+
+def run_campaign(
+    *,
+    campaign: cfg.Campaign | None = None,
+    session_path: str | Path,
+    resume: bool = False,
+    prompt=None,
+    display_factory=None,
+    clock: Clock | None = None,
+    hold_wait_s: float = 60.0,
+    max_retakes: int = 3,
+) -> RunOutcome:
+    """Run (or resume) a campaign into `session_path`, then fit the plan's models for each DUT.
+
+    New run: `campaign` gives plan and station. Resume: both come from the session itself.
+    `display_factory(status, runner)` returns a context manager (the live display) or None."""
+    from rig.store import Session
+
+    wall0 = time.perf_counter()
+    session_path = Path(session_path)
+    if resume:
+        plan, station = load_from_session(session_path)
+    else:
+        assert campaign is not None
+        plan, station = campaign.plan, campaign.station
+    points = compile_plan(plan, station)
+    lock = RunLock(session_path)
+    lock.acquire()
+    try:
+        rig = open_rig(station, plan, clock)  # connects and makes every device safe FIRST
+        try:
+            check_temp_sources(rig)
+            if resume:
+                session = Session.open(session_path, clock=rig.clock)
+                _check_resumable(session, points)
+            else:
+                session = Session.create_for(session_path, campaign, points, clock=rig.clock,
+                                             operator=os.environ.get("USER"))
+            with session:
+                outcome = _run_in_session(rig, plan, points, session, lock, prompt, display_factory,
+                                          hold_wait_s, max_retakes, resume)
+        finally:
+            rig.close()
+    finally:
+        lock.release()
+    outcome.wall_s = time.perf_counter() - wall0
+    return outcome
+
+
+def record_final_state(rig: Rig, session) -> None:
+    """After the engine's final safe_state: what the chamber and the field source report, as snapshots
+    named "<device> final" (the evidence that the run ended with coils at 0 A / table stopped and the
+    chamber at its safe setpoint)."""
+    with contextlib.suppress(MagrigError):
+        rig.field_source.wait_settled(FIELD_SETTLE_TIMEOUT_S)  # readbacks follow the safe setpoints
+    for dev in (rig.chamber, rig.field_source):
+        try:
+            reading = dataclasses.asdict(dev.read())
+        except Exception as exc:  # a dead link: say so instead of claiming anything
+            reading = {"error": str(exc)}
+        session.record_snapshot(f"{dev.name} final", reading)
+
+
+def check_temp_sources(rig: Rig) -> None:
+    """Every DUT needs a temperature with every sample: refuse a station whose source gives none."""
+    for dut, source in rig.temp_sources.items():
+        if source.read().temp_c is None:
+            where = "its own sensor" if source is rig.duts[dut] else f"sensor {source.name}"
+            raise ConfigError(f"station {rig.station.name}: DUT {dut} takes its temperature from {where}, "
+                              "which reports none; mount a TMP117 beside it (temperature_sensors) and name "
+                              "it in the DUT's temp_source")
+
+
+def _check_resumable(session, points: list[Point]) -> None:
+    planned = session.planned_point_ids()
+    if planned != [p.id for p in points]:
+        raise SessionError(f"{session.path}: the recorded plan no longer compiles to the recorded points; "
+                           "cannot resume")
+
+
+def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, hold_wait_s, max_retakes,
+                    resume) -> RunOutcome:
+    if lock.stale_pid is not None:
+        session.log_event("stale_lock", f"previous run (pid {lock.stale_pid}) died without finishing; "
+                          "hardware made safe, lock taken over", level="WARNING", pid=lock.stale_pid)
+    session.log_event("start", ("resumed" if resume else "started") + f" with every device made safe; "
+                      f"simulated: {rig.simulated}", simulated=rig.simulated)
+    for dev in rig.devices():
+        session.record_snapshot(dev.name, dev.describe())
+    status = RunStatus()
+    runner = CampaignRunner(rig, plan, points, session, status)
+    done = session.done_point_ids()
+    if done:
+        runner.preload_live(session.path)
+    engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session,
+                    prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status)
+    runner.engine = engine
+    display = display_factory(status, runner) if display_factory else None
+    with display or contextlib.nullcontext():
+        result = engine.run(runner.steps(), done_ids=done)
+    record_final_state(rig, session)
+    outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
+    if result.status == COMPLETED:
+        outcome.fits = fit_session(session, plan, rig.station)
+    return outcome
+
+
+def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
+    """Fit each of the plan's models for each DUT from the session's own dataset; write one calibration
+    file per DUT and model next to the session and record each fit in it."""
+    import calib
+    from calib import calfile
+    from rig.store import read_dataset
+
+    out = []
+    stem = session.path.name.removesuffix(".session")
+    for dut in station.duts:
+        try:
+            ds = read_dataset(session.path, dut.name)
+        except MagrigError as exc:
+            out.append({"dut": dut.name, "model": "-", "error": str(exc)})
+            continue
+        for model in plan.fit.models:
+            entry: dict[str, Any] = {"dut": dut.name, "model": model}
+            try:
+                cal = calib.fit(ds, model, robust=plan.fit.robust)
+            except MagrigError as exc:
+                entry["error"] = str(exc)
+                session.log_event("fit_failed", f"{dut.name} {model}: {exc}", level="WARNING",
+                                  device=dut.name)
+                out.append(entry)
+                continue
+            path = session.path.parent / f"{stem}.{dut.name}.{model}.yaml"
+            calfile.save(cal, path)
+            rms = cal.stats.get("rms_after_nt")
+            session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)
+            entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
+            out.append(entry)
+    return out

@@ -1,0 +1,105 @@
+"""What the operator sees while a campaign runs.
+
+LiveDisplay: a rich Live panel refreshed a few times a second: current point and step, chamber and DUT
+temperatures, settling state, recent events, ETA, and the streaming T24 fit of each DUT.
+PlainLog: one line per recorded point (stdout is not a terminal, or --no-live).
+Both are context managers built by `make_display(status, runner, live=...)`; the runner calls their
+`point_done(point_id)` after each stored point.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from rig.engine import RunStatus
+
+
+class _Progress:
+    """Points done and a wall-clock ETA from the pace of the points taken in this process."""
+
+    def __init__(self, status: RunStatus):
+        self.status = status
+        self.wall0 = time.perf_counter()
+        self.done0: int | None = None
+
+    def eta_text(self) -> str:
+        s = self.status
+        if self.done0 is None:
+            self.done0 = s.points_done
+        taken = s.points_done - self.done0
+        left = s.points_total - s.points_done
+        if taken <= 0 or left <= 0:
+            return "-" if left else "0 s"
+        per_point = (time.perf_counter() - self.wall0) / taken
+        return f"{per_point * left:.0f} s"
+
+
+class LiveDisplay:
+    def __init__(self, status: RunStatus, runner, console: Console | None = None):
+        self.status = status
+        self.runner = runner
+        self.progress = _Progress(status)
+        self.live = Live(get_renderable=self.render, console=console, refresh_per_second=4, transient=False)
+
+    def render(self):
+        s = self.status
+        head = Table.grid(padding=(0, 2))
+        head.add_row("point", f"{s.point_id or '-'}  ({s.points_done}/{s.points_total} done)",
+                     "step", s.step or "-")
+        chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f} C"
+        duts = ", ".join(f"{k} {v:.2f} C" for k, v in s.dut_temps_c.items()) or "-"
+        head.add_row("chamber", chamber, "DUTs", duts)
+        head.add_row("settling", s.settling or "-", "ETA", self.progress.eta_text())
+        fits = Table("DUT", "live T24 fit", box=None)
+        for dut, text in self.runner.live_summaries.items():
+            fits.add_row(dut, text)
+        events = Text("\n".join(list(s.events)[-6:]) or "-", style="dim")
+        return Group(head, fits, Text("recent events:", style="bold"), events)
+
+    def point_done(self, point_id: str) -> None:
+        pass  # the panel refreshes itself
+
+    def __enter__(self):
+        self.progress.eta_text()
+        self.runner.on_point.append(self.point_done)
+        self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.live.__exit__(*exc)
+
+
+class PlainLog:
+    def __init__(self, status: RunStatus, runner, stream=None):
+        self.status = status
+        self.runner = runner
+        self.progress = _Progress(status)
+        self.stream = stream or sys.stdout
+
+    def point_done(self, point_id: str) -> None:
+        s = self.status
+        temps = " ".join(f"{k}={v:.2f}C" for k, v in s.dut_temps_c.items())
+        chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f}C"
+        print(f"{point_id} done ({s.points_done + 1}/{s.points_total}) chamber={chamber} {temps} "
+              f"eta={self.progress.eta_text()}", file=self.stream, flush=True)
+
+    def __enter__(self):
+        self.progress.eta_text()
+        self.runner.on_point.append(self.point_done)
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+
+def make_display(status: RunStatus, runner, *, live: bool):
+    """The live panel when asked for and stdout is a terminal; plain per-point lines otherwise."""
+    if live and sys.stdout.isatty():
+        return LiveDisplay(status, runner)
+    return PlainLog(status, runner)

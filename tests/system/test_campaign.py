@@ -1,0 +1,91 @@
+"""End-to-end campaigns on the simulators: the demo recovers the injected parameters, the session holds
+exactly the planned points and samples, and Ctrl-C / SIGTERM end the run safe and recorded."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from calib import calfile
+from rig.config import load_campaign, load_station
+from rig.plan import compile_plan
+from tests.system.campaign_helpers import (
+    DEMO_PLAN,
+    events,
+    final_snapshots,
+    popen_rig,
+    run_rig,
+    session_counts,
+    sim_station_with_probes,
+    small_plan,
+)
+
+pytestmark = pytest.mark.system
+
+
+def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
+    station = sim_station_with_probes(tmp_path)
+    session = tmp_path / "demo.session"
+    t0 = time.perf_counter()
+    proc = run_rig("run", str(DEMO_PLAN), "--station", str(station), "--session", str(session), "--no-live")
+    wall_s = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr
+    assert wall_s < 60
+    assert "completed" in proc.stdout
+
+    campaign = load_campaign(DEMO_PLAN, station)
+    points = compile_plan(campaign.plan, campaign.station)
+    counts = session_counts(session)
+    duts = [d.name for d in campaign.station.duts]
+    assert counts["planned"] == counts["done"] == len(points) == 56
+    assert counts["completed"] and counts["status"] == "completed"
+    expected = {(p.id, d): campaign.plan.samples_per_point for p in points for d in duts}
+    assert counts["per_point_dut"] == expected
+
+    truths = load_station(station).sim_dut_truths()
+    for dut, truth in truths.items():
+        cal = calfile.load(tmp_path / f"demo.{dut}.t24.yaml")
+        for key, true in (("S", truth.S), ("K", truth.K), ("b_nt", truth.b_nt),
+                          ("kb_nt_per_c", truth.kb_nt_per_c)):
+            z = (np.asarray(cal.params[key]) - true) / np.asarray(cal.std_errors[key])
+            assert np.abs(z).max() < 3.0, f"{dut} {key}: {z}"
+        assert (tmp_path / f"demo.{dut}.p12.yaml").is_file()
+
+
+def test_default_station_refuses_a_dut_without_temperature_unless_fixed(tmp_path):
+    """The default station is usable as is, or refused with a one-line reason naming the DUT."""
+    proc = run_rig("run", str(small_plan(tmp_path, samples=2)), "--session", str(tmp_path / "s.session"),
+                   "--no-live")
+    if proc.returncode != 0:
+        assert proc.returncode == 2 and proc.stderr.startswith("error: ")
+        assert "reports none" in proc.stderr and "Traceback" not in proc.stderr
+        assert not (tmp_path / "s.session").exists()
+
+
+@pytest.mark.parametrize("sig, reason", [(signal.SIGINT, "operator aborted"), (signal.SIGTERM, "SIGTERM")])
+def test_interrupt_ends_with_coils_off_and_chamber_at_safe_setpoint(tmp_path, sig, reason):
+    station = sim_station_with_probes(tmp_path)
+    session = tmp_path / "run.session"
+    plan = small_plan(tmp_path, samples=20)
+    proc = popen_rig("run", str(plan), "--station", str(station), "--session", str(session), "--no-live")
+    first = proc.stdout.readline()  # the first point is recorded: the run is in full swing
+    assert "done" in first, proc.stderr.read()
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    assert "run not completed" in err and "--resume" in err
+
+    counts = session_counts(session)
+    assert counts["status"] == "aborted" and not counts["completed"]
+    assert 1 <= counts["done"] < counts["planned"] and counts["orphan_samples"] == 0
+    kinds = [k for k, _ in events(session)]
+    assert kinds[-1] == "exit" and "safe_state" in kinds
+    assert reason in dict(events(session))["exit"]
+    final = final_snapshots(session)
+    coils, chamber = final["coils"][-1], final["chamber"][-1]
+    assert coils["setpoints_a"] == [0.0, 0.0, 0.0] and coils["enabled"] == [False, False, False]
+    assert np.abs(coils["currents_a"]).max() < 1e-3
+    assert chamber["setpoint_c"] == pytest.approx(load_station(station).chamber.limits.safe_setpoint_c)
