@@ -307,11 +307,13 @@ def run_campaign(
     clock: Clock | None = None,
     hold_wait_s: float = 60.0,
     max_retakes: int = 3,
+    on_rig=None,
 ) -> RunOutcome:
     """Run (or resume) a campaign into `session_path`, then fit the plan's models for each DUT.
 
     New run: `campaign` gives plan and station. Resume: both come from the session itself.
-    `display_factory(status, runner)` returns a context manager (the live display) or None."""
+    `display_factory(status, runner)` returns a context manager (the live display) or None;
+    `on_rig(rig)` sees the connected rig before the run (benchmarks instrument it, tests inject faults)."""
     from rig.store import Session
 
     wall0 = time.perf_counter()
@@ -328,6 +330,8 @@ def run_campaign(
         rig = open_rig(station, plan, clock)  # connects and makes every device safe FIRST
         try:
             check_temp_sources(rig)
+            if on_rig is not None:
+                on_rig(rig)
             if resume:
                 session = Session.open(session_path, clock=rig.clock)
                 _check_resumable(session, points)
