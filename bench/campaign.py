@@ -32,16 +32,21 @@ STORE_METHODS = ("record_point", "log_event", "record_snapshot", "record_fit", "
 class Timers:
     def __init__(self):
         self.seconds: dict[str, float] = {}
+        self.depth: dict[str, int] = {}
 
     def wrap(self, obj, name: str, bucket: str) -> None:
         fn = getattr(obj, name)
 
         @functools.wraps(fn)
         def timed(*args, **kwargs):
+            if self.depth.get(bucket):  # a timed call inside another (wait_settled -> read): count once
+                return fn(*args, **kwargs)
+            self.depth[bucket] = 1
             t0 = time.perf_counter()
             try:
                 return fn(*args, **kwargs)
             finally:
+                self.depth[bucket] = 0
                 self.seconds[bucket] = self.seconds.get(bucket, 0.0) + time.perf_counter() - t0
 
         setattr(obj, name, timed)

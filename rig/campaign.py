@@ -324,12 +324,14 @@ def run_campaign(
         assert campaign is not None
         plan, station = campaign.plan, campaign.station
     points = compile_plan(plan, station)
+    reference_for(station)  # a reference the rig cannot know yet (ambient "measure") stops us here
     lock = RunLock(session_path)
     lock.acquire()
     try:
         rig = open_rig(station, plan, clock)  # connects and makes every device safe FIRST
         try:
             check_temp_sources(rig)
+            home_turntable(rig)
             if on_rig is not None:
                 on_rig(rig)
             if resume:
@@ -361,6 +363,14 @@ def record_final_state(rig: Rig, session) -> None:
         except Exception as exc:  # a dead link: say so instead of claiming anything
             reading = {"error": str(exc)}
         session.record_snapshot(f"{dev.name} final", reading)
+
+
+def home_turntable(rig: Rig) -> None:
+    """A turntable that lost its home (power cycle) is homed before the first move."""
+    table = rig.field_source
+    if hasattr(table, "home") and not table.read().homed:
+        table.home()
+        table.wait_settled(FIELD_SETTLE_TIMEOUT_S + 720.0 / rig.station.field_source.rate_deg_s)
 
 
 def check_temp_sources(rig: Rig) -> None:
@@ -398,6 +408,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
                     prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status)
     runner.engine = engine
     display = display_factory(status, runner) if display_factory else None
+    if prompt is not None and hasattr(display, "suspended"):
+        engine.prompt = display.suspended(prompt)  # no live panel redrawing over the question
     with display or contextlib.nullcontext():
         result = engine.run(runner.steps(), done_ids=done)
     record_final_state(rig, session)

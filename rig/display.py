@@ -65,6 +65,16 @@ class LiveDisplay:
     def point_done(self, point_id: str) -> None:
         pass  # the panel refreshes itself
 
+    def suspended(self, prompt):
+        """`prompt` wrapped so that the panel stops while the operator answers."""
+        def ask(message: str) -> str:
+            self.live.stop()
+            try:
+                return prompt(message)
+            finally:
+                self.live.start()
+        return ask
+
     def __enter__(self):
         self.progress.eta_text()
         self.runner.on_point.append(self.point_done)

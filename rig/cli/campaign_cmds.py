@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -19,6 +20,10 @@ class RunNotCompleted(click.ClickException):
 
     def show(self, file=None) -> None:
         click.echo(f"run not completed: {self.message}", err=True)
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt("SIGTERM")
 
 
 def _print_summary(outcome) -> None:
@@ -75,6 +80,7 @@ def register(group: click.Group) -> None:
             path = Path(session_path) if session_path else default_session_path(
                 out_dir or campaign.plan.outputs.dir, campaign.plan.name)
         interactive = sys.stdin.isatty()
+        signal.signal(signal.SIGTERM, _terminate)  # outside the engine's own handling: clean exit too
         outcome = run_campaign(
             campaign=campaign, session_path=path, resume=bool(resume_path),
             prompt=prompt_from_tty if interactive else None,

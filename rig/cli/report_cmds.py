@@ -14,18 +14,26 @@ SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")
 
 @click.command("report")
 @click.argument("source", metavar="SESSION_OR_CAL", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--data", type=click.Path(dir_okay=False, path_type=Path),
-              help="With a calibration file: the CSV it was fitted on.")
+@click.option(
+    "--data",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="With a calibration file: the CSV it was fitted on.",
+)
 @click.option("--dut", help="Report on this DUT only (a session file; default: every DUT).")
-@click.option("-o", "--output-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("report"),
-              show_default=True, help="Folder for report.html and its PNG figures.")
+@click.option(
+    "-o",
+    "--output-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("report"),
+    show_default=True,
+    help="Folder for report.html and its PNG figures.",
+)
 def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Path) -> None:
     """Write a calibration report (one self-contained HTML file plus PNG figures) from a session file,
     or from a calibration file and the CSV it was fitted on (--data)."""
-    from rig.report.build import build_report
+    from rig.report.build import read_inputs, write_report
 
-    page = build_report(source, data=data, dut=dut, out_dir=output_dir)
-    figures = sorted(p.name for p in page.parent.glob("*.png"))
+    page, *figures = write_report(read_inputs(source, data=data, dut=dut), output_dir)
     click.echo(f"wrote {page} ({len(figures)} figures beside it)")
 
 
@@ -33,8 +41,12 @@ def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Pat
 @click.argument("calibration", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(FORMATS), required=True, help="Export format.")
 @click.option("--name", help="Name of the C symbols (default: the DUT, else the calibration file's name).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="File to write (default: standard output).")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="File to write (default: standard output).",
+)
 def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path | None) -> None:
     """Export a calibration for firmware (C header) or other tools (JSON, CSV of parameters)."""
     from calib import calfile

@@ -48,18 +48,25 @@ def build_report(
     out_dir: str | Path = "report",
 ) -> Path:
     """Write report.html and its PNG figures into out_dir; return the HTML path."""
-    inputs = read_inputs(source, data=data, dut=dut)
+    return write_report(read_inputs(source, data=data, dut=dut), out_dir)[0]
+
+
+def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
+    """Analyse, draw and write: returns [the HTML page, *the PNG figures]."""
     sections = report_sections(inputs)
     out = Path(out_dir)
+    written = [out / "report.html"]
     try:
         out.mkdir(parents=True, exist_ok=True)
         for img in images_in(sections):
-            (out / img.filename).write_bytes(img.png)
-        page = out / "report.html"
-        page.write_text(render_html(inputs.title, sections, subtitle=_subtitle(inputs)), encoding="utf-8")
+            written.append(out / img.filename)
+            written[-1].write_bytes(img.png)
+        written[0].write_text(
+            render_html(inputs.title, sections, subtitle=_subtitle(inputs)), encoding="utf-8"
+        )
     except OSError as exc:
         raise DataError(f"{out}: cannot write the report: {exc.strerror or exc}") from None
-    return page
+    return written
 
 
 def read_inputs(
@@ -274,6 +281,8 @@ def _dut_figures(r: DutResult) -> dict[str, Image]:
         ds.columns.get("point"), direction, after, ~outliers
     )
     resid_label = "|mean residual| of each point (nT)" if per_point else "|residual| after calibration (nT)"
+    against = "DUT temperature" if ds.temp_c is not None else "sample index"
+    what = "per axis" if len(labels) == 3 else "in |B|"
     out = {
         "residuals": _image(
             figures.residuals_vs_temperature(
@@ -282,9 +291,9 @@ def _dut_figures(r: DutResult) -> dict[str, Image]:
                 after,
                 labels,
                 outliers,
-                f"{r.name}: residuals against temperature ({model})",
+                f"{r.name}: residuals against {against} ({model})",
             ),
-            f"{r.name}: error per axis against DUT temperature, before and after {model} calibration; "
+            f"{r.name}: error {what} against {against}, before and after {model} calibration; "
             "red crosses: outliers, left out of the RMS",
             f"{tag}_residuals_vs_temperature.png",
         ),
@@ -320,7 +329,7 @@ def _dut_figures(r: DutResult) -> dict[str, Image]:
                 [s.model for s in scored],
                 fit_rms,
                 held_rms,
-                f"{r.name}: models on fitted and held-out points ({r.fold_text})",
+                f"{r.name}: models on fitted and held-out points\n({r.fold_text})",
             ),
             f"{r.name}: error RMS of each model on its fitted points and on held-out points",
             f"{tag}_model_comparison.png",

@@ -197,7 +197,7 @@ def direction_map(
     )
     if dist.max() > gap_deg:
         ax_cov.contour(grid_az, grid_el, dist, levels=[gap_deg], colors="darkred", linewidths=1.2)
-    ax_cov.scatter(az, el, s=6, color="black", label="sample directions")
+    ax_cov.scatter(az, el, s=6 if len(az) < 500 else 1, color="black", label="sample directions")
     fig.colorbar(mesh, ax=ax_cov, label="angle to the nearest sample (deg)")
     gap_share = float(np.mean(dist > gap_deg))
     ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample")
@@ -232,7 +232,7 @@ def model_comparison(
 ) -> Figure:
     """One panel per metric ("vector", "|B|"): bars per model, RMS on fitted and on held-out points (log)."""
     metrics = list(fit_rms_nt)
-    fig = new_figure(5.0 * len(metrics) + 0.5, 3.8)
+    fig = new_figure(max(6.5, 5.0 * len(metrics) + 0.5), 4.0)
     axes = np.atleast_1d(fig.subplots(1, len(metrics), squeeze=False)[0])
     x = np.arange(len(models))
     width = 0.38
@@ -260,6 +260,7 @@ def model_comparison(
                     fontsize=8,
                 )
         ax.set_xticks(x, [m.upper() for m in models])
+        ax.set_xlim(-0.75, len(models) - 0.25)
         ax.set_ylabel(f"{metric} error RMS (nT)")
         ax.set_title(f"{metric} error")
         ax.legend(fontsize=8, loc="upper left")
