@@ -20,14 +20,14 @@ def fit(
     temp_ref_c: float | None = None,
     field_norm_nt: float | None = None,
     temperature_terms: bool | None = None,
-    balance_orientations: bool = False,
+    balance_orientations: bool | None = None,
 ) -> Calibration:
     """Fit `model` ("t24", "p12" or "scalar") to `ds`.
 
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
     (default: middle of the data's range). field_norm_nt, temperature_terms, balance_orientations:
-    scalar model only (see calib.scalar.fit_weighted).
+    scalar model only (see calib.scalar.fit_weighted; balance_orientations=None decides from the data).
     """
     check_dataset(ds)
     fitters = {

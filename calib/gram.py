@@ -15,7 +15,10 @@ from calib.calibration import Calibration
 from rig.errors import DataError, FitError
 
 N_PARAMS = 8  # per output axis: b, kb, S_i1..3, K_i1..3
-CHUNK_ROWS = 16384  # rows per BLAS product: big enough to be fast, small enough to stay in cache
+# Rows per BLAS product: the 8192 x 12 buffer (0.8 MB) stays in L2; fewer rows pay more per-call costs.
+CHUNK_ROWS = 8192
+# The 11 Gram columns plus one of zeros: OpenBLAS's syrk runs ~1.5x faster on 12 columns than on 11.
+BUF_COLS = 12
 MIN_TEMP_SPAN_C = 0.5  # below this the temperature terms are not identifiable
 RCOND_SINGULAR = 1e-13  # of the column-scaled Gram: below it the design is treated as singular
 RCOND_WARN = 1e-9
@@ -33,7 +36,7 @@ class GramAccumulator:
         self.n = 0
         self.temp_min_c = np.inf
         self.temp_max_c = -np.inf
-        self._buf = np.empty((CHUNK_ROWS, 11), order="F")  # column fills are contiguous writes
+        self._buf = np.zeros((CHUNK_ROWS, BUF_COLS), order="F")  # column fills are contiguous writes
         self._buf[:, 0] = 1.0
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
@@ -54,6 +57,7 @@ class GramAccumulator:
             if used.size == 0:
                 return
         buf = self._buf
+        gram = np.zeros((BUF_COLS, BUF_COLS))
         for lo in range(0, h.shape[0], CHUNK_ROWS):
             hi = min(lo + CHUNK_ROWS, h.shape[0])
             z = buf[: hi - lo]
@@ -64,7 +68,8 @@ class GramAccumulator:
             if sw is not None:
                 z[:, 1:] *= sw[lo:hi, None]
                 z[:, 0] = sw[lo:hi]
-            self.gram += z.T @ z
+            gram += z.T @ z  # numpy hands z.T @ z to BLAS syrk
+        self.gram += gram[:11, :11]
         if sw is not None:
             buf[:, 0] = 1.0
         self.n += used.size  # rows with zero weight (flagged outliers) do not count

@@ -5,7 +5,8 @@ rotation). Optional linear temperature terms: A(t) = A + t KA, c(t) = c + t kc, 
 
 Initial guess: the algebraic ellipsoid fit (linear least squares on the quadric h'Wh - 2u'h + e = |B|^2
 with W = A'A), done on centred and scaled readings. Refinement: Levenberg-Marquardt on the field-domain
-residuals |A(h - c)| - |B|, with analytic Jacobian and column scaling. No scipy.
+residuals |A(h - c)| - |B|, with analytic Jacobian and column scaling. No scipy. When the orientations
+are covered unevenly (hand-held recordings), samples are weighted by inverse direction density.
 """
 
 from __future__ import annotations
@@ -21,6 +22,11 @@ MIN_TEMP_SPAN_C = 0.5
 UPPER = np.triu_indices(3)  # the 6 free entries of an upper-triangular matrix
 MAX_ITER = 200
 RCOND_SINGULAR = 1e-13
+MIN_DENSITY_SHARE = 0.1  # density floor, as a share of uniform coverage: caps balance weights at 10x
+UNEVEN_COVERAGE_SHARE = 0.8  # balance by default when its weights leave fewer effective samples than this
+# ...and only from this many samples on: a 20 degree cone then expects >= 20 of them under uniform
+# coverage, so sampling noise alone does not make the coverage look uneven
+MIN_SAMPLES_TO_BALANCE = 700
 
 
 def _field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, str]:
@@ -140,7 +146,9 @@ def orientation_balance_weights(
 
     Hand-held recordings dwell on some orientations; balancing keeps those from dominating the fit, so
     the calibration holds better on orientations it saw less. Density is counted against at most
-    `max_reference` evenly spaced samples, so the cost stays linear in N.
+    `max_reference` evenly spaced samples, so the cost stays linear in N. A count below a tenth of what
+    uniform coverage would give is raised to that tenth: a few samples alone in their cone (often ones
+    caught mid-motion) get at most 10x the weight they would have on a uniformly covered sphere.
     """
     u = field_nt / np.linalg.norm(field_nt, axis=1, keepdims=True)
     ref = u[:: max(1, len(u) // max_reference)]
@@ -148,8 +156,14 @@ def orientation_balance_weights(
     counts = np.concatenate(
         [np.sum(u[lo : lo + 2048] @ ref.T > cos_limit, axis=1) for lo in range(0, len(u), 2048)]
     )
-    w = 1.0 / np.maximum(counts, 1)
+    uniform_count = len(ref) * (1 - cos_limit) / 2  # cone area / sphere area
+    w = 1.0 / np.maximum(counts, max(1.0, MIN_DENSITY_SHARE * uniform_count))
     return w * (len(w) / w.sum())
+
+
+def effective_share(weights: np.ndarray) -> float:
+    """Kish effective sample size over N: 1 for equal weights, lower the more uneven they are."""
+    return float(weights.sum() ** 2 / (len(weights) * np.sum(weights**2)))
 
 
 def fit_weighted(
@@ -159,25 +173,43 @@ def fit_weighted(
     temp_ref_c: float | None = None,
     field_norm_nt: float | None = None,
     temperature_terms: bool | None = None,
-    balance_orientations: bool = False,
+    balance_orientations: bool | None = None,
 ):
     """(Calibration, |B| residuals (N,)) of a weighted scalar fit.
 
     field_norm_nt: one known |B| for every sample; else ref_norm_nt, else |ref_nt|, else unknown (the
     output is then scaled to the raw readings' mean radius). temperature_terms: None = on when the data
     has a temperature column spanning at least MIN_TEMP_SPAN_C. balance_orientations: multiply the
-    weights by `orientation_balance_weights` of the field directions of a first, unbalanced fit.
+    weights by `orientation_balance_weights` of the field directions of a first, unbalanced fit; None =
+    only when the coverage is uneven (those weights would cut the effective sample size below
+    UNEVEN_COVERAGE_SHARE of N; a uniformly covered sphere stays near 1) and N >= MIN_SAMPLES_TO_BALANCE.
     """
-    if balance_orientations:
-        first, _ = fit_weighted(
-            ds,
-            weights,
-            temp_ref_c=temp_ref_c,
-            field_norm_nt=field_norm_nt,
-            temperature_terms=temperature_terms,
-        )
-        balance = orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
-        weights = balance if weights is None else weights * balance
+    options = {
+        "temp_ref_c": temp_ref_c,
+        "field_norm_nt": field_norm_nt,
+        "temperature_terms": temperature_terms,
+    }
+    first, residuals = _fit(ds, weights, **options)
+    if balance_orientations is False or (balance_orientations is None and len(ds) < MIN_SAMPLES_TO_BALANCE):
+        return first, residuals
+    balance = orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
+    share = effective_share(balance if weights is None else balance[np.asarray(weights) > 0])
+    first.stats["coverage_effective_share"] = share
+    if balance_orientations is None and share >= UNEVEN_COVERAGE_SHARE:
+        return first, residuals
+    cal, residuals = _fit(ds, balance if weights is None else weights * balance, **options)
+    cal.stats.update({"balance_orientations": True, "coverage_effective_share": share})
+    return cal, residuals
+
+
+def _fit(
+    ds: Dataset,
+    weights: np.ndarray | None,
+    *,
+    temp_ref_c: float | None,
+    field_norm_nt: float | None,
+    temperature_terms: bool | None,
+):
     n = len(ds)
     w = np.ones(n) if weights is None else np.asarray(weights, float)
     fn_nt, norm_source = _field_norm(ds, field_norm_nt)
@@ -236,7 +268,7 @@ def fit_weighted(
         stats={
             "field_norm": norm_source,
             **_constant_norm(fn_nt),
-            "balance_orientations": balance_orientations,
+            "balance_orientations": False,
             "sigma_nt": float(np.sqrt(sigma2) * size),
             "temperature_terms": temp,
         },

@@ -1,5 +1,9 @@
-"""The campaign: plan points as step generators, and the rig-aware handlers the engine calls.
+"""The campaign: plan points as step generators, the rig-aware handlers the engine calls, and a whole run.
 
+    outcome = run_campaign(campaign=load_campaign(plan_path), session_path=path)   # or resume=True
+    outcome.result.status, outcome.result.reason, outcome.fits
+
+What run_campaign does with the pieces:
     runner = CampaignRunner(rig, plan, points, session, status=RunStatus())
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session, ...)
     runner.engine = engine
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import os
 import time
@@ -111,12 +116,7 @@ class CampaignRunner:
 
     # --- the plan as generators -------------------------------------------------------------------
     def steps(self) -> list[Step]:
-        return [Step(p.id, self._maker(p)) for p in self.points]
-
-    def _maker(self, point: Point):
-        def make(retake: bool) -> Generator[Any, Any, None]:
-            return self.point_steps(point, retake)
-        return make
+        return [Step(p.id, functools.partial(self.point_steps, p)) for p in self.points]
 
     def point_steps(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
         criteria = criteria_of(point.stability)
@@ -219,19 +219,16 @@ class CampaignRunner:
         started = self.rig.clock.now()
         self._check_chamber()
         rows: list[SampleRow] = []
-        own_sources = {dut for dut, src in self.rig.temp_sources.items() if src is self.rig.duts[dut]}
+        beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
         for _ in range(point.samples):
-            cache: dict = {}  # each temperature sensor is read once per sample round
+            sensors = {name: dev.read().temp_c for name, dev in self.rig.temp_sensors.items()}
             ref_nt = self._reference_now()
             for dut, dev in self.rig.duts.items():
                 sample = dev.read()
-                if dut in own_sources:
-                    temp_c, other_c = sample.temp_c, None
+                if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
+                    temp_c, other_c = sample.temp_c, sensors.get(beside.get(dut, ""))
                 else:
-                    src = self.rig.temp_sources[dut]
-                    if src.name not in cache:
-                        cache[src.name] = src.read()
-                    temp_c, other_c = cache[src.name].temp_c, sample.temp_c
+                    temp_c, other_c = sensors[self.rig.temp_sources[dut].name], sample.temp_c
                 if temp_c is None:
                     raise Hold(f"{dut}: its temperature source gives no temperature")
                 if cmd.temp_band_c is not None and abs(temp_c - point.setpoint_c) > cmd.temp_band_c:

@@ -180,6 +180,8 @@ class Engine:
     def request_abort(self, reason: str) -> None:
         if self._abort_reason is None:
             self._abort_reason = reason
+        if self._prompting:
+            raise KeyboardInterrupt  # stop waiting for the operator's answer
 
     def check_interrupt(self) -> None:
         """Called between commands and by long handlers at every poll: raises to pause or abort."""
@@ -230,8 +232,8 @@ class Engine:
             except KeyboardInterrupt:
                 status, reason = ABORTED, "interrupted"
             except Exception as exc:
-                status, reason = FAILED, f"{type(exc).__name__}: {exc}" if not isinstance(
-                    exc, MagrigError) else str(exc)
+                reason = str(exc) if isinstance(exc, MagrigError) else f"{type(exc).__name__}: {exc}"
+                status = FAILED
                 log.error("run failed: %s", reason)
             finally:
                 self.make_safe()

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import numpy as np
 
 from rig.errors import DataError, MagrigError, SessionError
 from rig.exports import FORMATS
@@ -33,7 +34,10 @@ def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Pat
     or from a calibration file and the CSV it was fitted on (--data)."""
     from rig.report.build import read_inputs, write_report
 
-    page, *figures = write_report(read_inputs(source, data=data, dut=dut), output_dir)
+    try:
+        page, *figures = write_report(read_inputs(source, data=data, dut=dut), output_dir)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # numbers the checks let through
+        raise DataError(f"{source}: cannot build the report: {exc}") from None
     click.echo(f"wrote {page} ({len(figures)} figures beside it)")
 
 

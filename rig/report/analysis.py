@@ -17,6 +17,7 @@ from rig.errors import FitError
 MODELS = ("t24", "p12", "scalar")
 VECTOR_MODELS = ("t24", "p12")  # outputs in the reference frame; scalar is known up to a rotation only
 STEP_LABEL = re.compile(r"^T(\d+)")  # plan step ids: T03-O07 = temperature 3 x orientation 7
+COVERAGE_PROBES = 200  # directions, evenly spread, at which coverage is checked
 COVERAGE_GAP_DEG = 40.0  # no sample this close: a gap (the full campaign's 24 directions leave <= 36 deg)
 N_FOLDS = 5
 
@@ -234,7 +235,7 @@ def nearest_sample_deg(probe_unit: np.ndarray, direction_nt: np.ndarray) -> np.n
 
 
 def coverage_gaps(
-    direction_nt: np.ndarray, max_gap_deg: float = COVERAGE_GAP_DEG, probes: int = 200
+    direction_nt: np.ndarray, max_gap_deg: float = COVERAGE_GAP_DEG, probes: int = COVERAGE_PROBES
 ) -> list[tuple[float, float, float]]:
     """Probe directions, spread evenly over the sphere, with no sample within `max_gap_deg`:
     (azimuth_deg, elevation_deg, nearest_deg) each."""

@@ -170,7 +170,7 @@ def direction_map(
     title: str = "",
     residual_label: str = "|residual| after calibration (nT)",
 ) -> Figure:
-    """Where the field pointed (in sensor axes) and where the error lives.
+    """Where the field pointed (in the reference axes) and where the error lives.
 
     Left: angular distance from every direction to the nearest sample; the red contour encloses the gaps
     (no sample within `gap_deg`). Right: each sample (or point) at its field direction, coloured by the
@@ -216,9 +216,9 @@ def direction_map(
         ax.set_ylim(-90, 90)
         ax.set_xticks(np.arange(-180, 181, 60))
         ax.set_yticks(np.arange(-90, 91, 30))
-        ax.set_xlabel("field azimuth in sensor axes (deg)")
+        ax.set_xlabel("field azimuth, reference axes (deg)")
         ax.grid(alpha=0.3)
-    ax_cov.set_ylabel("field elevation in sensor axes (deg)")
+    ax_cov.set_ylabel("field elevation, reference axes (deg)")
     if title:
         fig.suptitle(title)
     return fig

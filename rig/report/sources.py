@@ -103,7 +103,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     names = [dut] if dut else summary["duts"]
     if not names:
         raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
-    info, points, events = _session_tables(path)
+    info, points, events, snapshots = _session_tables(path)
     duts = []
     for name in names:
         ds = store.read_dataset(path, name)
@@ -137,6 +137,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
             f"{summary['points_done']} done of {summary['points_planned']} planned, "
             f"{summary['points_failed']} failed",
         ),
+        *_devices(snapshots),
         ("recorded with", f"magrig {info['software_version']}"),
         ("report made with", f"magrig {__version__}"),
     ]
@@ -144,12 +145,29 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     return ReportInputs(title, duts, steps, warnings, provenance)
 
 
-def _session_tables(path: Path) -> tuple[dict, list[dict], list[dict]]:
-    """Session record, points and events (rig.store reads them read-only and checks the file)."""
+def _session_tables(path: Path) -> tuple[dict, list[dict], list[dict], list[dict]]:
+    """Session record, points, events and device snapshots (rig.store reads them read-only)."""
     from rig import store
 
     tables = store.session_tables(path)
-    return tables["session"], tables["points"], tables["events"]
+    return tables["session"], tables["points"], tables["events"], tables["snapshots"]
+
+
+def _devices(snapshots: list[dict]) -> list[tuple[str, str]]:
+    """One provenance row per device, from its first snapshot: model, firmware, serial number."""
+    rows: dict[str, str] = {}
+    for snap in snapshots:
+        try:
+            d = json.loads(snap["describe_json"])
+        except ValueError:
+            continue
+        if snap["device"] in rows or not isinstance(d, dict) or "model" not in d:
+            continue
+        parts = [str(d["model"])] + [
+            f"{k.replace('_', ' ')} {d[k]}" for k in ("firmware", "serial_number") if k in d
+        ]
+        rows[snap["device"]] = ", ".join(parts)
+    return [(f"device {name}", text) for name, text in rows.items()]
 
 
 def _waited_s(settle_json: str | None) -> float | None:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from calib import calfile
+from rig.campaign import run_campaign
 from rig.config import load_campaign, load_station
 from rig.plan import compile_plan
 from tests.system.campaign_helpers import (
@@ -55,14 +56,17 @@ def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
         assert (tmp_path / f"demo.{dut}.p12.yaml").is_file()
 
 
-def test_default_station_refuses_a_dut_without_temperature_unless_fixed(tmp_path):
-    """The default station is usable as is, or refused with a one-line reason naming the DUT."""
-    proc = run_rig("run", str(small_plan(tmp_path, samples=2)), "--session", str(tmp_path / "s.session"),
-                   "--no-live")
-    if proc.returncode != 0:
+def test_default_station_runs_or_refuses_a_dut_without_temperature_in_one_line(tmp_path):
+    """The default station either completes a run, or is refused before any session exists, with a
+    one-line reason naming the DUT that has no temperature."""
+    session = tmp_path / "s.session"
+    proc = run_rig("run", str(small_plan(tmp_path, samples=2)), "--session", str(session), "--no-live")
+    if proc.returncode == 0:
+        assert session_counts(session)["completed"]
+    else:
         assert proc.returncode == 2 and proc.stderr.startswith("error: ")
         assert "reports none" in proc.stderr and "Traceback" not in proc.stderr
-        assert not (tmp_path / "s.session").exists()
+        assert not session.exists() and not (tmp_path / "s.session.lock").exists()
 
 
 @pytest.mark.parametrize("sig, reason", [(signal.SIGINT, "operator aborted"), (signal.SIGTERM, "SIGTERM")])
@@ -89,3 +93,45 @@ def test_interrupt_ends_with_coils_off_and_chamber_at_safe_setpoint(tmp_path, si
     assert coils["setpoints_a"] == [0.0, 0.0, 0.0] and coils["enabled"] == [False, False, False]
     assert np.abs(coils["currents_a"]).max() < 1e-3
     assert chamber["setpoint_c"] == pytest.approx(load_station(station).chamber.limits.safe_setpoint_c)
+
+
+def _coil_sim(rig):
+    from drivers.sim.coils import CoilSim
+
+    return next(s for s in rig.built.sims if isinstance(s, CoilSim))
+
+
+def test_a_device_fault_after_retries_holds_and_retakes_the_point(tmp_path):
+    campaign = load_campaign(small_plan(tmp_path, samples=3), sim_station_with_probes(tmp_path))
+    session = tmp_path / "fault.session"
+
+    def busy_coils(rig):
+        _coil_sim(rig).fail_next(3, code=6)  # "busy" three times: the transport's 3 tries all fail
+
+    outcome = run_campaign(campaign=campaign, session_path=session, on_rig=busy_coils)
+    assert outcome.result.status == "completed"
+    counts = session_counts(session)
+    assert counts["done"] == counts["planned"] == 12 and counts["orphan_samples"] == 0
+    assert set(counts["per_point_dut"].values()) == {3}
+    log = events(session)
+    holds = [m for k, m in log if k == "hold"]
+    assert len(holds) == 1 and "coils" in holds[0] and "T01-F01" in holds[0]
+    assert any(k == "warning" and "try 1 of 3 failed" in m for k, m in log)  # retries reach the session
+
+
+def test_a_persistent_chamber_alarm_aborts_after_the_retakes_and_ends_safe(tmp_path):
+    campaign = load_campaign(small_plan(tmp_path, samples=3), sim_station_with_probes(tmp_path))
+    session = tmp_path / "alarm.session"
+
+    def alarm(rig):
+        rig.world.chamber_alarm = True
+
+    outcome = run_campaign(campaign=campaign, session_path=session, on_rig=alarm, max_retakes=2)
+    assert outcome.result.status == "aborted"
+    assert "chamber alarm" in outcome.result.reason and "gave up after 2 retakes" in outcome.result.reason
+    assert len([k for k, _ in events(session) if k == "hold"]) == 2
+    assert session_counts(session)["done"] == 0
+    final = final_snapshots(session)
+    assert final["coils"][-1]["enabled"] == [False, False, False]
+    assert final["chamber"][-1]["setpoint_c"] == pytest.approx(25.0)
+    assert not outcome.fits

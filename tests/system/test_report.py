@@ -22,8 +22,16 @@ def session(tmp_path_factory):
     path = tmp_path_factory.mktemp("sys") / "campaign.session"
     vectors = fieldsets.scaled(fieldsets.cube24_directions(), [30_000.0, 60_000.0])
     temps_c = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
-    opts = SynthOptions(temps_c=temps_c, field_vectors_nt=vectors, samples=5, duts=("dutA", "dutB"),
-                        outlier_fraction=0.005, saturated_points=("T04-F10",), timeout_step=5, seed=3)
+    opts = SynthOptions(
+        temps_c=temps_c,
+        field_vectors_nt=vectors,
+        samples=5,
+        duts=("dutA", "dutB"),
+        outlier_fraction=0.005,
+        saturated_points=("T04-F10",),
+        timeout_step=5,
+        seed=3,
+    )
     truths = build_session(path, opts)
     return path, truths
 
@@ -75,8 +83,13 @@ def test_report_from_the_exported_calibration(session, tmp_path, capsys):
     assert main(["report", str(cal), "--data", str(data), "--dut", "dutA", "-o", str(tmp_path / "r")]) == 0
     html = (tmp_path / "r" / "report.html").read_text(encoding="utf-8")
     assert "given in the calibration file" in html and "is not the file" not in html
-    rms_after = float(re.search(r"<td>dutA</td><td>T24</td><td>\d+</td><td>vector</td><td>[\d.]+</td>"
-                                r"<td>([\d.]+)</td>", html).group(1))
+    rms_after = float(
+        re.search(
+            r"<td>dutA</td><td>T24</td><td>\d+</td><td>vector</td><td>[\d.]+</td>"
+            r"<td>([\d.]+)</td>",
+            html,
+        ).group(1)
+    )
     assert 9.0 < rms_after < 11.0  # the injected noise is 10 nT per axis
     capsys.readouterr()
 
@@ -86,3 +99,31 @@ def test_sessions_lists_it(session, capsys):
     assert main(["sessions", str(path.parent)]) == 0
     line = capsys.readouterr().out.splitlines()[1]
     assert line.startswith("campaign.session") and "dutA,dutB" in line and "384/384" in line
+
+
+def test_report_of_a_simulated_campaign(tmp_path, capsys):
+    """The demo plan run by the campaign engine on the simulated station, then reported."""
+    from rig.campaign import run_campaign
+    from rig.clock import SimClock
+    from rig.config import load_campaign
+
+    session = tmp_path / "demo.session"
+    outcome = run_campaign(
+        campaign=load_campaign("configs/plans/demo.yaml"), session_path=session, clock=SimClock()
+    )
+    assert outcome.result.status == "completed"
+    assert main(["report", str(session), "--dut", "mmc0", "-o", str(tmp_path / "r")]) == 0
+    html = (tmp_path / "r" / "report.html").read_text(encoding="utf-8")
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+    assert "DUT mmc0 " in text and "DUT serial0" not in text  # --dut: that DUT only
+    # every step settled (the campaign's settle statistics), 14 of 14 points each
+    steps = re.findall(r" (\d) (-?\d+) -?\d+\.\d\d 140 14/14 (\d+\.\d) yes ", text)
+    assert [(s, t) for s, t, _ in steps[:4]] == [("1", "-20"), ("2", "0"), ("3", "25"), ("4", "60")]
+    assert all(float(minutes) > 1 for _, _, minutes in steps)
+    assert "station sim (configs/stations/sim.yaml)" in text and "simulated devices chamber, coils" in text
+    assert "device mmc0 MMC5983MA" in text  # the device snapshots the campaign recorded
+    summary = re.search(
+        r"<td>mmc0</td><td>T24</td><td>560</td><td>vector</td><td>[\d.]+</td><td>([\d.]+)</td>", html
+    )
+    assert float(summary.group(1)) < 60  # the simulated noise is 40 nT per axis
+    capsys.readouterr()

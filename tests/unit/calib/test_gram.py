@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib import synthetic
+from calib import gram, synthetic
 from calib.gram import GramAccumulator
 from rig.errors import FitError
 
@@ -141,3 +141,18 @@ def test_solve_after_each_point_is_cheap_and_grows_into_a_fit():
         outcomes.append(acc.identifiability() is None)
     assert not outcomes[0] and outcomes[-1]
     assert acc.solve().stats["n"] == len(ds)
+
+
+def test_gram_over_several_buffer_chunks_equals_the_direct_product():
+    rng = np.random.default_rng(12)
+    n = int(2.5 * gram.CHUNK_ROWS)  # two full chunks and a partial one
+    h, ref = rng.normal(0, 3e4, (n, 3)), rng.normal(0, 3e4, (n, 3))
+    temp, weights = rng.uniform(-30, 70, n), rng.uniform(0, 2, n)
+    t = temp - 20.0
+    z = np.column_stack([np.ones(n), t, h, t[:, None] * h, ref])
+    acc = GramAccumulator(20.0)
+    acc.add(h, temp, ref, weights=weights)  # weighted first: the ones column must come back afterwards
+    acc.add(h, temp, ref)
+    expected = (z * weights[:, None]).T @ z + z.T @ z
+    np.testing.assert_allclose(acc.gram, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    assert acc.n == 2 * n

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib import p12, synthetic
+from calib import p12, scalar, synthetic
 from rig.errors import FitError
 
 
@@ -159,3 +159,32 @@ def test_robust_flags_the_outliers_and_matches_the_clean_fit(model):
 def test_robust_on_clean_data_flags_almost_nothing():
     ds, _ = synthetic.t24_dataset(np.random.default_rng(12))
     assert calib.fit(ds, "t24", robust=True).stats["n_outliers"] <= 2
+
+
+def test_scalar_balances_orientations_only_when_coverage_is_uneven():
+    ds, truth = synthetic.scalar_dataset(np.random.default_rng(10), n=3000)
+    even = calib.fit(ds, "scalar")
+    assert not even.stats["balance_orientations"] and even.stats["coverage_effective_share"] > 0.9
+    # dwell on the upper hemisphere: keep one lower-hemisphere sample in eight
+    up = truth.apply(ds.h_nt)[:, 2] > 0
+    uneven_ds = ds.subset(up | (np.arange(len(ds)) % 8 == 0))
+    uneven = calib.fit(uneven_ds, "scalar")
+    assert uneven.stats["balance_orientations"] and uneven.stats["coverage_effective_share"] < 0.8
+    z_c = (uneven.params["c_nt"] - truth.params["c_nt"]) / uneven.std_errors["c_nt"]
+    assert np.max(np.abs(z_c)) < 4.5
+    off = calib.fit(uneven_ds, "scalar", balance_orientations=False)
+    assert not off.stats["balance_orientations"]
+    assert not np.allclose(off.params["A"], uneven.params["A"], rtol=1e-9, atol=0)
+
+
+def test_balance_weights_of_isolated_samples_are_capped():
+    rng = np.random.default_rng(11)
+    cluster = rng.normal([0, 0, 1], 0.2, (2000, 3))  # dwelling around +z
+    lonely = np.array([[0, 0, -1.0], [0, 0.05, -1.0]])  # two samples alone near -z
+    field = np.vstack([cluster, lonely])
+    w = scalar.orientation_balance_weights(field, angle_deg=20.0)
+    u = field / np.linalg.norm(field, axis=1, keepdims=True)
+    counts = np.sum(u @ u.T > np.cos(np.radians(20.0)), axis=1)
+    floor = scalar.MIN_DENSITY_SHARE * len(u) * (1 - np.cos(np.radians(20.0))) / 2
+    assert counts[-1] < floor  # the lonely samples' own count would give them ~3x more weight
+    np.testing.assert_allclose(w[-1] / w, np.maximum(counts, floor) / floor, rtol=1e-12)

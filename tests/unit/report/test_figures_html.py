@@ -66,7 +66,7 @@ def test_direction_map_shows_coverage_gaps():
     half = figures.direction_map(d, np.abs(rng.normal(0, 20, 4000)), gap_deg=35)
     share = int(re.search(r"coverage: (\d+) %", half.get_axes()[0].get_title()).group(1))
     assert 20 <= share <= 40
-    assert half.get_axes()[0].get_ylabel() == "field elevation in sensor axes (deg)"
+    assert half.get_axes()[0].get_ylabel() == "field elevation, reference axes (deg)"
 
 
 def test_azimuth_elevation():

@@ -10,7 +10,9 @@ from html import unescape
 import pytest
 
 from rig.cli import main
-from rig.report.build import _step_table, analyse_dut, build_report
+from rig.report.build import build_report
+from rig.report.evaluate import analyse_dut
+from rig.report.page import step_table
 from rig.report.sources import from_session
 from rig.report.synthetic_session import SynthOptions, build_session
 
@@ -88,7 +90,7 @@ def test_a_step_that_never_settles(tmp_path):
     text = " | ".join(inputs.warnings)
     assert "temperature step 3 (40 °C) did not reach stability (3 settle timeout(s))" in text
     assert "12 of 18 done; run exit status aborted" in text
-    table = _step_table(analyse_dut(inputs.duts[0], inputs.steps).steps, inputs.steps)
+    table = step_table(analyse_dut(inputs.duts[0], inputs.steps).steps, inputs.steps)
     assert table.rows[-1][:7] == ["3", "40", "-", "0", "0/6", "-", "NO (3 timeout(s))"]
 
 
@@ -126,3 +128,11 @@ def test_bad_input_is_one_line(args, message, session, tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err
+
+
+def test_a_session_without_samples_is_one_line(tmp_path, capsys):
+    path = tmp_path / "empty.session"
+    build_session(path, SynthOptions(temps_c=(0.0,), directions=6, samples=1, abort_at_step=1))
+    assert main(["report", str(path), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {path}: the session holds no samples yet; nothing to report\n"

@@ -1,0 +1,275 @@
+"""The report page: summary, figures, tables and parameters of each judged DUT, as html blocks."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from rig.report import analysis, figures
+from rig.report.evaluate import DutResult
+from rig.report.html import Image, Section, Table
+from rig.report.sources import StepInfo
+
+PARAM_UNITS = {
+    "S": "-",
+    "K": "1/°C",
+    "b_nt": "nT",
+    "kb_nt_per_c": "nT/°C",
+    "k": "-",
+    "angles_deg": "deg",
+    "A": "-",
+    "c_nt": "nT",
+    "KA_per_c": "1/°C",
+    "kc_nt_per_c": "nT/°C",
+}
+
+
+def _fmt(x: float, digits: int = 4) -> str:
+    return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}g}"
+
+
+def summary_table(results: list[DutResult]) -> Table:
+    rows = []
+    for r in results:
+        vec = r.errors.vector_after is not None
+        kept = ~r.outliers
+        before = r.errors.vector_before if vec else r.errors.norm_before
+        after = r.errors.vector_after if vec else r.errors.norm_after
+        rows.append(
+            [
+                r.name,
+                r.main.model.upper(),
+                str(len(r.ds)),
+                "vector" if vec else "|B|",
+                _fmt(analysis.rms(before[kept])),
+                _fmt(analysis.rms(after[kept])),
+                str(int((~kept).sum())),
+            ]
+        )
+    return Table(
+        ["DUT", "model shown", "samples", "error", "RMS before (nT)", "RMS after (nT)", "outliers"], rows
+    )
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^0-9A-Za-z_.-]+", "_", name) or "dut"
+
+
+def _image(fig, caption: str, filename: str) -> Image:
+    return Image(figures.png_bytes(fig), caption, filename)
+
+
+def dut_figures(r: DutResult) -> dict[str, Image]:
+    """The figures of one DUT, by role."""
+    tag, ds, e = _safe(r.name), r.ds, r.errors
+    outliers = r.outliers
+    model = r.main.model.upper()
+    if e.vector_after is not None:
+        before, after, labels = e.vector_before, e.vector_after, ["x", "y", "z"]
+    else:
+        before, after, labels = e.norm_before[:, None], e.norm_after[:, None], ["|B|"]
+    direction = ds.ref_nt if ds.ref_nt is not None else e.field_after
+    dirs, dir_resid, per_point = analysis.systematic_error_by_point(
+        ds.columns.get("point"), direction, after, ~outliers
+    )
+    resid_label = "|mean residual| of each point (nT)" if per_point else "|residual| after calibration (nT)"
+    against = "DUT temperature" if ds.temp_c is not None else "sample index"
+    what = "per axis" if len(labels) == 3 else "in |B|"
+    out = {
+        "residuals": _image(
+            figures.residuals_vs_temperature(
+                ds.temp_c,
+                before,
+                after,
+                labels,
+                outliers,
+                f"{r.name}: residuals against {against} ({model})",
+            ),
+            f"{r.name}: error {what} against {against}, before and after {model} calibration; "
+            "red crosses: outliers, left out of the RMS",
+            f"{tag}_residuals_vs_temperature.png",
+        ),
+        "histogram": _image(
+            figures.norm_error_histogram(
+                e.norm_before[~outliers], e.norm_after[~outliers], f"{r.name}: |B| error ({model})"
+            ),
+            f"{r.name}: field magnitude error before and after calibration (outliers left out)",
+            f"{tag}_norm_error_histogram.png",
+        ),
+        "directions": _image(
+            figures.direction_map(
+                dirs,
+                dir_resid,
+                analysis.COVERAGE_GAP_DEG,
+                f"{r.name}: field directions ({model})",
+                resid_label,
+            ),
+            f"{r.name}: direction coverage (left) and the error the calibration leaves at each field "
+            + (
+                "direction (right; the mean over a point's samples, so the noise averages out)"
+                if per_point
+                else "direction (right)"
+            ),
+            f"{tag}_directions.png",
+        ),
+    }
+    scored = [s for s in r.scores if s.folds]
+    if scored:
+        fit_rms = {"|B|": [s.fit_norm_rms for s in scored]}
+        held_rms = {"|B|": [s.heldout_norm_rms for s in scored]}
+        if any(np.isfinite(s.heldout_vector_rms) for s in scored):
+            fit_rms = {"vector": [s.fit_vector_rms for s in scored], **fit_rms}
+            held_rms = {"vector": [s.heldout_vector_rms for s in scored], **held_rms}
+        out["models"] = _image(
+            figures.model_comparison(
+                [s.model for s in scored],
+                fit_rms,
+                held_rms,
+                f"{r.name}: models on fitted and held-out points\n({r.fold_text})",
+            ),
+            f"{r.name}: error RMS of each model on its fitted points and on held-out points",
+            f"{tag}_model_comparison.png",
+        )
+    if len(r.steps) > 1 and ds.temp_c is not None:
+        out["steps"] = _image(
+            figures.step_rms(
+                [s.temp_c for s in r.steps],
+                [s.rms_before_nt for s in r.steps],
+                [s.rms_after_nt for s in r.steps],
+                f"{r.name}: residual per temperature step ({model})",
+            ),
+            f"{r.name}: residual RMS per temperature step",
+            f"{tag}_steps.png",
+        )
+    return out
+
+
+def dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]:
+    img = dut_figures(r)
+    intro = f"{len(r.ds)} samples; residuals shown for the {r.main.model.upper()} calibration " + (
+        "given in the calibration file." if r.given else "fitted here (robust)."
+    )
+    cv_text = (
+        f"Each model is fitted without one fold of the points and scored on that fold ({r.fold_text}); "
+        "the outliers of the calibration shown above are left out of every score. The scalar model "
+        "knows the field only up to a rotation, so it is scored on |B| only."
+    )
+    optional = [img[k] for k in ("models",) if k in img]
+    return [
+        Section(f"DUT {r.name}", [intro, img["residuals"], img["histogram"], img["directions"]]),
+        Section(
+            "Models compared on held-out points", [cv_text, _comparison_table(r.scores), *optional], level=3
+        ),
+        Section(
+            "Per temperature step",
+            [step_table(r.steps, steps_info), *[img[k] for k in ("steps",) if k in img]],
+            level=3,
+        ),
+        Section("Parameters", [_params_table(name, cal) for name, cal in _param_sets(r)], level=3),
+    ]
+
+
+def _comparison_table(scores: list[analysis.ModelScore]) -> Table:
+    rows = [
+        [
+            s.model.upper(),
+            _fmt(s.fit_vector_rms),
+            _fmt(s.fit_norm_rms),
+            _fmt(s.heldout_vector_rms),
+            _fmt(s.heldout_norm_rms),
+            str(s.folds),
+            s.note,
+        ]
+        for s in scores
+    ]
+    return Table(
+        [
+            "model",
+            "fitted: vector RMS (nT)",
+            "fitted: |B| RMS (nT)",
+            "held-out: vector RMS (nT)",
+            "held-out: |B| RMS (nT)",
+            "folds",
+            "note",
+        ],
+        rows,
+    )
+
+
+STEP_HEADERS = [
+    "step",
+    "setpoint (°C)",
+    "mean DUT temp (°C)",
+    "samples",
+    "points done",
+    "settle time (min)",
+    "stable",
+    "RMS before (nT)",
+    "RMS after (nT)",
+    "outliers",
+]
+
+
+def _stability(i: StepInfo | None) -> str:
+    if i is None or i.stable is None:
+        return "-"
+    if not i.stable:
+        return f"NO ({i.settle_timeouts} timeout(s))"
+    return f"yes, after {i.settle_timeouts} timeout(s)" if i.settle_timeouts else "yes"
+
+
+def step_table(steps: list[analysis.StepRow], info: dict[int, StepInfo]) -> Table:
+    """One row per temperature step: the data's numbers with what the session recorded about the step;
+    planned steps without any sample are listed too."""
+    by_step = {s.step: s for s in steps}
+    rows = []
+    for number in sorted(set(by_step) | set(info)):
+        s, i = by_step.get(number), info.get(number)
+        settle = "-" if i is None or i.settle_s is None else f"{i.settle_s / 60:.1f}"
+        data = (
+            ["-", "0", "-", "-", "0"]
+            if s is None
+            else [
+                "-" if not np.isfinite(s.temp_c) else f"{s.temp_c:.2f}",
+                str(s.samples),
+                _fmt(s.rms_before_nt),
+                _fmt(s.rms_after_nt),
+                str(s.outliers),
+            ]
+        )
+        rows.append(
+            [
+                str(number),
+                "-" if i is None else f"{i.setpoint_c:g}",
+                *data[:2],
+                "-" if i is None else f"{i.points_done}/{i.points_planned}",
+                settle,
+                _stability(i),
+                *data[2:],
+            ]
+        )
+    return Table(STEP_HEADERS, rows)
+
+
+def _param_sets(r: DutResult) -> list[tuple[str, object]]:
+    sets = [("given calibration", r.main)] if r.given else []
+    return sets + [(f"fitted here ({m.upper()}, robust)", cal) for m, cal in r.fits.items()]
+
+
+def _params_table(title: str, cal) -> Table:
+    rows = []
+    for key, value in cal.params.items():
+        values = np.asarray(value, dtype=float)
+        errors = np.asarray(cal.std_errors.get(key, np.full(values.shape, np.nan)), dtype=float)
+        unit = PARAM_UNITS.get(key, "")
+        for index in np.ndindex(values.shape):
+            label = key + "".join(f"[{i + 1}]" for i in index)
+            se = errors[index] if errors.shape == values.shape else np.nan
+            rows.append([label, f"{values[index]:.8g}", _fmt(se, 3), unit])
+    stats = cal.stats if isinstance(cal.stats, dict) else {}
+    tref = "" if cal.temp_ref_c is None else f", internal reference temperature {cal.temp_ref_c:.4g} °C"
+    caption = (
+        f"{cal.model.upper()}: {title}; RMS after {_fmt(stats.get('rms_after_nt', float('nan')))} nT{tref}"
+    )
+    return Table(["parameter", "value", "std error", "unit"], rows, caption)
