@@ -1,4 +1,4 @@
-"""Real recordings (/work/shared/realdata, README there): scalar fit on the first half of each, |B| spread
+"""Real recordings (shared/realdata, README there): scalar fit on the first half of each, |B| spread
 (std/mean) on the held-out second half. Reference on the full-sphere HMC5883L: magcc 0.1.1 reaches 0.66 %
 out of sample (0.46 % in sample on the whole recording). Skips a recording whose file is absent.
 
@@ -8,6 +8,7 @@ magcc's LM fit), with the default (balanced when the coverage is uneven) and rob
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,8 @@ import numpy as np
 import calib
 from calib import csvio
 
-REAL = Path("/work/shared/realdata")
+# shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
+REAL = Path(os.environ.get("MAGRIG_REALDATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata"))
 HMC_COLUMNS = {"hx": "mx_gauss", "hy": "my_gauss", "hz": "mz_gauss"}
 RECORDINGS = {
     "HMC5883L full sphere": ("hmc5883l_fullsphere_sunsided/hmc5883l_mag.csv", {"raw_unit": "gauss"}),

@@ -219,7 +219,7 @@ DUT_OPTIONS: dict[str, set[str]] = {
     "hmc5983": {"gain", "rate_hz", "averaging"},
     "serialmag": {"rate_hz", "set_reset"},
 }
-DUT_HAS_TEMPERATURE = {"mmc5983ma", "hmc5983", "serialmag"}
+DUT_HAS_TEMPERATURE = {"mmc5983ma", "hmc5983"}  # the HMR2300-style serial protocol has none
 MMC_MEASURE_S = {100: 0.008, 200: 0.004, 400: 0.002, 800: 0.0005}  # datasheet, by bandwidth
 MMC_BANDWIDTH_CODE = {100: 0, 200: 1, 400: 2, 800: 3}  # BW[1:0] of Internal Control 1
 HMC_RATES_HZ = (0.75, 1.5, 3.0, 7.5, 15.0, 30.0, 75.0, 220.0)  # by DO code; 220 Hz on the HMC5983 only

@@ -6,8 +6,14 @@ with --debug. Ctrl-C exits 130.
 
 from __future__ import annotations
 
-import logging
-import sys
+import os
+
+# One BLAS thread: on a small machine BLAS threads fight each other and the rig's I/O threads
+# (a robust scalar fit ran 10x slower with the default). Must be set before numpy is imported.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import logging  # noqa: E402
+import sys  # noqa: E402
 
 import click
 

@@ -68,9 +68,10 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
 @_unit_options
 @click.option("--field-norm-nt", type=float, help="Scalar model: the known constant |B| in nT.")
 @click.option(
-    "--balance-orientations",
-    is_flag=True,
-    help="Scalar model: weight samples so over-visited orientations do not dominate.",
+    "--balance-orientations/--no-balance-orientations",
+    default=None,
+    help="Scalar model: weight samples so over-visited orientations do not dominate "
+    "(default: decided from the data's direction coverage).",
 )
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
 @click.option(
@@ -100,7 +101,7 @@ def refit(
     ds = load_dataset(
         data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit, column_map=column_map
     )
-    if model != "scalar" and (field_norm_nt is not None or balance_orientations):
+    if model != "scalar" and (field_norm_nt is not None or balance_orientations is not None):
         raise click.UsageError("--field-norm-nt and --balance-orientations apply to --model scalar only")
     cal = calib.fit(
         ds,

@@ -1,5 +1,6 @@
-"""Real HMC5883L recordings (third-party, /work/shared/realdata/README.md); skipped if absent."""
+"""Real HMC5883L recordings (third-party, shared/realdata/README.md); skipped if absent."""
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +9,8 @@ import pytest
 import calib
 from calib import csvio
 
-REAL = Path("/work/shared/realdata")
+# shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
+REAL = Path(os.environ.get("MAGRIG_REALDATA", Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata"))
 FULL = REAL / "hmc5883l_fullsphere_sunsided/hmc5883l_mag.csv"
 TILT = REAL / "hmc5883l_tiltsphere_sunsided/hmc5883l_mag.csv"
 
