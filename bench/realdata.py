@@ -17,7 +17,8 @@ import calib
 from calib import csvio
 
 # shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
-REAL = Path(os.environ.get("MAGRIG_REALDATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata"))
+BESIDE_REPO = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
+REAL = Path(os.environ.get("MAGRIG_REALDATA", BESIDE_REPO))
 HMC_COLUMNS = {"hx": "mx_gauss", "hy": "my_gauss", "hz": "mz_gauss"}
 RECORDINGS = {
     "HMC5883L full sphere": ("hmc5883l_fullsphere_sunsided/hmc5883l_mag.csv", {"raw_unit": "gauss"}),

@@ -10,7 +10,8 @@ import calib
 from calib import csvio
 
 # shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
-REAL = Path(os.environ.get("MAGRIG_REALDATA", Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata"))
+BESIDE_REPO = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"
+REAL = Path(os.environ.get("MAGRIG_REALDATA", BESIDE_REPO))
 FULL = REAL / "hmc5883l_fullsphere_sunsided/hmc5883l_mag.csv"
 TILT = REAL / "hmc5883l_tiltsphere_sunsided/hmc5883l_mag.csv"
 
