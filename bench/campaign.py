@@ -23,7 +23,7 @@ from rig.campaign import run_campaign  # noqa: E402
 from rig.config import load_campaign  # noqa: E402
 from rig.engine import Engine  # noqa: E402
 from rig.store import Session  # noqa: E402
-from tests.system.campaign_helpers import sim_station_with_probes  # noqa: E402
+from tests.system.campaign_helpers import SIM_STATION  # noqa: E402
 
 DEVICE_METHODS = ("read", "set", "set_ramp_rate", "wait_settled", "safe_state")
 STORE_METHODS = ("record_point", "log_event", "record_snapshot", "record_fit", "finish")
@@ -72,7 +72,7 @@ def main() -> None:
     skip_full = "--skip-full" in sys.argv
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        station = sim_station_with_probes(out)
+        station = SIM_STATION
 
         timers = Timers()
         originals = {m: getattr(Session, m) for m in STORE_METHODS}

@@ -22,10 +22,10 @@ from rig.config import load_campaign  # noqa: E402
 from rig.plan import compile_plan  # noqa: E402
 from tests.system.campaign_helpers import (  # noqa: E402
     DEMO_PLAN,
+    SIM_STATION,
     popen_rig,
     run_rig,
     session_counts,
-    sim_station_with_probes,
 )
 
 
@@ -62,7 +62,7 @@ def main() -> None:
     tally: dict[str, int] = {}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp_root:
-        station = sim_station_with_probes(Path(tmp_root))
+        station = SIM_STATION
         campaign = load_campaign(DEMO_PLAN, station)
         points = compile_plan(campaign.plan, campaign.station)
         per_point = campaign.plan.samples_per_point

@@ -16,22 +16,6 @@ DEMO_PLAN = REPO / "configs" / "plans" / "demo.yaml"
 SIM_STATION = REPO / "configs" / "stations" / "sim.yaml"
 
 
-def sim_station_with_probes(tmp_path: Path) -> Path:
-    """The default simulated station, with a TMP117 beside every DUT whose driver reports no
-    temperature of its own (the serial magnetometer); written to tmp_path."""
-    data = yaml.safe_load(SIM_STATION.read_text())
-    sensors = data.setdefault("temperature_sensors", [])
-    for dut in data["duts"]:
-        if dut["type"] == "serialmag" and dut["temp_source"] == "self":
-            probe = f"tmp-{dut['name']}"
-            sensors.append({"name": probe, "type": "tmp117", "transport": {"kind": "sim"},
-                            "beside": dut["name"]})
-            dut["temp_source"] = probe
-    path = tmp_path / "station.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
 def small_plan(tmp_path: Path, *, steps=(10, 40), samples=5, dwell_s=60, name="small") -> Path:
     """A short campaign: 2 temperatures x 6 axis directions."""
     plan = {

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 from calib import calfile
 from rig.campaign import run_campaign
@@ -15,12 +16,12 @@ from rig.config import load_campaign, load_station
 from rig.plan import compile_plan
 from tests.system.campaign_helpers import (
     DEMO_PLAN,
+    SIM_STATION,
     events,
     final_snapshots,
     popen_rig,
     run_rig,
     session_counts,
-    sim_station_with_probes,
     small_plan,
 )
 
@@ -28,7 +29,7 @@ pytestmark = pytest.mark.system
 
 
 def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
-    station = sim_station_with_probes(tmp_path)
+    station = SIM_STATION
     session = tmp_path / "demo.session"
     t0 = time.perf_counter()
     proc = run_rig("run", str(DEMO_PLAN), "--station", str(station), "--session", str(session), "--no-live")
@@ -56,22 +57,31 @@ def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
         assert (tmp_path / f"demo.{dut}.p12.yaml").is_file()
 
 
-def test_default_station_runs_or_refuses_a_dut_without_temperature_in_one_line(tmp_path):
-    """The default station either completes a run, or is refused before any session exists, with a
-    one-line reason naming the DUT that has no temperature."""
+def test_default_station_completes_a_run(tmp_path):
     session = tmp_path / "s.session"
     proc = run_rig("run", str(small_plan(tmp_path, samples=2)), "--session", str(session), "--no-live")
-    if proc.returncode == 0:
-        assert session_counts(session)["completed"]
-    else:
-        assert proc.returncode == 2 and proc.stderr.startswith("error: ")
-        assert "reports none" in proc.stderr and "Traceback" not in proc.stderr
-        assert not session.exists() and not (tmp_path / "s.session.lock").exists()
+    assert proc.returncode == 0, proc.stderr
+    assert session_counts(session)["completed"]
+
+
+def test_a_dut_without_temperature_is_refused_in_one_line_before_any_session(tmp_path):
+    data = yaml.safe_load(SIM_STATION.read_text())
+    serial = next(d for d in data["duts"] if d["type"] == "serialmag")
+    serial["temp_source"] = "self"
+    station = tmp_path / "station.yaml"
+    station.write_text(yaml.safe_dump(data, sort_keys=False))
+    session = tmp_path / "s.session"
+    proc = run_rig("run", str(small_plan(tmp_path, samples=2)), "--station", str(station),
+                   "--session", str(session), "--no-live")
+    assert proc.returncode == 2 and proc.stderr.startswith("error: ")
+    assert "temp_source" in proc.stderr and "serialmag has no temperature sensor" in proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert not session.exists() and not (tmp_path / "s.session.lock").exists()
 
 
 @pytest.mark.parametrize("sig, reason", [(signal.SIGINT, "operator aborted"), (signal.SIGTERM, "SIGTERM")])
 def test_interrupt_ends_with_coils_off_and_chamber_at_safe_setpoint(tmp_path, sig, reason):
-    station = sim_station_with_probes(tmp_path)
+    station = SIM_STATION
     session = tmp_path / "run.session"
     plan = small_plan(tmp_path, samples=20)
     proc = popen_rig("run", str(plan), "--station", str(station), "--session", str(session), "--no-live")
@@ -102,7 +112,7 @@ def _coil_sim(rig):
 
 
 def test_a_device_fault_after_retries_holds_and_retakes_the_point(tmp_path):
-    campaign = load_campaign(small_plan(tmp_path, samples=3), sim_station_with_probes(tmp_path))
+    campaign = load_campaign(small_plan(tmp_path, samples=3), SIM_STATION)
     session = tmp_path / "fault.session"
 
     def busy_coils(rig):
@@ -120,7 +130,7 @@ def test_a_device_fault_after_retries_holds_and_retakes_the_point(tmp_path):
 
 
 def test_a_persistent_chamber_alarm_aborts_after_the_retakes_and_ends_safe(tmp_path):
-    campaign = load_campaign(small_plan(tmp_path, samples=3), sim_station_with_probes(tmp_path))
+    campaign = load_campaign(small_plan(tmp_path, samples=3), SIM_STATION)
     session = tmp_path / "alarm.session"
 
     def alarm(rig):

@@ -12,12 +12,12 @@ import pytest
 from rig.config import load_campaign
 from rig.plan import compile_plan
 from tests.system.campaign_helpers import (
+    SIM_STATION,
     events,
     final_snapshots,
     popen_rig,
     run_rig,
     session_counts,
-    sim_station_with_probes,
     small_plan,
 )
 
@@ -26,7 +26,7 @@ pytestmark = pytest.mark.system
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_kill_9_then_resume_completes_without_duplicates(tmp_path, seed):
-    station = sim_station_with_probes(tmp_path)
+    station = SIM_STATION
     plan = small_plan(tmp_path, samples=8)
     session = tmp_path / "run.session"
     proc = popen_rig("run", str(plan), "--station", str(station), "--session", str(session), "--no-live")
@@ -58,7 +58,7 @@ def test_kill_9_then_resume_completes_without_duplicates(tmp_path, seed):
 
 
 def test_a_live_run_refuses_a_second_run_on_its_session(tmp_path):
-    station = sim_station_with_probes(tmp_path)
+    station = SIM_STATION
     session = tmp_path / "run.session"
     proc = popen_rig("run", str(small_plan(tmp_path, samples=20)), "--station", str(station),
                      "--session", str(session), "--no-live")
