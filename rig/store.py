@@ -159,6 +159,18 @@ def _sigint_deferred() -> Iterator[None]:
             raise KeyboardInterrupt
 
 
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def is_session_file(path: str | Path) -> bool:
+    """True when the file starts as an SQLite database (what a session file is); False if unreadable."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(SQLITE_MAGIC)) == SQLITE_MAGIC
+    except OSError:
+        return False
+
+
 def _connect(path: Path, read_only: bool) -> sqlite3.Connection:
     if read_only:
         uri = f"file:{path.resolve().as_posix()}?mode=ro"

@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 import numpy as np
 
-SQLITE_MAGIC = b"SQLite format 3\x00"
 MODEL_CHOICE = click.Choice(["t24", "p12", "scalar"])
 
 
@@ -35,20 +34,12 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     """A Dataset from a session file (SQLite, via rig.store) or a CSV file."""
     from calib import csvio
     from rig.errors import DataError
+    from rig.store import is_session_file, read_dataset
 
     p = Path(path)
-    try:
-        with p.open("rb") as f:
-            magic = f.read(len(SQLITE_MAGIC))
-    except OSError as err:
-        raise DataError(f"{p}: cannot read ({err.strerror or err})") from None
-    if magic == SQLITE_MAGIC:
-        try:
-            from rig.store import read_dataset
-        except ImportError:
-            raise DataError(
-                f"{p}: is a session file, but session reading (rig.store) is not available"
-            ) from None
+    if not p.is_file():
+        raise DataError(f"{p}: no such file")
+    if is_session_file(p):
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")

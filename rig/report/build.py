@@ -12,7 +12,8 @@ from rig.errors import DataError
 from rig.report.evaluate import analyse_dut
 from rig.report.html import ItemList, Section, Table, images_in, render_html
 from rig.report.page import dut_sections, summary_table
-from rig.report.sources import ReportInputs, from_calibration, from_session, is_session_file
+from rig.report.sources import ReportInputs, from_calibration, from_session
+from rig.store import is_session_file
 
 
 def build_report(

@@ -19,7 +19,6 @@ import numpy as np
 from rig import __version__
 from rig.errors import DataError, SessionError
 
-SQLITE_MAGIC = b"SQLite format 3\x00"
 MAX_LISTED = 5  # how many point ids a warning names before "and N more"
 HOLD_POINT = re.compile(r"point (\S+?):")  # the engine's hold events start "point T03-F01: ..."
 
@@ -54,14 +53,6 @@ class ReportInputs:
     steps: dict[int, StepInfo] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     provenance: list[tuple[str, str]] = field(default_factory=list)
-
-
-def is_session_file(path: Path) -> bool:
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(SQLITE_MAGIC)) == SQLITE_MAGIC
-    except OSError:
-        return False
 
 
 def sha256_of(path: Path) -> str:
