@@ -30,7 +30,7 @@ def _print_summary(outcome) -> None:
     console = Console()
     r = outcome.result
     console.print(f"session {outcome.session_path}: {r.status} ({r.reason}); "
-                  f"{r.points_done} points; wall time {outcome.wall_s:.1f} s")
+                  f"{r.points_done} points; wall time {outcome.wall_s:.1f} s", soft_wrap=True)
     if outcome.stale_lock_pid is not None:
         console.print(f"note: took over the lock of dead run pid {outcome.stale_lock_pid} after making "
                       "the hardware safe")
@@ -38,7 +38,7 @@ def _print_summary(outcome) -> None:
         return
     table = Table(title="calibrations")
     for col in ("DUT", "model", "samples", "rms after (nT)", "file / error"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")  # paths are copied by operators: never truncate
     for f in outcome.fits:
         rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
         table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, str(f.get("path") or f.get("error")))
