@@ -174,7 +174,7 @@ def print_summary(cal) -> None:
             f"{entry['rms_after_nt']:.4g}",
         )
     for label, entry in st.get("per_group", {}).items():
-        temp = f" ({entry['temp_c']:.1f} degC)" if "temp_c" in entry else ""
+        temp = f" ({round(entry['temp_c'], 1) + 0.0:.1f} degC)" if "temp_c" in entry else ""
         fit.add_row(
             f"step {label}{temp}",
             str(entry["n"]),
