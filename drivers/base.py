@@ -7,6 +7,8 @@ Limits are checked before anything is written (raise rig.errors.LimitError).
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from rig.clock import Clock, RealClock
@@ -71,3 +73,18 @@ class Device:
             self.safe_state()
         finally:
             self.close()
+
+
+def make_all_safe(devices: Iterable[Device]) -> list[str]:
+    """safe_state() on every device, each on its own: one failure must not leave the others unsafe.
+    Returns the names of the devices that failed to go safe (each failure is logged)."""
+    log = logging.getLogger("magrig.safety")
+    failed = []
+    for dev in devices:
+        name = getattr(dev, "name", type(dev).__name__)
+        try:
+            dev.safe_state()
+        except Exception as exc:
+            failed.append(name)
+            log.error("%s: safe_state failed: %s", name, exc, extra={"device": name})
+    return failed

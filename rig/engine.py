@@ -35,6 +35,7 @@ from collections.abc import Callable, Generator, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from drivers.base import make_all_safe
 from rig.clock import Clock
 from rig.errors import DeviceError, MagrigError
 from rig.settle import SettleCriteria
@@ -246,14 +247,7 @@ class Engine:
     def make_safe(self) -> list[str]:
         """safe_state() on every device, each on its own (one failure must not skip the others).
         Returns the names of the devices that failed to go safe."""
-        failed = []
-        for dev in self.devices:
-            name = getattr(dev, "name", type(dev).__name__)
-            try:
-                dev.safe_state()
-            except Exception as exc:
-                failed.append(name)
-                log.error("%s: safe_state failed: %s", name, exc, extra={"device": name})
+        failed = make_all_safe(self.devices)
         self.event("safe_state", "all devices safe" if not failed else f"FAILED on {', '.join(failed)}",
                    failed=failed)
         return failed

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.base import Device
+from drivers.base import Device, make_all_safe
 from drivers.chamber import WatlowF4, WatlowF4T
 from drivers.coils import CoilController
 from drivers.hmc5883l import HMC5883L
@@ -90,14 +90,7 @@ class Rig:
 
     def make_safe(self) -> list[str]:
         """safe_state() on every device; returns the names of those that failed (logged)."""
-        failed = []
-        for dev in self.devices():
-            try:
-                dev.safe_state()
-            except Exception as exc:
-                failed.append(dev.name)
-                log.error("%s: safe_state failed: %s", dev.name, exc, extra={"device": dev.name})
-        return failed
+        return make_all_safe(self.devices())
 
     def close(self) -> None:
         """Make safe, close every link, stop the simulators. Never raises."""
