@@ -19,7 +19,6 @@ a dead process (kill -9, power cut) is reported and taken over (the caller makes
 from __future__ import annotations
 
 import contextlib
-import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,8 +37,6 @@ from drivers.turntable import Turntable
 from rig import config as cfg
 from rig.clock import Clock, RealClock, SimClock
 from rig.errors import MagrigError, SessionError
-
-log = logging.getLogger("magrig.station")
 
 MODBUS_TRIES = 3
 
