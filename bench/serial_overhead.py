@@ -22,11 +22,11 @@ import time
 import numpy as np
 import serial
 
+from drivers.clock import SimClock
 from drivers.serialmag import LINE_BYTES, SerialMagnetometer
 from drivers.sim.serialmag import SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import line_time_s
-from rig.clock import SimClock
 
 MAX_RATE_HZ = 154
 POLL_COMMAND = b"*00P\r"

@@ -10,7 +10,7 @@ import yaml
 
 from calib.atomic import atomic_write
 from calib.calibration import Calibration
-from rig.errors import DataError
+from calib.errors import DataError
 
 
 def save(cal: Calibration, path: str | os.PathLike) -> None:

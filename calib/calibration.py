@@ -8,16 +8,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib import models
-from rig.errors import DataError
+from calib.errors import DataError
 
 FORMAT_NAME = "magrig-calibration"
 FORMAT_VERSION = 1
-
-
-def _software_version() -> str:
-    from rig import __version__
-
-    return __version__
 
 
 def _utc_now() -> str:
@@ -34,7 +28,7 @@ class Calibration:
     temp_ref_c: float | None = None
     stats: dict = field(default_factory=dict)
     source: dict = field(default_factory=dict)
-    software_version: str = field(default_factory=_software_version)
+    software_version: str = "unknown"  # the caller states it: calib does not know who packaged it
     created_utc: str = field(default_factory=_utc_now)
     # per-row flags of a robust fit (True = flagged as outlier); not saved in the calibration file
     outliers: np.ndarray | None = field(default=None, repr=False, compare=False)

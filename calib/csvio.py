@@ -19,7 +19,7 @@ import numpy as np
 
 from calib.atomic import atomic_write
 from calib.dataset import Dataset
-from rig.errors import DataError
+from calib.errors import DataError
 
 NT_PER_UNIT = {"nt": 1.0, "ut": 1e3, "mt": 1e6, "gauss": 1e5, "mgauss": 1e2}
 RAW_COLUMNS = ("hx", "hy", "hz")

@@ -7,9 +7,9 @@ import numpy as np
 from calib import p12, scalar, t24
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.errors import DataError
 from calib.robust import irls
 from calib.stats import residual_stats
-from rig.errors import DataError
 
 
 def fit(
@@ -21,6 +21,7 @@ def fit(
     field_norm_nt: float | None = None,
     temperature_terms: bool | None = None,
     balance_orientations: bool | None = None,
+    software_version: str = "unknown",
 ) -> Calibration:
     """Fit `model` ("t24", "p12" or "scalar") to `ds`.
 
@@ -28,6 +29,7 @@ def fit(
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
     (default: middle of the data's range). field_norm_nt, temperature_terms, balance_orientations:
     scalar model only (see calib.scalar.fit_weighted; balance_orientations=None decides from the data).
+    software_version: recorded in the calibration file (the application passes its own version).
     """
     check_dataset(ds)
     fitters = {
@@ -67,6 +69,7 @@ def fit(
         "rows_rejected": int(ds.source.get("rows_rejected", 0)) + int(flagged.sum()),
     }
     cal.outliers = flagged
+    cal.software_version = software_version
     return cal
 
 

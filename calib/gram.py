@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.calibration import Calibration
-from rig.errors import DataError, FitError
+from calib.errors import DataError, FitError
 
 N_PARAMS = 8  # per output axis: b, kb, S_i1..3, K_i1..3
 # Rows per BLAS product: the 8192 x 12 buffer (0.8 MB) stays in L2; fewer rows pay more per-call costs.

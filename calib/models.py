@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.errors import DataError
+from calib.errors import DataError
 
 PARAM_SHAPES: dict[str, dict[str, tuple[int, ...]]] = {
     "t24": {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)},

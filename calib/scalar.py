@@ -15,8 +15,8 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.errors import DataError, FitError
 from calib.stats import known_norm
-from rig.errors import DataError, FitError
 
 MIN_TEMP_SPAN_C = 0.5
 UPPER = np.triu_indices(3)  # the 6 free entries of an upper-triangular matrix

@@ -6,8 +6,8 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.errors import DataError
 from calib.gram import GramAccumulator
-from rig.errors import DataError
 
 
 def default_temp_ref_c(temp_c: np.ndarray) -> float:

@@ -2,7 +2,7 @@
 
 Every device: connect(), close(), describe(), read(), safe_state().
 Movers (coils, turntable, chamber) add set(target) and wait_settled(timeout_s).
-Limits are checked before anything is written (raise rig.errors.LimitError).
+Limits are checked before anything is written (raise drivers.errors.LimitError).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from rig.clock import Clock, RealClock
+from drivers.clock import Clock, RealClock
 
 
 @dataclass(frozen=True)

@@ -27,9 +27,9 @@ import math
 from dataclasses import dataclass
 
 from drivers.base import Device
+from drivers.clock import Clock
+from drivers.errors import LimitError, OptionError
 from drivers.transports.modbus import ModbusTransport, WordOrder, decode_int16
-from rig.clock import Clock
-from rig.errors import ConfigError, LimitError
 
 # --- F4T, Data Map 1 (float32, low word first by default) -----------------------------------------
 F4T_SETPOINT = 2782  # RW float32, temperature set point
@@ -87,7 +87,7 @@ class _WatlowChamber(Device):
     ):
         super().__init__(name, clock)
         if not min_setpoint_c <= safe_setpoint_c <= max_setpoint_c:
-            raise ConfigError(
+            raise OptionError(
                 f"{name}: safe_setpoint_c {safe_setpoint_c} is outside "
                 f"[min_setpoint_c {min_setpoint_c}, max_setpoint_c {max_setpoint_c}]"
             )
@@ -213,7 +213,7 @@ class WatlowF4(_WatlowChamber):
 
     def set_ramp_rate(self, c_per_min: float) -> None:
         self._check_ramp(c_per_min)
-        raise ConfigError(
+        raise OptionError(
             f"{self.name}: the legacy F4 register map has no ramp-rate register; "
             "leave the ramp rate unset for this chamber or use the F4T map"
         )
@@ -235,7 +235,7 @@ class WatlowF4(_WatlowChamber):
             return
         decimals = self.transport.read_holding(F4_PRECISION, 1, operation="read display precision")[0]
         if decimals > 3:
-            raise ConfigError(
+            raise OptionError(
                 f"{self.name}: precision register {F4_PRECISION} reads {decimals}, expected 0..3"
             )
         units = self.transport.read_holding(F4_UNITS, 1, operation="read temperature units")[0]

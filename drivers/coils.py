@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 
 from drivers.base import Device
+from drivers.clock import Clock
+from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
-from rig.clock import Clock
-from rig.errors import ConfigError, DeviceFault, DeviceTimeout, LimitError, ProtocolError
 
 AXES = ("x", "y", "z")
 MODEL_PREFIX = "MAGRIG-HC3"
@@ -112,7 +112,7 @@ class CoilController(Device):
         self.firmware = f"{major}.{minor}"
         self.rated_current_a = rated_ma / 1000.0
         if self.max_current_a > self.rated_current_a:
-            raise ConfigError(
+            raise OptionError(
                 f"{self.name}: max_current_a {self.max_current_a} A exceeds the controller's "
                 f"rating {self.rated_current_a} A"
             )

@@ -20,9 +20,9 @@ import logging
 import math
 
 from drivers.base import Device, FieldSample
+from drivers.clock import Clock
+from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.transports.i2c import I2CTransport, SMBusLike
-from rig.clock import Clock
-from rig.errors import ConfigError, DeviceError, ProtocolError
 
 log = logging.getLogger("magrig.drivers.hmc5883l")
 
@@ -109,12 +109,12 @@ class HMC5883L(Device):
     ):
         super().__init__(name, clock)
         if variant not in VARIANTS:
-            raise ConfigError(f"{name}: variant {variant!r}: must be one of {', '.join(VARIANTS)}")
+            raise OptionError(f"{name}: variant {variant!r}: must be one of {', '.join(VARIANTS)}")
         if averaging not in AVERAGING_CODES:
-            raise ConfigError(f"{name}: averaging {averaging!r}: must be 1, 2, 4 or 8")
+            raise OptionError(f"{name}: averaging {averaging!r}: must be 1, 2, 4 or 8")
         max_rate_code = len(OUTPUT_RATE_HZ) - (1 if variant == "HMC5883L" else 0)
         if output_rate_code not in range(max_rate_code):
-            raise ConfigError(
+            raise OptionError(
                 f"{name}: output_rate_code {output_rate_code!r}: must be 0..{max_rate_code - 1}"
             )
         self._check_gain(gain)
@@ -201,4 +201,4 @@ class HMC5883L(Device):
 
     def _check_gain(self, gain: int) -> None:
         if gain not in range(len(GAIN_LSB_PER_GAUSS)):
-            raise ConfigError(f"{self.name}: gain code {gain!r}: must be 0..7")
+            raise OptionError(f"{self.name}: gain code {gain!r}: must be 0..7")

@@ -19,9 +19,9 @@ import logging
 import math
 
 from drivers.base import Device, FieldSample
+from drivers.clock import Clock
+from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.transports.i2c import I2CTransport, SMBusLike
-from rig.clock import Clock
-from rig.errors import ConfigError, DeviceError, ProtocolError
 
 log = logging.getLogger("magrig.drivers.mmc5983ma")
 
@@ -103,7 +103,7 @@ def cm_freq_code(rate_hz: float) -> int:
     for code, hz in CM_FREQ_HZ.items():
         if math.isclose(hz, rate_hz):
             return code
-    raise ConfigError(f"continuous rate {rate_hz} Hz: must be one of {sorted(CM_FREQ_HZ.values())} Hz")
+    raise OptionError(f"continuous rate {rate_hz} Hz: must be one of {sorted(CM_FREQ_HZ.values())} Hz")
 
 
 # --- driver -----------------------------------------------------------------------------------------
@@ -240,7 +240,7 @@ class MMC5983MA(Device):
         returns each new measurement. One SET first, so the bridge sign is +H; no SET/RESET per sample."""
         code = cm_freq_code(rate_hz)
         if self.bandwidth < CM_FREQ_MIN_BW.get(code, 0):
-            raise ConfigError(
+            raise OptionError(
                 f"{self.name}: continuous rate {rate_hz:g} Hz needs bandwidth code >= "
                 f"{CM_FREQ_MIN_BW[code]}, set {self.bandwidth}"
             )
@@ -274,4 +274,4 @@ class MMC5983MA(Device):
     @staticmethod
     def _check_bandwidth(bandwidth: int) -> None:
         if bandwidth not in range(len(MEASUREMENT_TIME_S)):
-            raise ConfigError(f"MMC5983MA bandwidth code {bandwidth!r}: must be 0, 1, 2 or 3")
+            raise OptionError(f"MMC5983MA bandwidth code {bandwidth!r}: must be 0, 1, 2 or 3")

@@ -51,9 +51,9 @@ import logging
 import re
 
 from drivers.base import Device, FieldSample
+from drivers.clock import Clock
+from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.transports.serial import SerialTransport, line_time_s
-from rig.clock import Clock
-from rig.errors import ConfigError, DeviceError, ProtocolError
 
 log = logging.getLogger("magrig.drivers.serialmag")
 
@@ -122,9 +122,9 @@ class SerialMagnetometer(Device):
     ):
         super().__init__(name, clock or transport.clock)
         if not 0 <= device_id <= 99:
-            raise ConfigError(f"{name}: device_id {device_id} is not in 0..99")
+            raise OptionError(f"{name}: device_id {device_id} is not in 0..99")
         if set_reset not in SET_RESET_MODES:
-            raise ConfigError(f"{name}: set_reset {set_reset!r} is not one of {', '.join(SET_RESET_MODES)}")
+            raise OptionError(f"{name}: set_reset {set_reset!r} is not one of {', '.join(SET_RESET_MODES)}")
         _check_rate(name, rate_hz)
         self.transport = transport
         self.device_id = device_id
@@ -359,7 +359,7 @@ class SerialMagnetometer(Device):
 
 def _check_rate(name: str, rate_hz: int) -> None:
     if rate_hz not in RATES_HZ:
-        raise ConfigError(f"{name}: rate_hz {rate_hz} is not one of {', '.join(map(str, RATES_HZ))}")
+        raise OptionError(f"{name}: rate_hz {rate_hz} is not one of {', '.join(map(str, RATES_HZ))}")
 
 
 def _half_sum_nt(reset, set_, reset_sign: int = 1) -> tuple[float, float, float]:

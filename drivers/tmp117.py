@@ -18,9 +18,9 @@ from __future__ import annotations
 import logging
 
 from drivers.base import Device, TempSample
+from drivers.clock import Clock
+from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.transports.i2c import I2CTransport, SMBusLike
-from rig.clock import Clock
-from rig.errors import ConfigError, DeviceError, ProtocolError
 
 log = logging.getLogger("magrig.drivers.tmp117")
 
@@ -103,11 +103,11 @@ class TMP117(Device):
     ):
         super().__init__(name, clock)
         if mode not in MODES:
-            raise ConfigError(f"{name}: mode {mode!r}: must be one of {', '.join(MODES)}")
+            raise OptionError(f"{name}: mode {mode!r}: must be one of {', '.join(MODES)}")
         if averaging not in AVG_CODES:
-            raise ConfigError(f"{name}: averaging {averaging!r}: must be 1, 8, 32 or 64")
+            raise OptionError(f"{name}: averaging {averaging!r}: must be 1, 8, 32 or 64")
         if conversion_code not in range(len(CONV_CYCLE_S)):
-            raise ConfigError(f"{name}: conversion_code {conversion_code!r}: must be 0..7")
+            raise OptionError(f"{name}: conversion_code {conversion_code!r}: must be 0..7")
         self.link = I2CTransport(bus, address, name=name, clock=self.clock, tries=tries)
         self.mode = mode
         self.averaging = averaging

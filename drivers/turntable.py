@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass
 
 from drivers.base import Device
+from drivers.clock import Clock
+from drivers.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
-from rig.clock import Clock
-from rig.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 
 MODEL_PREFIX = "MAGRIG-TT2"
 

@@ -31,8 +31,9 @@ from typing import Any
 import numpy as np
 
 from drivers.chamber import WatlowF4T
+from drivers.clock import Clock
+from rig import __version__
 from rig import config as cfg
-from rig.clock import Clock
 from rig.engine import (
     COMPLETED,
     Checkpoint,
@@ -47,7 +48,7 @@ from rig.engine import (
     Step,
     WaitStable,
 )
-from rig.errors import ConfigError, MagrigError, SessionError
+from rig.errors import ERRORS, ConfigError, SessionError
 from rig.plan import Point, compile_plan
 from rig.reference import CoilReference, TableReference, reference_for
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
@@ -89,7 +90,7 @@ class LiveFit:
             return f"n={self.acc.n}: not yet identifiable"
         try:
             cal = self.acc.solve()
-        except MagrigError:
+        except ERRORS:
             return f"n={self.acc.n}: not yet identifiable"
         se = cal.std_errors
         return (f"n={self.acc.n}: rms {cal.stats['rms_after_nt']:.1f} nT, largest se: "
@@ -256,7 +257,7 @@ class CampaignRunner:
         for dut, live in self.live.items():
             try:
                 ds = read_dataset(session_path, dut)
-            except MagrigError:
+            except ERRORS:
                 continue
             live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
             self.live_summaries[dut] = live.summary()
@@ -352,7 +353,7 @@ def record_final_state(rig: Rig, session) -> None:
     """After the engine's final safe_state: what the chamber and the field source report, as snapshots
     named "<device> final" (the evidence that the run ended with coils at 0 A / table stopped and the
     chamber at its safe setpoint)."""
-    with contextlib.suppress(MagrigError):
+    with contextlib.suppress(*ERRORS):
         rig.field_source.wait_settled(FIELD_SETTLE_TIMEOUT_S)  # readbacks follow the safe setpoints
     for dev in (rig.chamber, rig.field_source):
         try:
@@ -428,14 +429,14 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     for dut in station.duts:
         try:
             ds = read_dataset(session.path, dut.name)
-        except MagrigError as exc:
+        except ERRORS as exc:
             out.append({"dut": dut.name, "model": "-", "error": str(exc)})
             continue
         for model in plan.fit.models:
             entry: dict[str, Any] = {"dut": dut.name, "model": model}
             try:
-                cal = calib.fit(ds, model, robust=plan.fit.robust)
-            except MagrigError as exc:
+                cal = calib.fit(ds, model, robust=plan.fit.robust, software_version=__version__)
+            except ERRORS as exc:
                 entry["error"] = str(exc)
                 session.log_event("fit_failed", f"{dut.name} {model}: {exc}", level="WARNING",
                                   device=dut.name)

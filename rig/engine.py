@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from drivers.base import make_all_safe
-from rig.clock import Clock
-from rig.errors import DeviceError, MagrigError
+from drivers.clock import Clock
+from rig.errors import ERRORS, DeviceError, MagrigError
 from rig.settle import SettleCriteria
 
 log = logging.getLogger("magrig.engine")
@@ -233,7 +233,7 @@ class Engine:
             except KeyboardInterrupt:
                 status, reason = ABORTED, "interrupted"
             except Exception as exc:
-                reason = str(exc) if isinstance(exc, MagrigError) else f"{type(exc).__name__}: {exc}"
+                reason = str(exc) if isinstance(exc, ERRORS) else f"{type(exc).__name__}: {exc}"
                 status = FAILED
                 log.error("run failed: %s", reason)
             finally:

@@ -1,53 +1,39 @@
-"""One exception family. The CLI prints `str(err)` as one line; a traceback only with --debug."""
+"""One exception family for the user: the CLI prints `str(err)` of any of `ERRORS` as one line, and a
+traceback only with --debug. calib and drivers keep their own bases (they import nothing from rig);
+rig re-exports them so rig code has one place to import errors from."""
 
 from __future__ import annotations
 
+from calib.errors import CalibError, DataError, FitError
+from drivers.errors import (
+    DeviceError,
+    DeviceFault,
+    DeviceNotFound,
+    DeviceTimeout,
+    DriverError,
+    LimitError,
+    OptionError,
+    ProtocolError,
+)
+
 
 class MagrigError(Exception):
-    """Base of every error the project raises on purpose."""
+    """Base of the errors rig itself raises on purpose."""
 
 
 class ConfigError(MagrigError):
     """A station, plan or option is wrong. The message names the file and key path (and line if known)."""
 
 
-class LimitError(MagrigError):
-    """A command would exceed a station limit; raised before anything is written to the hardware."""
-
-
-class DataError(MagrigError):
-    """Input data is unusable. The message names the file and the row, column or field."""
-
-
-class FitError(MagrigError):
-    """A fit cannot be made or trusted (singular design, too few rows); names the parameter group."""
-
-
 class SessionError(MagrigError):
     """A session file is missing, damaged, not a session, or cannot be resumed."""
 
 
-class DeviceError(MagrigError):
-    """A device failed. Always names the device and the operation that failed."""
+# Everything the project raises on purpose: caught as one line by the CLI, the engine and the reports.
+ERRORS = (MagrigError, DriverError, CalibError)
 
-    def __init__(self, device: str, operation: str, detail: str):
-        self.device = device
-        self.operation = operation
-        self.detail = detail
-        super().__init__(f"{device}: {operation}: {detail}")
-
-
-class DeviceTimeout(DeviceError):
-    """No (complete) reply within the timeout, after the retries."""
-
-
-class ProtocolError(DeviceError):
-    """A reply arrived but is malformed: garbled frame, bad checksum, wrong id, exception reply."""
-
-
-class DeviceNotFound(DeviceError):
-    """Nothing answers at the address / port (I2C NACK, port missing, connection refused)."""
-
-
-class DeviceFault(DeviceError):
-    """The device itself reports a fault (chamber alarm, coil compliance fault, turntable fault)."""
+__all__ = [
+    "ERRORS", "CalibError", "ConfigError", "DataError", "DeviceError", "DeviceFault", "DeviceNotFound",
+    "DeviceTimeout", "DriverError", "FitError", "LimitError", "MagrigError", "OptionError", "ProtocolError",
+    "SessionError",
+]

@@ -27,6 +27,7 @@ from typing import Any
 
 from drivers.base import Device, make_all_safe
 from drivers.chamber import WatlowF4, WatlowF4T
+from drivers.clock import Clock, RealClock, SimClock
 from drivers.coils import CoilController
 from drivers.hmc5883l import HMC5883L
 from drivers.mmc5983ma import MMC5983MA
@@ -35,8 +36,7 @@ from drivers.tmp117 import TMP117
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import Turntable
 from rig import config as cfg
-from rig.clock import Clock, RealClock, SimClock
-from rig.errors import MagrigError, SessionError
+from rig.errors import ERRORS, SessionError
 
 MODBUS_TRIES = 3
 
@@ -167,7 +167,7 @@ def build_devices(station: cfg.Station, plan: cfg.Plan | None = None, clock: Clo
         for name, factory in _factories(station, plan, clock, built.world, started):
             try:
                 built.devices[name] = factory()
-            except (MagrigError, OSError) as exc:
+            except (*ERRORS, OSError) as exc:
                 if errors is None:
                     raise
                 errors[name] = str(exc)
@@ -308,7 +308,7 @@ def check_devices(station: cfg.Station) -> list[tuple[str, dict | None, Any, str
                 connected = True
                 dev.safe_state()
                 results.append((name, dev.describe(), dev.read(), None))
-            except (MagrigError, OSError) as exc:
+            except (*ERRORS, OSError) as exc:
                 results.append((name, None, None, str(exc)))
             finally:
                 if connected:

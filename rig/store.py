@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.clock import Clock, RealClock
 from rig import __version__
-from rig.clock import Clock, RealClock
 from rig.errors import SessionError
 
 SCHEMA_VERSION = 1

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig.clock import Clock
+from drivers.clock import Clock
 
 MAX_THERMAL_STEP_S = 2.0  # integration sub-step; the lag model is exact within a step of constant air
 

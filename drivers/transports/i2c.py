@@ -20,9 +20,9 @@ import logging
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar
 
+from drivers.clock import Clock, RealClock
+from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
 from drivers.transports.retry import with_retries
-from rig.clock import Clock, RealClock
-from rig.errors import DeviceError, DeviceNotFound, DeviceTimeout
 
 log = logging.getLogger("magrig.transport.i2c")
 

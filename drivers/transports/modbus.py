@@ -36,9 +36,9 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.client.mixin import ModbusClientMixin
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
+from drivers.clock import Clock, RealClock
+from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout, ProtocolError
 from drivers.transports.retry import with_retries
-from rig.clock import Clock, RealClock
-from rig.errors import DeviceError, DeviceNotFound, DeviceTimeout, ProtocolError
 
 WordOrder = Literal["big", "little"]
 T = TypeVar("T")

@@ -6,8 +6,8 @@ import logging
 from collections.abc import Callable
 from typing import TypeVar
 
-from rig.clock import Clock, RealClock
-from rig.errors import DeviceError, DeviceTimeout
+from drivers.clock import Clock, RealClock
+from drivers.errors import DeviceError, DeviceTimeout
 
 T = TypeVar("T")
 log = logging.getLogger("magrig.transport")

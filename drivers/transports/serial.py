@@ -33,9 +33,9 @@ from typing import Any, TypeVar
 
 import serial
 
+from drivers.clock import Clock, RealClock
+from drivers.errors import DeviceNotFound, DeviceTimeout
 from drivers.transports.retry import with_retries
-from rig.clock import Clock, RealClock
-from rig.errors import DeviceNotFound, DeviceTimeout
 
 T = TypeVar("T")
 log = logging.getLogger("magrig.transport.serial")

@@ -18,7 +18,7 @@ import sys  # noqa: E402
 import click
 
 from rig import __version__
-from rig.errors import MagrigError
+from rig.errors import ERRORS
 
 
 @click.group()
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in args
     try:
         cli.main(args=args, prog_name="rig", standalone_mode=False)
-    except MagrigError as err:
+    except ERRORS as err:
         if debug:
             raise
         click.echo(f"error: {err}", err=True)

@@ -7,6 +7,8 @@ from pathlib import Path
 import click
 import numpy as np
 
+from rig import __version__
+
 MODEL_CHOICE = click.Choice(["t24", "p12", "scalar"])
 
 
@@ -101,6 +103,7 @@ def refit(
         temp_ref_c=temp_ref_c,
         field_norm_nt=field_norm_nt,
         balance_orientations=balance_orientations,
+        software_version=__version__,
     )
     calfile.save(cal, output)
     print_summary(cal)

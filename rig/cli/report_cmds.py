@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from rig.errors import DataError, MagrigError, SessionError
+from rig.errors import ERRORS, DataError, SessionError
 from rig.exports import FORMATS
 
 SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")
@@ -88,7 +88,7 @@ def sessions_cmd(directory: Path) -> None:
     for path in files:
         try:
             click.echo(session_line(path))
-        except MagrigError as exc:
+        except ERRORS as exc:
             click.echo(skipped_line(path, str(exc)))
 
 

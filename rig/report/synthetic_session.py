@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import synthetic
-from rig.clock import SimClock
+from drivers.clock import SimClock
 from rig.plan import point_id
 from rig.store import SampleRow, Session
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from drivers.chamber import WatlowF4T
+from drivers.clock import SimClock
 from drivers.coils import CoilController
 from drivers.sim.chamber import ChamberSim
 from drivers.sim.coils import CoilSim
@@ -14,7 +15,6 @@ from drivers.sim.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import Turntable
-from rig.clock import SimClock
 
 pytestmark = pytest.mark.system
 

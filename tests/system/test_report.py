@@ -103,8 +103,8 @@ def test_sessions_lists_it(session, capsys):
 
 def test_report_of_a_simulated_campaign(tmp_path, capsys):
     """The demo plan run by the campaign engine on the simulated station, then reported."""
+    from drivers.clock import SimClock
     from rig.campaign import run_campaign
-    from rig.clock import SimClock
     from rig.config import load_campaign
 
     session = tmp_path / "demo.session"

@@ -7,10 +7,10 @@ import threading
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
 from drivers.serialmag import SerialMagnetometer
 from drivers.sim.serialmag import SerialMagSim
 from drivers.sim.world import DutTruth, World
-from rig.clock import SimClock
 from rig.errors import DeviceNotFound, DeviceTimeout
 
 pytestmark = pytest.mark.system

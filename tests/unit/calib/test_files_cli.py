@@ -198,7 +198,7 @@ def test_session_file_goes_to_the_store(tmp_path, capsys):
 def test_refit_reads_a_real_session_file(tmp_path, capsys):
     from pathlib import Path
 
-    from rig.clock import SimClock
+    from drivers.clock import SimClock
     from rig.config import load_campaign
     from rig.plan import compile_plan
     from rig.store import SampleRow, Session

@@ -5,8 +5,8 @@ import pytest
 
 import calib
 from calib import gram, synthetic
+from calib.errors import FitError
 from calib.gram import GramAccumulator
-from rig.errors import FitError
 
 
 def _dataset(seed=0, **kw):

@@ -5,7 +5,7 @@ import pytest
 
 import calib
 from calib import p12, scalar, synthetic
-from rig.errors import FitError
+from calib.errors import FitError
 
 
 def test_p12_recovers_truth_within_a_few_standard_errors():

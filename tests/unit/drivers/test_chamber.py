@@ -5,12 +5,12 @@ from __future__ import annotations
 import pytest
 
 from drivers.chamber import ALARM_REGISTER, F4_SETPOINT, F4T_SETPOINT, WatlowF4, WatlowF4T
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.sim.chamber import ChamberSim
 from drivers.sim.modbus_server import ScriptedPeer
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
-from rig.clock import SimClock
-from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, LimitError, ProtocolError
 
 LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
 
@@ -214,13 +214,13 @@ def test_f4_legacy_scaling_and_units(world, clock, decimals, units_c):
         reading = chamber.read()
         assert reading.setpoint_c == pytest.approx(-20.0, abs=0.05) and reading.alarm
         assert sim.register_values(ALARM_REGISTER, 1) == [1]
-        with pytest.raises(ConfigError, match="no ramp-rate register"):
+        with pytest.raises(OptionError, match="no ramp-rate register"):
             chamber.set_ramp_rate(1.0)
         chamber.close()
 
 
 def test_safe_setpoint_must_be_inside_limits(clock):
-    with pytest.raises(ConfigError, match="safe_setpoint_c 150"):
+    with pytest.raises(OptionError, match="safe_setpoint_c 150"):
         WatlowF4T(transport(1, clock), name="chamber", clock=clock, **{**LIMITS, "safe_setpoint_c": 150.0})
 
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
 from drivers.coils import OUTPUT_ENABLE, SETPOINT_UA, CoilController
+from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.sim.coils import CoilSim
 from drivers.sim.modbus_server import ScriptedPeer
 from drivers.sim.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
-from rig.clock import SimClock
-from rig.errors import ConfigError, DeviceFault, DeviceTimeout, LimitError, ProtocolError
 
 
 @pytest.fixture
@@ -167,7 +167,7 @@ def test_connect_checks_identity_and_rating(world, clock):
         with pytest.raises(ProtocolError, match="is not a MAGRIG-HC3 controller"):
             controller(table.port, clock).connect()
     with CoilSim(world, rated_current_a=3.0) as sim:
-        with pytest.raises(ConfigError, match="max_current_a 5.0 A exceeds the controller's rating 3.0 A"):
+        with pytest.raises(OptionError, match="max_current_a 5.0 A exceeds the controller's rating 3.0 A"):
             controller(sim.port, clock, max_current_a=5.0).connect()
         coils = controller(sim.port, clock)
         coils.connect()

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 from drivers.hmc5883l import HMC5883L, code_to_nt, config_a, decode_temp_c, decode_xzy
 from drivers.sim.hmc5883l import HMC5883LSim
 from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
 from drivers.sim.world import DutTruth, World
-from rig.clock import SimClock
-from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, ProtocolError
 
 # --- literal bytes from the datasheet ---------------------------------------------------------------
 CONNECT = [
@@ -87,7 +87,7 @@ def test_gain_change_discards_one_measurement() -> None:
     assert dev.read().field_nt[0] == pytest.approx(256 / 390 * 100_000)
     dev.read()  # no discard the second time
     bus.assert_done()
-    with pytest.raises(ConfigError, match="gain code 8"):
+    with pytest.raises(OptionError, match="gain code 8"):
         dev.set_gain(8)
 
 
@@ -234,9 +234,9 @@ def test_describe(world: World) -> None:
 
 
 def test_bad_options_are_config_errors() -> None:
-    with pytest.raises(ConfigError, match="variant 'HMC5843'"):
+    with pytest.raises(OptionError, match="variant 'HMC5843'"):
         HMC5883L(FakeSMBus(), variant="HMC5843")
-    with pytest.raises(ConfigError, match="output_rate_code 7: must be 0..6"):
+    with pytest.raises(OptionError, match="output_rate_code 7: must be 0..6"):
         HMC5883L(FakeSMBus(), output_rate_code=7)
 
 

@@ -7,10 +7,10 @@ import logging
 
 import pytest
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
 from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, RegisterChip, ScriptedSMBus
 from drivers.transports.i2c import I2CTransport, open_smbus
-from rig.clock import SimClock
-from rig.errors import DeviceError, DeviceNotFound, DeviceTimeout
 
 ADDR = 0x30
 

@@ -7,12 +7,12 @@ import logging
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 from drivers.mmc5983ma import MMC5983MA, code_to_nt, decode_field_codes, decode_temp_c, status_timeout_s
 from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
 from drivers.sim.mmc5983ma import MMC5983MASim
 from drivers.sim.world import DutTruth, World
-from rig.clock import SimClock
-from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, ProtocolError
 
 NT_PER_COUNT = 100_000 / 16384  # 18-bit mode: 16384 counts per gauss
 
@@ -128,7 +128,7 @@ def test_bandwidth_transcript_and_shorter_wait() -> None:
     dev.read()
     bus.assert_done()
     assert clock.now() - start == pytest.approx(0.0005, abs=1e-6)
-    with pytest.raises(ConfigError, match="bandwidth code 4"):
+    with pytest.raises(OptionError, match="bandwidth code 4"):
         dev.set_bandwidth(4)
 
 
@@ -149,9 +149,9 @@ def test_continuous_mode_transcript() -> None:
 
 def test_continuous_rate_checks() -> None:
     dev, _, _ = scripted([])
-    with pytest.raises(ConfigError, match="continuous rate 30 Hz"):
+    with pytest.raises(OptionError, match="continuous rate 30 Hz"):
         dev.start_continuous(30)
-    with pytest.raises(ConfigError, match="1000 Hz needs bandwidth code >= 3"):
+    with pytest.raises(OptionError, match="1000 Hz needs bandwidth code >= 3"):
         dev.start_continuous(1000)
 
 

@@ -8,6 +8,8 @@ import socket
 import pytest
 from pymodbus.simulator import SimDevice
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
 from drivers.sim.modbus_server import ModbusSimServer, ScriptedPeer, register_block
 from drivers.transports.modbus import (
     ModbusTransport,
@@ -20,8 +22,6 @@ from drivers.transports.modbus import (
     encode_int32,
     encode_string,
 )
-from rig.clock import SimClock
-from rig.errors import DeviceNotFound, DeviceTimeout, ProtocolError
 
 TIMEOUT_S = 0.2
 

@@ -8,9 +8,9 @@ import termios
 import pytest
 import serial
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
 from drivers.transports.serial import SerialTransport, line_time_s
-from rig.clock import SimClock
-from rig.errors import DeviceNotFound, DeviceTimeout, ProtocolError
 
 
 class ScriptedPort:

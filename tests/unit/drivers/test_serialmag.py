@@ -6,9 +6,9 @@ import logging
 
 import pytest
 
+from drivers.errors import DeviceTimeout, OptionError, ProtocolError
 from drivers.serialmag import SerialMagnetometer, parse_sample_line
 from drivers.sim.serialmag import format_sample_line
-from rig.errors import ConfigError, DeviceTimeout, ProtocolError
 from tests.unit.drivers.test_serial_transport import ScriptedPort, scripted_transport
 
 # X = 12,345 Y = -1,234 Z = 567 counts: sign byte, 6-byte magnitude, two spaces per axis, CR.
@@ -112,7 +112,7 @@ def test_rate_is_write_enabled_and_checked_before_writing():
     mag.set_rate(154)
     assert mag.rate_hz == 154 and port.writes[-2:] == [b"*00WE\r", b"*00R=154\r"]
     sent = len(port.writes)
-    with pytest.raises(ConfigError, match="dut2: rate_hz 33 is not one of 10, 20, 25"):
+    with pytest.raises(OptionError, match="dut2: rate_hz 33 is not one of 10, 20, 25"):
         mag.set_rate(33)
     assert len(port.writes) == sent
 
@@ -208,7 +208,7 @@ def test_safe_state_never_raises_on_a_dead_port(caplog):
 
 def test_bad_settings_are_config_errors():
     transport = scripted_transport()
-    with pytest.raises(ConfigError, match="dut2: device_id 100"):
+    with pytest.raises(OptionError, match="dut2: device_id 100"):
         SerialMagnetometer(transport, name="dut2", device_id=100)
-    with pytest.raises(ConfigError, match="dut2: set_reset 'sometimes'"):
+    with pytest.raises(OptionError, match="dut2: set_reset 'sometimes'"):
         SerialMagnetometer(transport, name="dut2", set_reset="sometimes")

@@ -7,12 +7,12 @@ import logging
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
 from drivers.sim.tmp117 import TMP117Sim
 from drivers.sim.world import DutTruth, World
 from drivers.tmp117 import TMP117, config_word, cycle_time_s, decode_temp_c
-from rig.clock import SimClock
-from rig.errors import ConfigError, DeviceNotFound, DeviceTimeout, ProtocolError
 
 LSB_C = 0.0078125
 
@@ -86,9 +86,9 @@ def test_safe_state_transcript() -> None:
 
 
 def test_bad_options_are_config_errors() -> None:
-    with pytest.raises(ConfigError, match="averaging 4: must be 1, 8, 32 or 64"):
+    with pytest.raises(OptionError, match="averaging 4: must be 1, 8, 32 or 64"):
         TMP117(FakeSMBus(), averaging=4)
-    with pytest.raises(ConfigError, match="mode 'fast'"):
+    with pytest.raises(OptionError, match="mode 'fast'"):
         TMP117(FakeSMBus(), mode="fast")
 
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import pytest
 
+from drivers.clock import SimClock
+from drivers.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 from drivers.sim.modbus_server import ScriptedPeer
 from drivers.sim.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import TARGET_MDEG, Turntable
-from rig.clock import SimClock
-from rig.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 
 
 @pytest.fixture

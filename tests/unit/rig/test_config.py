@@ -260,10 +260,10 @@ def test_simulated_ambient_and_site_defaults(tmp_path):
 
 
 def test_dut_options_become_valid_driver_arguments():
+    from drivers.clock import SimClock
     from drivers.hmc5883l import HMC5883L, OUTPUT_RATE_HZ
     from drivers.mmc5983ma import MMC5983MA
     from drivers.serialmag import SerialMagnetometer
-    from rig.clock import SimClock
 
     classes = {"mmc5983ma": MMC5983MA, "hmc5983": HMC5883L, "serialmag": SerialMagnetometer}
     station = load_station(CONFIGS_DIR / "stations" / "lab-example.yaml")

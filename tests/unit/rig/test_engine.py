@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from rig.clock import SimClock
+from drivers.clock import SimClock
 from rig.engine import (
     ABORTED,
     COMPLETED,

@@ -7,8 +7,8 @@ import datetime as dt
 import numpy as np
 import pytest
 
+from drivers.clock import SimClock
 from drivers.sim.world import World
-from rig.clock import SimClock
 from rig.config import DEFAULT_STATION, Station, load_station
 from rig.errors import ConfigError
 from rig.reference import (

@@ -16,7 +16,7 @@ import pytest
 
 from calib.dataset import Dataset
 from drivers.base import FieldSample
-from rig.clock import SimClock
+from drivers.clock import SimClock
 from rig.config import load_campaign
 from rig.errors import SessionError
 from rig.plan import compile_plan
