@@ -4,6 +4,12 @@
     bus.attach(0x30, MMC5983MASim(world, "dut1"))
     bus.nack(0x30, count=2)    # NACK the next 2 transfers to 0x30 (count=None: all, until nack(addr, 0))
     bus.detach(0x30)           # unplug: every transfer raises OSError(121, "Remote I/O error")
+    mux = bus.add_switch(0x70) # a TCA9548A; mux.attach(3, 0x30, chip) puts a chip behind channel 3
+
+A chip behind a switch answers only while its channel is enabled. When several chips answer at one
+address (two enabled channels, or a channel and the main bus), every one of them takes each write, and a
+read returns the bitwise AND of their bytes: I2C is open-drain (wired-AND), so the master sees a garbled
+mix; both chips ACK, so nothing fails loudly. The notes (1.5) only say such chips "share the bus".
 
 Chips implement `on_read(register, length) -> bytes` and `on_write(register, data)`; `RegisterChip`
 gives them a byte register file with auto-increment. `RecordingSMBus(inner)` records every transfer
@@ -25,6 +31,97 @@ class I2CChip(Protocol):
     def on_read(self, register: int, length: int) -> bytes: ...
 
     def on_write(self, register: int, data: bytes) -> None: ...
+
+
+SWITCH_CHANNELS = 8
+SWITCH_POWER_UP = 0x00
+
+
+class I2CSwitchSim:
+    """TI TCA9548A / NXP PCA9548A (hardware-notes 1.5): one control byte, no register pointer; bit n
+    connects channel n; power-up and RESET give 0x00; reading one byte returns the control byte.
+
+    Fault hooks: `readback = value` (reads return that byte whatever was written; None heals); an absent
+    switch is `bus.nack(address)` or `bus.detach(address)`. `reset()` is the RESET pin.
+    """
+
+    def __init__(self) -> None:
+        self.control = SWITCH_POWER_UP
+        self.channels: list[dict[int, I2CChip]] = [{} for _ in range(SWITCH_CHANNELS)]
+        self.readback: int | None = None
+        self.writes = 0  # control bytes received, for tests and benches
+
+    def attach(self, channel: int, address: int, chip: I2CChip) -> None:
+        self.channels[channel][address] = chip
+
+    def detach(self, channel: int, address: int) -> I2CChip | None:
+        return self.channels[channel].pop(address, None)
+
+    def reset(self) -> None:
+        self.control = SWITCH_POWER_UP
+
+    def on_send(self, value: int) -> None:
+        self.control = value
+        self.writes += 1
+
+    def on_receive(self) -> int:
+        return self.control if self.readback is None else self.readback
+
+    def visible(self, address: int) -> list[I2CChip]:
+        """The chips at `address` on the enabled channels."""
+        return [
+            chips[address] for n, chips in enumerate(self.channels)
+            if self.control >> n & 1 and address in chips
+        ]
+
+    # The notes describe only single-byte control transfers: a register-style transfer is not modelled.
+    def on_read(self, register: int, length: int) -> bytes:
+        raise ValueError("I2C switch: register reads are not described (read one byte: read_byte)")
+
+    def on_write(self, register: int, data: bytes) -> None:
+        raise ValueError("I2C switch: register writes are not described (write one byte: write_byte)")
+
+
+class _Collision:
+    """Several chips answering at one address: writes reach all, reads are the wired-AND of their bytes."""
+
+    def __init__(self, chips: list):
+        self.chips = chips
+
+    def on_read(self, register: int, length: int) -> bytes:
+        replies = [chip.on_read(register, length) for chip in self.chips]
+        return bytes(_wired_and(column) for column in zip(*replies, strict=True))
+
+    def on_write(self, register: int, data: bytes) -> None:
+        for chip in self.chips:
+            chip.on_write(register, data)
+
+    def on_send(self, value: int) -> None:
+        for chip in self.chips:
+            _send(chip, value)
+
+    def on_receive(self) -> int:
+        return _wired_and([_receive(chip) for chip in self.chips])
+
+
+def _wired_and(values) -> int:
+    out = 0xFF
+    for v in values:
+        out &= v
+    return out
+
+
+def _send(chip: object, value: int) -> None:
+    """A plain one-byte write (smbus2 write_byte): only chips without a register pointer model it."""
+    if not hasattr(chip, "on_send"):
+        raise ValueError(f"{type(chip).__name__}: one-byte writes without a register are not modelled")
+    chip.on_send(value)  # type: ignore[attr-defined]
+
+
+def _receive(chip: object) -> int:
+    if not hasattr(chip, "on_receive"):
+        raise ValueError(f"{type(chip).__name__}: one-byte reads without a register are not modelled")
+    return chip.on_receive()  # type: ignore[attr-defined]
 
 
 def _nack() -> OSError:
@@ -92,7 +189,7 @@ class FakeSMBus:
         else:
             self._nacks[address] = count
 
-    def _chip(self, address: int) -> I2CChip:
+    def _chip(self, address: int):
         if address in self._nacks:
             left = self._nacks[address]
             if left is not None:
@@ -101,10 +198,24 @@ class FakeSMBus:
                 else:
                     self._nacks[address] = left - 1
             raise _nack()
-        chip = self.chips.get(address)
-        if chip is None:
+        found = self._answering(address)
+        if not found:
             raise _nack()
-        return chip
+        return found[0] if len(found) == 1 else _Collision(found)
+
+    def _answering(self, address: int) -> list:
+        """Every chip that ACKs `address`: on the main bus, and behind enabled switch channels."""
+        found = [self.chips[address]] if address in self.chips else []
+        for chip in self.chips.values():
+            if isinstance(chip, I2CSwitchSim):
+                found += chip.visible(address)
+        return found
+
+    def add_switch(self, address: int) -> I2CSwitchSim:
+        """A TCA9548A on the main bus at `address` (0x70..0x77), all channels off."""
+        switch = I2CSwitchSim()
+        self.attach(address, switch)
+        return switch
 
     # --- smbus2 API -------------------------------------------------------------------------------
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
@@ -113,6 +224,13 @@ class FakeSMBus:
     def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         _check_byte(value)
         self._chip(i2c_addr).on_write(register, bytes([value]))
+
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        return _receive(self._chip(i2c_addr))
+
+    def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
+        _check_byte(value)
+        _send(self._chip(i2c_addr), value)
 
     def read_word_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         """SMBus words are little-endian: the first byte on the wire is the low byte."""
@@ -147,16 +265,18 @@ class FakeSMBus:
 
 @dataclass(frozen=True)
 class I2CCall:
-    """One transfer as seen on the wire: "read" or "write", address, register, the data bytes."""
+    """One transfer as seen on the wire: "read" or "write", address, register (None for a one-byte
+    transfer without register pointer, smbus2 read_byte / write_byte), the data bytes."""
 
     op: str
     address: int
-    register: int
+    register: int | None
     data: bytes
 
     def __str__(self) -> str:
         arrow = "->" if self.op == "read" else "<-"
-        return f"{self.op} 0x{self.address:02X} reg 0x{self.register:02X} {arrow} {self.data.hex(' ')}"
+        reg = "-" if self.register is None else f"0x{self.register:02X}"
+        return f"{self.op} 0x{self.address:02X} reg {reg} {arrow} {self.data.hex(' ')}"
 
 
 class RecordingSMBus:
@@ -174,11 +294,11 @@ class RecordingSMBus:
         bus.attach(address, chip)
         return cls(bus)
 
-    def transcript(self) -> list[tuple[str, int, bytes]]:
+    def transcript(self) -> list[tuple[str, int | None, bytes]]:
         """The calls as (op, register, data), the form ScriptedSMBus and transcript tests use."""
         return [(c.op, c.register, c.data) for c in self.calls]
 
-    def _record(self, op: str, address: int, register: int, run: Callable[[], bytes]) -> bytes:
+    def _record(self, op: str, address: int, register: int | None, run: Callable[[], bytes]) -> bytes:
         try:
             data = run()
         except OSError:
@@ -210,6 +330,16 @@ class RecordingSMBus:
 
         self._record("write", i2c_addr, register, run)
 
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        return self._record("read", i2c_addr, None, lambda: bytes([self.inner.read_byte(i2c_addr)]))[0]
+
+    def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
+        def run() -> bytes:
+            self.inner.write_byte(i2c_addr, value)
+            return bytes([value])
+
+        self._record("write", i2c_addr, None, run)
+
 
 class ScriptedSMBus:
     """Plays a transcript for one chip: entries ("write", register, bytes) must match the driver's
@@ -222,7 +352,7 @@ class ScriptedSMBus:
         self.step = 0
         self.calls: list[I2CCall] = []
 
-    def _next(self, op: str, address: int, register: int, data: bytes, length: int) -> bytes:
+    def _next(self, op: str, address: int, register: int | None, data: bytes, length: int) -> bytes:
         want = self.script[self.step] if self.step < len(self.script) else None
         if (
             address != self.address or want is None or want[0] != op or want[1] != register
@@ -234,14 +364,14 @@ class ScriptedSMBus:
         self.calls.append(I2CCall(op, address, register, reply))
         return reply
 
-    def _mismatch(self, op: str, address: int, register: int, data: bytes, length: int) -> str:
-        got = f"{op} 0x{register:02X} ({length} bytes{': ' + data.hex(' ') if op == 'write' else ''})"
+    def _mismatch(self, op: str, address: int, register: int | None, data: bytes, length: int) -> str:
+        got = f"{op} {_reg(register)} ({length} bytes{': ' + data.hex(' ') if op == 'write' else ''})"
         if address != self.address:
             return f"step {self.step}: {got} sent to 0x{address:02X}, not 0x{self.address:02X}"
         if self.step >= len(self.script):
             return f"step {self.step}: {got} after the end of the transcript"
         want_op, want_register, want_data = self.script[self.step]
-        want = f"{want_op} 0x{want_register:02X} ({len(want_data)} bytes: {want_data.hex(' ')})"
+        want = f"{want_op} {_reg(want_register)} ({len(want_data)} bytes: {want_data.hex(' ')})"
         return f"step {self.step}: expected {want}, got {got}"
 
     def assert_done(self) -> None:
@@ -251,6 +381,12 @@ class ScriptedSMBus:
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._next("read", i2c_addr, register, b"", 1)[0]
+
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        return self._next("read", i2c_addr, None, b"", 1)[0]
+
+    def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
+        self._next("write", i2c_addr, None, bytes([value]), 1)
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._next("write", i2c_addr, register, bytes([value]), 1)
@@ -264,3 +400,7 @@ class ScriptedSMBus:
         self, i2c_addr: int, register: int, data: list[int], force: bool | None = None
     ) -> None:
         self._next("write", i2c_addr, register, bytes(data), len(data))
+
+
+def _reg(register: int | None) -> str:
+    return "(no register)" if register is None else f"0x{register:02X}"

@@ -1,0 +1,218 @@
+"""TI TCA9548A / NXP PCA9548A 8-channel I2C switch, and a bus wrapper that selects a channel per transfer.
+
+    switch = TCA9548A(bus, 0x70, name="mux0")
+    dut_bus = MuxedBus(bus, 0x70, channel=3, name="mux0")   # give dut_bus to MMC5983MA, TMP117...
+    MMC5983MA(dut_bus, 0x30, name="dut4")
+
+Facts (hardware-notes 1.5): address 0x70..0x77 (A2A1A0), up to 8 switches and 64 channels on one bus;
+one control byte and no register pointer (smbus2 `write_byte(addr, mask)` / `read_byte(addr)`), bit n
+enables channel n; power-up and RESET leave 0x00 (all channels off).
+
+Policy: at most one channel of all the switches on a physical bus is enabled at any time, so two
+identical DUTs (two MMC5983MA at 0x30) can never answer together. Every MuxedBus on the same bus object
+shares one lock and one record of each switch's control byte: the channel is written only when it is not
+already selected, and read back after every write. A switch that does not answer or reads back another
+byte is reported as a fault of the switch (DeviceNotFound / ProtocolError naming the switch), never of the
+DUT behind it; the switch's byte is then unknown and written again at the next transfer.
+
+A switch whose state is unknown (never written by this process) is switched off before another switch's
+channel is enabled, so a channel left on by an earlier run cannot collide. With the Linux kernel driver
+(i2c-mux-pca954x) bound, each channel is its own /dev/i2c-N: use that bus directly, not MuxedBus.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import threading
+import weakref
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
+
+log = logging.getLogger("magrig.drivers.tca9548a")
+
+# --- register map: one control byte ---------------------------------------------------------------------
+ADDRESSES = range(0x70, 0x78)  # 0x70 + A2A1A0
+CHANNELS = 8  # bit n of the control byte enables channel n
+POWER_UP_CONTROL = 0x00  # all channels disabled after power-up or RESET
+NACK_ERRNO = errno.EREMOTEIO
+T = TypeVar("T")
+
+
+def channel_mask(channel: int) -> int:
+    """Control byte enabling exactly `channel` (0..7)."""
+    if channel not in range(CHANNELS):
+        raise OptionError(f"I2C switch channel {channel!r}: must be 0..{CHANNELS - 1}")
+    return 1 << channel
+
+
+def check_address(address: int) -> None:
+    if address not in ADDRESSES:
+        raise OptionError(f"I2C switch address 0x{address:02X}: a TCA9548A answers at 0x70..0x77")
+
+
+class TCA9548A:
+    """One switch at one address. Not locked itself: MuxedBus calls it under the bus lock."""
+
+    def __init__(self, bus: Any, address: int = 0x70, *, name: str | None = None):
+        check_address(address)
+        self.bus = bus
+        self.address = address
+        self.name = name or f"i2c switch 0x{address:02X}"
+        self.control: int | None = None  # last byte written and read back; None: unknown
+
+    def write_control(self, value: int) -> None:
+        """Write the control byte and verify it by reading it back."""
+        what = f"write control byte 0x{value:02X}"
+        self.control = None  # unknown until the read-back agrees
+        self._call(lambda: self.bus.write_byte(self.address, value), what)
+        got = self.read_control()
+        if got != value:
+            raise ProtocolError(
+                self.name, what,
+                f"switch at 0x{self.address:02X} read back 0x{got:02X}: a fault of the I2C switch, "
+                "not of the device behind it",
+            )
+        self.control = value
+        log.debug("%s: control 0x%02X", self.name, value, extra={"device": self.name})
+
+    def read_control(self) -> int:
+        return self._call(lambda: self.bus.read_byte(self.address), "read control byte")
+
+    def select(self, channel: int) -> None:
+        """Enable `channel` alone (written only when it is not known to be selected already)."""
+        mask = channel_mask(channel)
+        if self.control != mask:
+            self.write_control(mask)
+
+    def disable(self) -> None:
+        """All channels off (the power-up state); written only when not known to be off already."""
+        if self.control != POWER_UP_CONTROL:
+            self.write_control(POWER_UP_CONTROL)
+
+    def _call(self, transfer: Callable[[], T], what: str) -> T:
+        try:
+            return transfer()
+        except OSError as exc:
+            self.control = None
+            where = f"switch at 0x{self.address:02X}"
+            if exc.errno == NACK_ERRNO:
+                detail = f"no ACK from the {where}: a fault of the I2C switch, not of the device behind it"
+                raise DeviceNotFound(self.name, what, detail) from exc
+            if exc.errno == errno.ETIMEDOUT:
+                raise DeviceTimeout(self.name, what, f"bus timeout at the {where}") from exc
+            raise DeviceError(self.name, what, f"I2C error at the {where}: {exc}") from exc
+
+
+class _PhysicalBus:
+    """What every MuxedBus on one bus object shares: the lock and the switches by address."""
+
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.switches: dict[int, TCA9548A] = {}
+
+    def switch(self, bus: Any, address: int, name: str | None) -> TCA9548A:
+        with self.lock:
+            found = self.switches.get(address)
+            if found is None:
+                found = self.switches[address] = TCA9548A(bus, address, name=name)
+            return found
+
+    def select(self, address: int, channel: int) -> None:
+        """Enable one channel of one switch, every other switch off first (call under the lock)."""
+        for other in self.switches.values():
+            if other.address != address:
+                other.disable()
+        self.switches[address].select(channel)
+
+
+_BUSES: weakref.WeakKeyDictionary[Any, _PhysicalBus] = weakref.WeakKeyDictionary()
+_BUSES_LOCK = threading.Lock()
+
+
+def _physical(bus: Any) -> _PhysicalBus:
+    with _BUSES_LOCK:
+        shared = _BUSES.get(bus)
+        if shared is None:
+            shared = _BUSES[bus] = _PhysicalBus()
+        return shared
+
+
+def bus_lock(bus: Any) -> threading.RLock:
+    """The lock that MuxedBus holds on `bus` for each switch-select-and-transfer."""
+    return _physical(bus).lock
+
+
+def switch_on(bus: Any, address: int, name: str | None = None) -> TCA9548A:
+    """The one TCA9548A object for `address` on `bus` (created on first use; `name` applies then)."""
+    return _physical(bus).switch(bus, address, name)
+
+
+def disable_all(bus: Any) -> None:
+    """Every known switch on `bus` off (safe state): all tried, the first failure raised afterwards."""
+    shared = _physical(bus)
+    first: DeviceError | None = None
+    with shared.lock:
+        for switch in shared.switches.values():
+            try:
+                switch.write_control(POWER_UP_CONTROL)
+            except DeviceError as exc:
+                first = first or exc
+    if first is not None:
+        raise first
+
+
+class MuxedBus:
+    """The smbus2 methods our drivers use, each preceded by selecting one switch channel.
+
+    Hand it to a driver in place of the bus. The bus object itself is shared and never closed here.
+    """
+
+    def __init__(self, bus: Any, address: int, channel: int, *, name: str | None = None):
+        channel_mask(channel)  # checked now, not at the first transfer
+        self.bus = bus
+        self.channel = channel
+        self._shared = _physical(bus)
+        self.switch = self._shared.switch(bus, address, name)
+
+    def __repr__(self) -> str:
+        return f"MuxedBus({self.switch.name}, channel {self.channel})"
+
+    def _on_channel(self, transfer: Callable[[], T]) -> T:
+        with self._shared.lock:
+            self._shared.select(self.switch.address, self.channel)
+            return transfer()
+
+    # --- smbus2 API (same names and arguments) ------------------------------------------------------
+    def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
+        return self._on_channel(lambda: self.bus.read_byte_data(i2c_addr, register, force))
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
+        self._on_channel(lambda: self.bus.write_byte_data(i2c_addr, register, value, force))
+
+    def read_word_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
+        return self._on_channel(lambda: self.bus.read_word_data(i2c_addr, register, force))
+
+    def write_word_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
+        self._on_channel(lambda: self.bus.write_word_data(i2c_addr, register, value, force))
+
+    def read_i2c_block_data(
+        self, i2c_addr: int, register: int, length: int, force: bool | None = None
+    ) -> list[int]:
+        return self._on_channel(lambda: self.bus.read_i2c_block_data(i2c_addr, register, length, force))
+
+    def write_i2c_block_data(
+        self, i2c_addr: int, register: int, data: list[int], force: bool | None = None
+    ) -> None:
+        self._on_channel(lambda: self.bus.write_i2c_block_data(i2c_addr, register, data, force))
+
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        return self._on_channel(lambda: self.bus.read_byte(i2c_addr, force))
+
+    def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
+        self._on_channel(lambda: self.bus.write_byte(i2c_addr, value, force))
+
+    def close(self) -> None:
+        """Nothing to release: the physical bus belongs to whoever opened it."""
