@@ -173,3 +173,79 @@ def scalar_dataset(
         source={"kind": "synthetic scalar"},
     )
     return ds, _truth("scalar", p, temp_ref_c if temperature_terms else None)
+
+
+def ramp_profile_c(
+    t_s: np.ndarray, temps_c=(-20.0, 60.0), rate_c_per_min: float = 1.0, dwell_s: float = 1800.0,
+    cycles: int = 1,
+) -> np.ndarray:
+    """Chamber air: dwell at temps_c[0], ramp to temps_c[1], dwell, ramp back, dwell; `cycles` times."""
+    lo, hi = temps_c
+    ramp_s = abs(hi - lo) / rate_c_per_min * 60.0
+    knots_t, knots_c = [0.0], [lo]
+    for _ in range(cycles):
+        for target in (hi, lo):
+            knots_t += [knots_t[-1] + dwell_s, knots_t[-1] + dwell_s + ramp_s]
+            knots_c += [knots_c[-1], target]
+    knots_t.append(knots_t[-1] + dwell_s)
+    knots_c.append(lo)
+    return np.interp(t_s, knots_t, knots_c)
+
+
+def first_order_lag(t_s: np.ndarray, x: np.ndarray, lag_s: float, substep_s: float = 1.0) -> np.ndarray:
+    """y following x with dy/dt = (x - y)/lag_s from y = x at t_s[0]: integrated on sub-steps with x held at
+    each sub-step's midpoint (the world simulator's way, not calib.lag's closed form)."""
+    if lag_s <= 0:
+        return np.asarray(x, float).copy()
+    fine = np.arange(t_s[0], t_s[-1] + substep_s, substep_s)
+    x_fine = np.interp(fine, t_s, x)
+    mids = np.interp(fine[:-1] + 0.5 * substep_s, t_s, x)
+    y = np.empty_like(fine)
+    y[0] = x_fine[0]
+    a = np.exp(-substep_s / lag_s)
+    for k, mid in enumerate(mids):
+        y[k + 1] = mid + (y[k] - mid) * a
+    return np.interp(t_s, fine, y)
+
+
+def t24_ramp_dataset(
+    rng: np.random.Generator,
+    *,
+    params: dict | None = None,
+    lag_s: float = 600.0,
+    lagging: str = "element",
+    temps_c=(-20.0, 60.0),
+    rate_c_per_min: float = 1.0,
+    dwell_s: float = 1800.0,
+    cycles: int = 1,
+    sample_s: float = 10.0,
+    directions: np.ndarray | None = None,
+    field_nt: float = 50_000.0,
+    noise_nt: float = 10.0,
+    temp_noise_c: float = 0.01,
+):
+    """A continuous-ramp time series: the coils step through `directions` one per sample while the air
+    follows ramp_profile_c. lagging="element": the recorded temperature is the air and the element lags it
+    by lag_s (the simulator's DUT); "sensor": the element is at the air and the recorded sensor lags it.
+    The Dataset's columns hold t_s and the true temp_element_c; temp_c is the recorded temperature."""
+    if lagging not in ("element", "sensor"):
+        raise ValueError(f"lagging {lagging!r}: element or sensor")
+    p = random_t24_params(rng) if params is None else params
+    dirs = coil_directions() if directions is None else directions
+    duration_s = cycles * 2 * (abs(temps_c[1] - temps_c[0]) / rate_c_per_min * 60.0 + dwell_s) + dwell_s
+    t = np.arange(0.0, duration_s, sample_s)
+    air = ramp_profile_c(t, temps_c, rate_c_per_min, dwell_s, cycles)
+    lagged = first_order_lag(t, air, lag_s)
+    element, recorded = (lagged, air) if lagging == "element" else (air, lagged)
+    ref = field_nt * dirs[np.arange(t.size) % len(dirs)]
+    m = p["S"][None] + element[:, None, None] * p["K"][None]
+    rhs = ref - p["b_nt"] - element[:, None] * p["kb_nt_per_c"]
+    h = np.linalg.solve(m, rhs[..., None])[..., 0] + rng.normal(0, noise_nt, ref.shape)
+    ds = Dataset(
+        h_nt=h,
+        temp_c=recorded + rng.normal(0, temp_noise_c, t.size),
+        ref_nt=ref,
+        columns={"t_s": t, "temp_element_c": element},
+        source={"kind": f"synthetic t24 ramp, {lagging} lag {lag_s} s"},
+    )
+    return ds, _truth("t24", p)
