@@ -52,7 +52,9 @@ MIN_RAMP_SPAN_C = 2.0  # the ramp rows must cover this much temperature
 GAP_FACTOR = 20.0  # default max_gap_s: this many median sample intervals
 GRID_POINTS = 24
 LOG_TOL = 1e-4  # golden-section tolerance on ln tau_s
-EXP_SPAN = 200.0  # element_lags sums in blocks of at most this many tau_s (exp(200) is far from overflow)
+EXP_SPAN = 600.0  # element_lags sums in blocks spanning at most this many tau_s (exp(600) ~ 1e260)
+MAX_STEP_DECAY = 40.0  # dt/tau_s beyond this forgets the past anyway (exp(-40) ~ 4e-18): capped so a
+# tiny tau_s still leaves >= 15 rows per block
 N_T24_PARAMS = 24
 COMPARE_TEMPS = 5
 
@@ -113,7 +115,7 @@ def _lag_error(t: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
     dt = np.diff(t)
     g = np.where(dt > 0, -np.expm1(-dt / tau_s) * tau_s / np.where(dt > 0, dt, 1.0), 1.0)
     c = np.concatenate([[0.0], -g * np.diff(x)])
-    decay = (t - t[0]) / tau_s
+    decay = np.concatenate([[0.0], np.cumsum(np.minimum(dt / tau_s, MAX_STEP_DECAY))])
     e = np.empty_like(c)
     carry, start = 0.0, 0
     while start < len(c):
