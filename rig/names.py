@@ -38,11 +38,11 @@ def check_name(name: str) -> str:
     if not isinstance(name, str):
         raise ValueError(f"a name must be text, got {name!r}")
     if len(name) > MAX_NAME_LENGTH:
-        raise ValueError(f"name is {len(name)} characters long; at most {MAX_NAME_LENGTH}")
+        raise ValueError(f"{_show(name)} is {len(name)} characters long; at most {MAX_NAME_LENGTH}")
     if not NAME_RE.fullmatch(name):
         bad = next((c for c in name if not re.fullmatch(r"[A-Za-z0-9_.-]", c)), None)
-        what = f"character {bad!r} is not allowed" if bad is not None else "must not start with . or -"
-        raise ValueError(f"name {_show(name)}: {what} ({NAME_RULE})")
+        what = f"character {bad!r} is not allowed" if bad is not None else "a name must not start with . or -"
+        raise ValueError(f"{_show(name)}: {what} (names: {NAME_RULE})")
     return name
 
 

@@ -29,7 +29,13 @@ MAX_SAMPLES_PER_POINT = 100_000
 
 
 def _number(value: Any) -> Any:
-    """Refuse booleans, text and anything else that is not a real number; refuse inf and NaN."""
+    """Refuse booleans and anything else that is not a real number; refuse inf and NaN. Text that
+    spells a number is taken: YAML 1.1 reads `1.0e3` (no sign in the exponent) as text."""
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            raise ValueError(f"expected a number, got {_show(value)}") from None
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"expected a number, got {_show(value)}")
     if isinstance(value, float) and not math.isfinite(value):
@@ -49,6 +55,8 @@ def _integer(value: Any) -> Any:
 
 
 def _show(value: Any) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()  # as YAML spells it
     text = repr(value)
     return text if len(text) <= 40 else text[:40] + "..."
 

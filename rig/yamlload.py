@@ -173,6 +173,9 @@ _MESSAGES = {
     "model_type": "expected a mapping of keys, got {input!r}",
     "model_attributes_type": "expected a mapping of keys, got {input!r}",
     "dict_type": "expected a mapping of keys, got {input!r}",
+    "int_parsing": "expected a whole number, got {input!r}",
+    "int_from_float": "expected a whole number, got {input!r}",
+    "float_parsing": "expected a number, got {input!r}",
 }
 
 
