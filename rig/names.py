@@ -75,8 +75,9 @@ def _bounded(text: str, name: str, limit: int) -> str:
 
 
 def file_stem(name: str) -> str:
-    """A file-name part from any string: no separator, no leading dot or dash, never empty."""
-    stem = re.sub(r"_+", "_", _spell(name, "_.-")).strip("_.-")
+    """A file-name part from any string: no separator, no leading dot or dash, never empty. A name
+    that follows the rule is its own file stem."""
+    stem = _spell(name, "_.-").lstrip(".-")
     return _bounded(stem, name, MAX_FILE_STEM) or "unnamed"
 
 
