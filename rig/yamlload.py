@@ -64,27 +64,43 @@ def read_text(path: str | Path, max_bytes: int = MAX_CONFIG_BYTES) -> str:
 
 
 class _ConfigLoader(yaml.SafeLoader):
-    """SafeLoader that refuses aliases and deep nesting while composing."""
+    """SafeLoader that composes an alias, or a subtree nested deeper than MAX_DEPTH, as a null
+    placeholder and remembers the first such problem: the document is then refused naming the key."""
 
     depth = 0
+    problem: tuple[str, yaml.Mark] | None = None
+
+    def _placeholder(self, message: str, mark: yaml.Mark) -> yaml.Node:
+        if self.problem is None:
+            self.problem = (message, mark)
+        return yaml.ScalarNode("tag:yaml.org,2002:null", "", mark, mark)
 
     def compose_node(self, parent, index):
         event = self.peek_event()
         if isinstance(event, yaml.AliasEvent):
-            raise _Refused("YAML aliases (*name) are not allowed in a config; write the value out",
-                           event.start_mark.line + 1)
+            self.get_event()
+            return self._placeholder("YAML aliases (*name) are not allowed in a config; write the value out",
+                                     event.start_mark)
+        if self.depth >= MAX_DEPTH:
+            self._skip_node()
+            return self._placeholder(f"nested more than {MAX_DEPTH} levels deep", event.start_mark)
         self.depth += 1
-        if self.depth > MAX_DEPTH:
-            raise _Refused(f"nested more than {MAX_DEPTH} levels deep", event.start_mark.line + 1)
         try:
             return super().compose_node(parent, index)
         finally:
             self.depth -= 1
 
-
-class _Refused(Exception):
-    def __init__(self, message: str, line: int):
-        self.message, self.line = message, line
+    def _skip_node(self) -> None:
+        """Consume one node's events without building it (iteratively: no recursion to exhaust)."""
+        open_ = 0
+        while True:
+            event = self.get_event()
+            if isinstance(event, yaml.SequenceStartEvent | yaml.MappingStartEvent):
+                open_ += 1
+            elif isinstance(event, yaml.SequenceEndEvent | yaml.MappingEndEvent):
+                open_ -= 1
+            if open_ == 0:
+                return
 
 
 def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
@@ -94,9 +110,8 @@ def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
     loader = _ConfigLoader(text)
     try:
         node = loader.get_single_node()
-        data = loader.construct_document(node) if node is not None else None
-    except _Refused as exc:
-        raise ConfigError(f"{source}: {exc.message} (line {exc.line})") from None
+        problem = loader.problem
+        data = loader.construct_document(node) if node is not None and problem is None else None
     except yaml.MarkedYAMLError as exc:
         line = f" (line {exc.problem_mark.line + 1})" if exc.problem_mark else ""
         raise ConfigError(f"{source}: not valid YAML: {exc.problem}{line}") from None
@@ -111,6 +126,10 @@ def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
         except _DuplicateKey as dup:
             raise ConfigError(f"{source}: {format_path(dup.path)}: key given twice "
                               f"(lines {dup.first} and {dup.second})") from None
+    if problem is not None:
+        message, mark = problem
+        at = [p for p, line in lines.items() if line == mark.line + 1] or [()]
+        raise ConfigError(located(source, lines, max(at, key=len), message))
     return data, lines
 
 
