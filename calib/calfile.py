@@ -24,21 +24,43 @@ def save(cal: Calibration, path: str | os.PathLike) -> None:
             yaml.safe_dump(d, f, sort_keys=False, default_flow_style=None, width=120)
 
 
+MAX_BYTES = 1 << 20  # a calibration file is a few kB
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """A calibration never needs YAML aliases; refusing them stops "billion laughs" bombs."""
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            raise yaml.MarkedYAMLError(problem="YAML aliases (*name) are not allowed",
+                                       problem_mark=event.start_mark)
+        return super().compose_node(parent, index)
+
+
 def load(path: str | os.PathLike) -> Calibration:
     """Read and validate; a missing, corrupted or foreign file raises DataError naming it and the key."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        if p.is_dir():
+            raise DataError(f"{p}: is a folder, not a calibration file")
+        with p.open("rb") as f:
+            raw = f.read(MAX_BYTES + 1)
+        if len(raw) > MAX_BYTES:
+            raise DataError(f"{p}: too big for a calibration file (at most {MAX_BYTES} bytes)")
+        text = raw.decode("utf-8")
     except FileNotFoundError:
         raise DataError(f"{p}: calibration file not found") from None
     except (OSError, UnicodeDecodeError) as err:
         raise DataError(f"{p}: cannot read calibration file ({err})") from None
     try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.load(text, Loader=_NoAliasLoader)
+    except (json.JSONDecodeError, yaml.YAMLError, RecursionError, ValueError) as err:
         where = getattr(err, "problem_mark", None)
         line = f" line {where.line + 1}" if where is not None else f" line {getattr(err, 'lineno', '?')}"
+        problem = getattr(err, "problem", None)
         raise DataError(
             f"{p}:{line}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}"
+            + (f": {problem}" if problem else "")
         ) from None
     return Calibration.from_dict(data, where=str(p))

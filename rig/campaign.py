@@ -279,8 +279,9 @@ class RunOutcome:
 
 
 def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    return Path(out_dir) / f"{plan_name}-{stamp}.session"
+    from rig.outputs import session_file
+
+    return session_file(out_dir, plan_name)
 
 
 def load_from_session(path: str | Path) -> tuple[cfg.Plan, cfg.Station]:
@@ -422,10 +423,10 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     file per DUT and model next to the session and record each fit in it."""
     import calib
     from calib import calfile
+    from rig.outputs import calibration_file
     from rig.store import read_dataset
 
     out = []
-    stem = session.path.name.removesuffix(".session")
     for dut in station.duts:
         try:
             ds = read_dataset(session.path, dut.name)
@@ -442,7 +443,12 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                                   device=dut.name)
                 out.append(entry)
                 continue
-            path = session.path.parent / f"{stem}.{dut.name}.{model}.yaml"
+            try:
+                path = calibration_file(session.path, dut.name, model)
+            except ERRORS as exc:
+                entry["error"] = str(exc)
+                out.append(entry)
+                continue
             calfile.save(cal, path)
             rms = cal.stats.get("rms_after_nt")
             session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)

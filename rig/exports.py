@@ -9,6 +9,13 @@ Every model is brought to one "flight form" a small computer evaluates with a fe
     B   = M (h - o)        (P12: M = (Q P)^-1, o = b; scalar: its matrix and centre)
 
 Temperature terms are omitted when the model has none.
+
+Text from the calibration file (software version, creation time, source hash, DUT name) is hostile
+until proven otherwise: in the C header it only appears through `c_comment_text` (a short run of
+harmless characters, everything else spelt as <U+XXXX>, so no `*/`, newline, backslash, trigraph or
+`#` can end the comment or start a directive), `c_string` (escaped literal) and rig/names.py's
+identifiers and guard. JSON goes through json.dumps (ASCII, escaped); CSV holds only parameter
+labels of the model's own names and numbers.
 """
 
 from __future__ import annotations
@@ -17,13 +24,12 @@ import csv
 import io
 import json
 import math
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from calib.calibration import to_plain
-from rig import __version__
+from rig import __version__, names
 from rig.errors import DataError
 
 FORMATS = ("c-header", "json", "csv")
@@ -97,10 +103,24 @@ def _vec(a) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------- C header
 
 
-def c_identifier(name: str) -> str:
-    """A C identifier from a DUT or file name: letters, digits, underscores; never starts with a digit."""
-    ident = re.sub(r"[^0-9A-Za-z_]+", "_", name).strip("_").lower() or "cal"
-    return f"cal_{ident}" if ident[0].isdigit() else ident
+c_identifier = names.c_identifier  # kept here: tests and callers know it by this address
+
+COMMENT_SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 _-.,:;+=()[]@")
+MAX_COMMENT_TEXT = 120
+
+
+def c_comment_text(text: object) -> str:
+    """Any text made safe inside a C block comment, on one line, at most MAX_COMMENT_TEXT characters."""
+    text = str(text)
+    out = "".join(ch if ch in COMMENT_SAFE else f"<U+{ord(ch):04X}>" for ch in text[:MAX_COMMENT_TEXT])
+    return out + ("..." if len(text) > MAX_COMMENT_TEXT else "")
+
+
+def c_string(text: str) -> str:
+    """A C string literal of `text` (UTF-8 bytes; anything but plain printable ASCII as octal escapes)."""
+    body = "".join(chr(b) if 0x20 <= b < 0x7F and chr(b) not in '"\\?' else f"\\{b:03o}"
+                   for b in text.encode("utf-8", "replace"))
+    return f'"{body}"'
 
 
 def _c_num(x: float) -> str:
@@ -123,14 +143,15 @@ def c_header(
     """A self-contained C99 header: the constants plus `static inline void <name>_apply(...)`."""
     ident = c_identifier(name)
     macro = ident.upper()
-    guard = f"MAGRIG_{macro}_H"
+    guard = names.header_guard(name)
+    description = c_comment_text(description) if description else ""
     has_t_m = form.matrix_per_c is not None
     has_t_o = form.offset_nt_per_c is not None
     equation = "B = M(tau) (h - o(tau))" if form.offset_first else "B = M(tau) h + o(tau)"
     lines = [
-        f"/* {ident}.h: magnetometer calibration exported by magrig {version}.",
-        f" * model: {form.model}{' (' + description + ')' if description else ''}",
-        f" * source sha256: {source_sha256 or 'unknown'}",
+        f"/* {ident}.h: magnetometer calibration exported by magrig {c_comment_text(version)}.",
+        f" * model: {c_comment_text(form.model)}{' (' + description + ')' if description else ''}",
+        f" * source sha256: {c_comment_text(source_sha256) if source_sha256 else 'unknown'}",
         f" * {equation}, with M(tau) = M + tau*M_PER_C, o(tau) = O + tau*O_PER_C,",
         f" * tau = temp_c - ({_c_num(form.temp_ref_c)}) degC;",
         " * h and B in nT, in the axes the sensor reports.",
@@ -148,7 +169,7 @@ def c_header(
         "#define MAGRIG_REAL double",
         "#endif",
         "",
-        f'#define {macro}_MODEL "{form.model}"',
+        f"#define {macro}_MODEL {c_string(form.model)}",
         f"#define {macro}_TEMP_REF_C ({_c_num(form.temp_ref_c)})",
         _c_array(f"{macro}_M", form.matrix),
         _c_array(f"{macro}_O", form.offset_nt),

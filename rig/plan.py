@@ -6,13 +6,19 @@
 
 Point ids are stable: `T03-F07` is temperature step 3, field 7 (coils); `T03-O07` orientation 7
 (turntable). Numbers are 1-based and zero-padded to at least 2 digits (3 when there are > 99).
+Sizes are counted before anything is expanded: a plan over MAX_POINTS points, MAX_SAMPLES_PER_DUT
+samples per DUT or MAX_DURATION_S is refused (ConfigError) before memory is allocated for it.
+Errors found here carry `blame = (document, key path, what)`; `located_errors(campaign)` turns them
+into the `FILE: key.path: what (line N)` form of every config error.
 For coils the target is the total field (lab frame, nT) the coils must make, ambient included; for a
 turntable it is (az_deg, el_deg).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +28,7 @@ from rig.config import (
     COIL_FIELD_KINDS,
     TABLE_FIELD_KINDS,
     TYPICAL_FIELD_NT,
+    Campaign,
     Coils,
     Cube24Fields,
     DirectionFields,
@@ -32,9 +39,17 @@ from rig.config import (
     Stability,
     Station,
     Turntable,
+    VectorFields,
 )
 from rig.errors import ConfigError, LimitError
 from rig.reference import currents_for_field, station_site_field_nt, table_field_nt
+from rig.yamlload import KeyPath, format_path, locate_in_text
+
+MAX_TEMPERATURES = 1_000
+MAX_FIELDS = 10_000
+MAX_POINTS = 100_000
+MAX_SAMPLES_PER_DUT = 1_000_000  # the full campaign takes 19 200
+MAX_DURATION_S = 8 * 7 * 86_400.0  # eight weeks
 
 ASSUMED_START_C = 22.0
 ASSUMED_THERMAL_LAG_S = 600.0  # for real DUT mounts, whose lag the station does not state
@@ -62,16 +77,92 @@ class Point:
         return {"az_deg": self.angles_deg[0], "el_deg": self.angles_deg[1]}  # type: ignore[index]
 
 
+def blamed(err: Exception, path: KeyPath, what: str, document: str = "plan") -> Exception:
+    """Mark an error with the config key it is about (see located_errors)."""
+    err.blame = (document, tuple(path), what)  # type: ignore[attr-defined]
+    return err
+
+
+def _plan_error(cls: type[Exception], plan: Plan, path: KeyPath, what: str) -> Exception:
+    return blamed(cls(f"plan {plan.name}: {format_path(path)}: {what}"), path, what)
+
+
+@contextlib.contextmanager
+def located_errors(campaign: Campaign | None) -> Iterator[None]:
+    """Re-raise blamed errors as `FILE: key.path: what (line N)` of the plan or station file."""
+    try:
+        yield
+    except (ConfigError, LimitError) as err:
+        blame = getattr(err, "blame", None)
+        if blame is None or campaign is None:
+            raise
+        document, path, what = blame
+        source, text = ((campaign.plan_path, campaign.plan_text) if document == "plan"
+                        else (campaign.station_path, campaign.station_text))
+        raise type(err)(locate_in_text(str(source), text, path, what)) from None
+
+
+def count_temperatures(plan: Plan) -> int:
+    """Number of temperature steps, counted without expanding a range."""
+    temps = plan.temperatures
+    if temps.range is None:
+        return len(temps.steps or [])
+    r = temps.range
+    span = (r.stop_c - r.start_c) / r.step_c
+    if not math.isfinite(span) or span + 1 > MAX_TEMPERATURES:
+        raise _plan_error(ConfigError, plan, ("temperatures", "range", "step_c"),
+                          f"{r.start_c:g} to {r.stop_c:g} degC in steps of {r.step_c:g} is more than "
+                          f"{MAX_TEMPERATURES} temperatures")
+    return math.floor(span + 1e-9) + 1
+
+
+def count_fields(plan: Plan) -> int:
+    """Number of field targets, counted without making them."""
+    fs = plan.fields
+    if isinstance(fs, GridOrientations):
+        n = len(fs.az_deg) * len(fs.el_deg)
+    elif isinstance(fs, ListOrientations):
+        n = len(fs.angles_deg)
+    elif isinstance(fs, VectorFields):
+        n = len(fs.vectors_nt)
+    else:
+        if isinstance(fs, Cube24Fields):
+            per = 24
+        else:
+            per = fs.n if isinstance(fs, FibonacciFields) else len(fs.directions)
+        n = per * len(fs.magnitude_list())
+    if n > MAX_FIELDS:
+        raise _plan_error(ConfigError, plan, ("fields",), f"{n} field targets; at most {MAX_FIELDS}")
+    return n
+
+
+def check_size(plan: Plan, station: Station) -> tuple[int, int]:
+    """(temperatures, fields) of the plan; ConfigError before anything big is built."""
+    n_temps, n_fields = count_temperatures(plan), count_fields(plan)
+    n_points = n_temps * n_fields
+    if n_points > MAX_POINTS:
+        raise _plan_error(ConfigError, plan, ("fields",), f"{n_temps} temperatures x {n_fields} fields = "
+                          f"{n_points} points; at most {MAX_POINTS}")
+    if n_points * plan.samples_per_point > MAX_SAMPLES_PER_DUT:
+        raise _plan_error(ConfigError, plan, ("samples_per_point",),
+                          f"{n_points} points x {plan.samples_per_point} samples = "
+                          f"{n_points * plan.samples_per_point} samples per DUT; "
+                          f"at most {MAX_SAMPLES_PER_DUT}")
+    return n_temps, n_fields
+
+
 def field_targets(plan: Plan, station: Station) -> list[tuple[float, ...]]:
     """Field vectors (nT) for coils or (az, el) pairs for a turntable, in plan order."""
     fs = plan.fields
     source = station.field_source
     if isinstance(source, Coils) and fs.kind not in COIL_FIELD_KINDS:
-        raise ConfigError(f"plan {plan.name}: fields.kind {fs.kind!r} needs a turntable; station "
-                          f"{station.name} has coils (use one of {', '.join(sorted(COIL_FIELD_KINDS))})")
+        raise _plan_error(ConfigError, plan, ("fields", "kind"),
+                          f"{fs.kind!r} needs a turntable; station {station.name} has coils "
+                          f"(use one of {', '.join(sorted(COIL_FIELD_KINDS))})")
     if isinstance(source, Turntable) and fs.kind not in TABLE_FIELD_KINDS:
-        raise ConfigError(f"plan {plan.name}: fields.kind {fs.kind!r} needs coils; station {station.name} "
-                          f"has a turntable (use one of {', '.join(sorted(TABLE_FIELD_KINDS))})")
+        raise _plan_error(ConfigError, plan, ("fields", "kind"),
+                          f"{fs.kind!r} needs coils; station {station.name} has a turntable "
+                          f"(use one of {', '.join(sorted(TABLE_FIELD_KINDS))})")
     if isinstance(fs, GridOrientations):
         return fieldsets.grid_orientations(fs.az_deg, fs.el_deg)
     if isinstance(fs, ListOrientations):
@@ -85,7 +176,7 @@ def field_targets(plan: Plan, station: Station) -> list[tuple[float, ...]]:
             try:
                 directions = fieldsets.normalised(fs.directions)
             except ValueError as exc:
-                raise ConfigError(f"plan {plan.name}: fields.directions: {exc}") from None
+                raise _plan_error(ConfigError, plan, ("fields", "directions"), str(exc)) from None
         vectors = fieldsets.scaled(directions, fs.magnitude_list())
     else:
         vectors = np.asarray(fs.vectors_nt, float)
@@ -98,6 +189,7 @@ def point_id(temp_index: int, field_index: int, n_temps: int, n_fields: int, let
 
 
 def compile_plan(plan: Plan, station: Station) -> list[Point]:
+    check_size(plan, station)
     steps = plan.temperatures.step_list()
     targets = field_targets(plan, station)
     coils = isinstance(station.field_source, Coils)
@@ -157,20 +249,37 @@ def format_duration(seconds: float) -> str:
     return f"{h}h{m:02d}m" if h else (f"{m}m{s:02d}s" if m else f"{s}s")
 
 
+def _step_path(plan: Plan, temp_index: int) -> KeyPath:
+    temps = plan.temperatures
+    return ("temperatures", "range") if temps.steps is None else ("temperatures", "steps", temp_index - 1)
+
+
 def _check_setpoints(plan: Plan, station: Station, points: list[Point]) -> None:
     lim = station.chamber.limits
     for p in points:
         if not lim.min_setpoint_c <= p.setpoint_c <= lim.max_setpoint_c:
-            raise LimitError(
-                f"plan {plan.name}: temperature step {p.temp_index} setpoint {p.setpoint_c:g} degC is "
+            raise _plan_error(
+                LimitError, plan, _step_path(plan, p.temp_index),
+                f"temperature step {p.temp_index} setpoint {p.setpoint_c:g} degC is "
                 f"outside chamber.limits min_setpoint_c {lim.min_setpoint_c:g} .. "
                 f"max_setpoint_c {lim.max_setpoint_c:g}"
             )
         if p.ramp_c_per_min > lim.max_ramp_c_per_min:
-            raise LimitError(
-                f"plan {plan.name}: temperature step {p.temp_index} ramp {p.ramp_c_per_min:g} degC/min "
+            step = plan.temperatures.steps[p.temp_index - 1] if plan.temperatures.steps else None
+            path = ((*_step_path(plan, p.temp_index), "ramp_c_per_min") if step and step.ramp_c_per_min
+                    else ("temperatures", "ramp_c_per_min"))
+            raise _plan_error(
+                LimitError, plan, path,
+                f"temperature step {p.temp_index} ramp {p.ramp_c_per_min:g} degC/min "
                 f"exceeds chamber.limits max_ramp_c_per_min {lim.max_ramp_c_per_min:g}"
             )
+
+
+def _field_path(plan: Plan, field_index: int) -> KeyPath:
+    """The plan key of one field target, where the plan lists them one by one."""
+    keys = {"vectors": "vectors_nt", "orientations": "angles_deg", "directions": "directions"}
+    key = keys.get(plan.fields.kind)
+    return ("fields", key, field_index - 1) if key else ("fields",)
 
 
 def _check_coils(plan: Plan, coils: Coils, points: list[Point], warnings: list[str]) -> float:
@@ -190,8 +299,12 @@ def _check_coils(plan: Plan, coils: Coils, points: list[Point], warnings: list[s
         worst = np.abs(currents_for_field(p.field_nt, coils.constants, ambient)) + margin
         axis = int(np.argmax(worst))
         if worst[axis] > coils.max_current_a:
-            raise LimitError(
-                f"plan {plan.name}: point {p.id} field {_fmt_vec(p.field_nt)} nT needs {worst[axis]:.3f} A "
+            n_dirs = len(plan.fields.directions) if isinstance(plan.fields, DirectionFields) else 0
+            index = (p.field_index - 1) % n_dirs + 1 if n_dirs else p.field_index  # magnitude-major
+            path = _field_path(plan, index)
+            raise _plan_error(
+                LimitError, plan, path,
+                f"point {p.id} field {_fmt_vec(p.field_nt)} nT needs {worst[axis]:.3f} A "
                 f"in coil {'xyz'[axis]} with {assumption}, above field_source.max_current_a "
                 f"{coils.max_current_a:g} A"
             )
@@ -204,8 +317,9 @@ def _check_angles(plan: Plan, table: Turntable, points: list[Point]) -> None:
         for value, key, (lo, hi) in zip(p.angles_deg, ("az_limits_deg", "el_limits_deg"),  # type: ignore[arg-type]
                                         (table.az_limits_deg, table.el_limits_deg), strict=True):
             if not lo <= value <= hi:
-                raise LimitError(f"plan {plan.name}: point {p.id} angle {value:g} deg is outside "
-                                 f"field_source.{key} [{lo:g}, {hi:g}]")
+                raise _plan_error(LimitError, plan, _field_path(plan, p.field_index),
+                                  f"point {p.id} angle {value:g} deg is outside "
+                                  f"field_source.{key} [{lo:g}, {hi:g}]")
 
 
 def _fmt_vec(v) -> str:
@@ -260,15 +374,41 @@ def t24_design_problem(points: list[Point], station: Station) -> str | None:
     temps = np.array([p.setpoint_c for p in points])
     samples = [p.samples for p in points]
     acc = GramAccumulator(temp_ref_c=float(temps.mean()))
-    acc.add(np.repeat(fields, samples, axis=0), np.repeat(temps, samples), np.repeat(fields, samples, axis=0))
+    repeated = np.repeat(fields, samples, axis=0)  # bounded by MAX_SAMPLES_PER_DUT
+    acc.add(repeated, np.repeat(temps, samples), repeated)
     return acc.identifiability()
+
+
+_DURATION_KEYS: dict[str, KeyPath] = {
+    "ramps": ("temperatures", "ramp_c_per_min"),
+    "stability": ("temperatures", "stability"),
+    "moves+settle": ("settle_s",),
+    "sampling": ("samples_per_point",),
+}
+
+
+def _check_duration(plan: Plan, breakdown: dict[str, float]) -> None:
+    """Refuse a plan that would run for more than MAX_DURATION_S, blaming its largest part."""
+    total = sum(breakdown.values())
+    if math.isfinite(total) and total <= MAX_DURATION_S:
+        return
+    part = max(breakdown, key=lambda k: breakdown[k] if math.isfinite(breakdown[k]) else math.inf)
+    days = total / 86_400.0
+    raise _plan_error(ConfigError, plan, _DURATION_KEYS[part],
+                      f"estimated duration {days:.3g} days (mostly {part}) is longer than the bound of "
+                      f"{MAX_DURATION_S / 86_400.0:g} days")
+
+
+def check_campaign(campaign: Campaign) -> PlanCheck:
+    """check_plan with its errors naming the plan or station file, key and line."""
+    with located_errors(campaign):
+        return check_plan(campaign.plan, campaign.station)
 
 
 def check_plan(plan: Plan, station: Station) -> PlanCheck:
     """Validate `plan` against `station` without touching hardware. Raises LimitError naming the limit."""
     points = compile_plan(plan, station)
-    n_fields = len(field_targets(plan, station))
-    n_temps = len(points) // n_fields
+    n_temps, n_fields = check_size(plan, station)
     warnings: list[str] = []
     _check_setpoints(plan, station, points)
     largest = None
@@ -286,6 +426,7 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
         if problem:
             warnings.append(problem)
     breakdown = estimate_duration(plan, station, points, n_fields)
+    _check_duration(plan, breakdown)
     return PlanCheck(
         points=points,
         n_temperatures=n_temps,

@@ -4,21 +4,32 @@
     ConfigError("plan.yaml: temperatures.steps[2].stability.band_c: must be > 0 (line 14)")
 
 The line numbers come from the nodes `yaml.compose` builds (their start marks); the values come from
-`yaml.safe_load` of the same text. Unknown keys are rejected by the models (extra="forbid").
+the same composed nodes. Unknown keys are rejected by the models (extra="forbid").
+
+Hostile files are refused before they cost anything: files over MAX_CONFIG_BYTES, YAML aliases (a
+config never needs them, and they make "billion laughs" bombs), nesting deeper than MAX_DEPTH, and
+inf/NaN anywhere (written `.inf` or as text "nan"). After validation `audit` applies the rules the
+models do not state themselves yet: the name rule (rig/names.py) on every `name` key, device names
+distinct after transformation, and the number types of rig/numbers.py FIELD_TYPES (no booleans for
+numbers, bounds).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import pydantic
 import yaml
 
+from rig import names, numbers
 from rig.errors import ConfigError
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 KeyPath = tuple[str | int, ...]
+MAX_CONFIG_BYTES = 1 << 20  # the largest shipped config is a few kB
+MAX_DEPTH = 32
 
 
 class KeyPathError(ValueError):
@@ -30,25 +41,84 @@ class KeyPathError(ValueError):
         self.message = message
 
 
-def read_text(path: str | Path) -> str:
+def read_text(path: str | Path, max_bytes: int = MAX_CONFIG_BYTES) -> str:
+    """The text of a config file; one line naming it when it is missing, a folder, too big or unreadable."""
+    p = Path(path)
     try:
-        return Path(path).read_text(encoding="utf-8")
+        if p.is_dir():
+            raise ConfigError(f"{path}: is a folder, not a file")
+        size = p.stat().st_size
+        if size > max_bytes:
+            raise ConfigError(f"{path}: {size} bytes is too big for a config file (at most {max_bytes})")
+        with p.open("rb") as f:
+            data = f.read(max_bytes + 1)  # a pipe or device reports no size: never read more than this
+        if len(data) > max_bytes:
+            raise ConfigError(f"{path}: too big for a config file (at most {max_bytes} bytes)")
+        return data.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: cannot read: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """SafeLoader that composes an alias, or a subtree nested deeper than MAX_DEPTH, as a null
+    placeholder and remembers the first such problem: the document is then refused naming the key."""
+
+    depth = 0
+    problem: tuple[str, yaml.Mark] | None = None
+
+    def _placeholder(self, message: str, mark: yaml.Mark) -> yaml.Node:
+        if self.problem is None:
+            self.problem = (message, mark)
+        return yaml.ScalarNode("tag:yaml.org,2002:null", "", mark, mark)
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            self.get_event()
+            return self._placeholder("YAML aliases (*name) are not allowed in a config; write the value out",
+                                     event.start_mark)
+        if self.depth >= MAX_DEPTH:
+            self._skip_node()
+            return self._placeholder(f"nested more than {MAX_DEPTH} levels deep", event.start_mark)
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def _skip_node(self) -> None:
+        """Consume one node's events without building it (iteratively: no recursion to exhaust)."""
+        open_ = 0
+        while True:
+            event = self.get_event()
+            if isinstance(event, yaml.SequenceStartEvent | yaml.MappingStartEvent):
+                open_ += 1
+            elif isinstance(event, yaml.SequenceEndEvent | yaml.MappingEndEvent):
+                open_ -= 1
+            if open_ == 0:
+                return
 
 
 def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
     """The data of a YAML document and the 1-based line of every key path in it."""
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source}: too big for a config (at most {MAX_CONFIG_BYTES} bytes)")
+    loader = _ConfigLoader(text)
     try:
-        data = yaml.safe_load(text)
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = loader.get_single_node()
+        problem = loader.problem
+        data = loader.construct_document(node) if node is not None and problem is None else None
     except yaml.MarkedYAMLError as exc:
         line = f" (line {exc.problem_mark.line + 1})" if exc.problem_mark else ""
         raise ConfigError(f"{source}: not valid YAML: {exc.problem}{line}") from None
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, ValueError, OverflowError) as exc:  # e.g. a timestamp out of range
         raise ConfigError(f"{source}: not valid YAML: {exc}") from None
+    finally:
+        loader.dispose()
     lines: dict[KeyPath, int] = {}
     if node is not None:
         try:
@@ -56,6 +126,10 @@ def parse(text: str, source: str) -> tuple[object, dict[KeyPath, int]]:
         except _DuplicateKey as dup:
             raise ConfigError(f"{source}: {format_path(dup.path)}: key given twice "
                               f"(lines {dup.first} and {dup.second})") from None
+    if problem is not None:
+        message, mark = problem
+        at = [p for p, line in lines.items() if line == mark.line + 1] or [()]
+        raise ConfigError(located(source, lines, max(at, key=len), message))
     return data, lines
 
 
@@ -118,6 +192,9 @@ _MESSAGES = {
     "model_type": "expected a mapping of keys, got {input!r}",
     "model_attributes_type": "expected a mapping of keys, got {input!r}",
     "dict_type": "expected a mapping of keys, got {input!r}",
+    "int_parsing": "expected a whole number, got {input!r}",
+    "int_from_float": "expected a whole number, got {input!r}",
+    "float_parsing": "expected a number, got {input!r}",
 }
 
 
@@ -158,6 +235,145 @@ def error_from_validation(exc: pydantic.ValidationError, data: object, lines: di
     return ConfigError(f"{source}: {format_path(path)}: {_message(first)}{where}{more}")
 
 
+def line_of(lines: dict[KeyPath, int], path: KeyPath) -> int | None:
+    """The line of `path`, else of its nearest parent that has one."""
+    path = tuple(path)
+    while True:
+        if path in lines:
+            return lines[path]
+        if not path:
+            return None
+        path = path[:-1]
+
+
+def located(source: str, lines: dict[KeyPath, int], path: KeyPath, message: str) -> str:
+    """`FILE: key.path: message (line N)`, the one form of every config error."""
+    line = line_of(lines, path)
+    return f"{source}: {format_path(path)}: {message}" + (f" (line {line})" if line else "")
+
+
+def locate_in_text(source: str, text: str, path: KeyPath, message: str) -> str:
+    """Like `located`, for a document already loaded once (errors found after loading: limits)."""
+    try:
+        _, lines = parse(text, source)
+    except ConfigError:
+        lines = {}
+    return located(source, lines, path, message)
+
+
+# --- checks before and after validation -----------------------------------------------------------
+def _non_finite(value: Any) -> bool:
+    if isinstance(value, float):
+        return not math.isfinite(value)
+    if isinstance(value, str) and len(value) <= 12:  # "nan", "-Infinity": pydantic turns these into floats
+        try:
+            return not math.isfinite(float(value))
+        except ValueError:
+            return False
+    return False
+
+
+def find_non_finite(data: Any, path: KeyPath = ()) -> tuple[KeyPath, Any] | None:
+    """The first inf or NaN in the data, as (key path, value): no config needs one."""
+    if isinstance(data, dict):
+        items = ((str(k), v) for k, v in data.items())
+    elif isinstance(data, list):
+        items = enumerate(data)
+    else:
+        return (path, data) if _non_finite(data) else None
+    for key, value in items:
+        found = find_non_finite(value, (*path, key))
+        if found:
+            return found
+    return None
+
+
+_ADAPTERS: dict[int, pydantic.TypeAdapter] = {}
+
+
+def _adapter(tp: Any) -> pydantic.TypeAdapter:
+    if id(tp) not in _ADAPTERS:
+        _ADAPTERS[id(tp)] = pydantic.TypeAdapter(tp)
+    return _ADAPTERS[id(tp)]
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def _check_numbers(tp: Any, value: Any, raw: Any, path: KeyPath) -> tuple[KeyPath, str] | None:
+    """Validate the raw value of a number field (or each item of a list of them) as `tp`."""
+    is_vec = numbers.is_vector(tp)
+    if isinstance(value, list | tuple) and isinstance(raw, list) and len(raw) == len(value) and not (
+            is_vec and all(_is_number(v) for v in value)):
+        for i, (v, r) in enumerate(zip(value, raw, strict=True)):
+            found = _check_numbers(tp, v, r, (*path, i))
+            if found:
+                return found
+        return None
+    if not (_is_number(value) or is_vec and isinstance(value, list | tuple)):
+        return None  # not a number here: a None, a keyword such as "measure"
+    try:
+        _adapter(tp).validate_python(raw)
+    except pydantic.ValidationError as exc:
+        err = exc.errors()[0]
+        return (*path, *[p for p in err["loc"] if isinstance(p, int)]), _message(err)
+    return None
+
+
+def audit(value: Any, raw: Any, path: KeyPath = (),
+          named: list[tuple[KeyPath, str]] | None = None) -> tuple[KeyPath, str] | None:
+    """The first (key path, problem) the models let through: a bad name, a boolean for a number, a
+    number outside FIELD_TYPES' bounds. Collects every nested device name into `named`."""
+    if isinstance(value, pydantic.BaseModel):
+        if not isinstance(raw, dict):  # a shorthand such as a bare setpoint: judge the parsed values
+            raw = {k: getattr(value, k) for k in value.model_fields_set}
+        cls = type(value).__name__
+        for field, info in type(value).model_fields.items():
+            key = info.alias or field
+            if key not in raw:
+                continue  # a default
+            sub, sub_raw, sub_path = getattr(value, field), raw[key], (*path, key)
+            if field == "name" and isinstance(sub, str):
+                try:
+                    names.check_name(sub)
+                except ValueError as exc:
+                    return sub_path, str(exc)
+                if path and named is not None:
+                    named.append((sub_path, sub))
+            tp = numbers.FIELD_TYPES.get((cls, field))
+            found = (_check_numbers(tp, sub, sub_raw, sub_path) if tp is not None else None) or audit(
+                sub, sub_raw, sub_path, named)
+            if found:
+                return found
+    elif isinstance(value, list | tuple) and isinstance(raw, list) and len(raw) == len(value):
+        for i, (v, r) in enumerate(zip(value, raw, strict=True)):
+            found = audit(v, r, (*path, i), named)
+            if found:
+                return found
+    elif isinstance(value, dict) and isinstance(raw, dict):
+        for k, v in value.items():
+            if k in raw:
+                found = audit(v, raw[k], (*path, str(k)), named)
+                if found:
+                    return found
+    elif _is_number(value) and isinstance(raw, bool):
+        return path, f"expected a number, got {str(raw).lower()}"
+    return None
+
+
+def check_document(model: pydantic.BaseModel, data: Any) -> tuple[KeyPath, str] | None:
+    """`audit`, then device names that collide after transformation (file names, C symbols)."""
+    named: list[tuple[KeyPath, str]] = []
+    found = audit(model, data, (), named)
+    if found:
+        return found
+    clash = names.collision(name for _, name in named)
+    if clash:
+        return named[clash[0]][0], f"device name {clash[1]}"
+    return None
+
+
 def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
     """Read `path` (or use `text`, naming it `path`) and validate it as `model`."""
     source = str(path)
@@ -167,7 +383,16 @@ def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
         raise ConfigError(f"{source}: the file is empty")
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level (line 1)")
+    bad = find_non_finite(data)
+    if bad:
+        raise ConfigError(located(source, lines, bad[0], f"must be a finite number, got {bad[1]!r}"))
     try:
-        return model.model_validate(data)
+        result = model.model_validate(data)
     except pydantic.ValidationError as exc:
         raise error_from_validation(exc, data, lines, source) from None
+    except (ArithmeticError, ValueError, TypeError) as exc:  # a model check that met numbers it cannot use
+        raise ConfigError(located(source, lines, (), f"cannot use these values: {exc}")) from None
+    found = check_document(result, data)
+    if found:
+        raise ConfigError(located(source, lines, *found))
+    return result

@@ -1,7 +1,7 @@
 """The `rig` command. Each family of subcommands lives in its own module and registers itself here.
 
 Errors of the project's family print as one line (`error: ...`) with exit code 2; a traceback only
-with --debug. Ctrl-C exits 130.
+with --debug. A bad option or argument value (a folder given for a file) is one line too. Ctrl-C exits 130.
 """
 
 from __future__ import annotations
@@ -56,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         click.echo(f"error: {err}", err=True)
+        return 2
+    except click.BadParameter as err:  # e.g. a folder where a file belongs: the value is the news
+        click.echo(f"error: {' '.join(err.format_message().split())}", err=True)
         return 2
     except click.exceptions.Abort:
         click.echo("aborted", err=True)

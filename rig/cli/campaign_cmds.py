@@ -65,6 +65,7 @@ def register(group: click.Group) -> None:
         from rig.config import load_campaign
         from rig.display import make_display
         from rig.engine import COMPLETED, prompt_from_tty
+        from rig.plan import located_errors
 
         if resume_path:
             if plan or station or session_path or out_dir:
@@ -81,11 +82,12 @@ def register(group: click.Group) -> None:
                 out_dir or campaign.plan.outputs.dir, campaign.plan.name)
         interactive = sys.stdin.isatty()
         signal.signal(signal.SIGTERM, _terminate)  # outside the engine's own handling: clean exit too
-        outcome = run_campaign(
-            campaign=campaign, session_path=path, resume=bool(resume_path),
-            prompt=prompt_from_tty if interactive else None,
-            display_factory=lambda status, runner: make_display(status, runner, live=not no_live),
-        )
+        with located_errors(campaign):  # a plan refused while compiling names its file, key and line
+            outcome = run_campaign(
+                campaign=campaign, session_path=path, resume=bool(resume_path),
+                prompt=prompt_from_tty if interactive else None,
+                display_factory=lambda status, runner: make_display(status, runner, live=not no_live),
+            )
         _print_summary(outcome)
         if outcome.result.status != COMPLETED:
             raise RunNotCompleted(f"{outcome.result.status}: {outcome.result.reason}; continue with: "

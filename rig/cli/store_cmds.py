@@ -9,7 +9,7 @@ import click
 
 from calib.atomic import atomic_write
 from rig.config import load_campaign
-from rig.plan import check_plan
+from rig.plan import check_campaign
 from rig.store import EXPORT_COLUMNS, sample_rows
 
 
@@ -21,7 +21,7 @@ def check_cmd(plan_path: Path, station_path: Path | None) -> None:
     """Validate a plan against its station without touching hardware; print the step count and an
     estimate of the campaign's duration."""
     campaign = load_campaign(plan_path, station_path)
-    report = check_plan(campaign.plan, campaign.station)
+    report = check_campaign(campaign)
     simulated = campaign.station.simulated_devices()
     if all(simulated.values()):
         sim_note = "all devices simulated"

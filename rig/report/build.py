@@ -9,6 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from rig.errors import DataError
+from rig.names import collision
+from rig.outputs import inside
 from rig.report.evaluate import analyse_dut
 from rig.report.html import ItemList, Section, Table, images_in, render_html
 from rig.report.page import dut_sections, summary_table
@@ -35,7 +37,7 @@ def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
     try:
         out.mkdir(parents=True, exist_ok=True)
         for img in images_in(sections):
-            written.append(out / img.filename)
+            written.append(inside(out, img.filename))
             written[-1].write_bytes(img.png)
         written[0].write_text(
             render_html(inputs.title, sections, subtitle=_subtitle(inputs)), encoding="utf-8"
@@ -63,6 +65,10 @@ def _subtitle(inputs: ReportInputs) -> str:
 
 
 def report_sections(inputs: ReportInputs) -> list[Section]:
+    clash = collision(d.name for d in inputs.duts)
+    if clash:
+        raise DataError(f"report: DUT names {clash[1].removesuffix('; rename one')}, so their figures would "
+                        "overwrite each other; report on one at a time (--dut)")
     results = [analyse_dut(d, inputs.steps) for d in inputs.duts]
     warnings = list(inputs.warnings) + [f"{r.name}: {w}" for r in results for w in r.warnings]
     sections = [

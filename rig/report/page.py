@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
+from rig.names import file_stem
 from rig.report import analysis, figures
 from rig.report.evaluate import DutResult
 from rig.report.html import Image, Section, Table
@@ -53,7 +52,8 @@ def summary_table(results: list[DutResult]) -> Table:
 
 
 def _safe(name: str) -> str:
-    return re.sub(r"[^0-9A-Za-z_.-]+", "_", name) or "dut"
+    """The file-name tag of a DUT's figures (distinct DUTs are checked to give distinct tags)."""
+    return file_stem(name)
 
 
 def _image(fig, caption: str, filename: str) -> Image:

@@ -45,8 +45,9 @@ def test_check_refuses_an_over_current_plan_in_one_line(tmp_path, capsys):
     (tmp_path / "weak.yaml").write_text(station)
     code, out, err = run(capsys, "check", DEMO, "--station", tmp_path / "weak.yaml")
     assert code == 2 and out == ""
-    assert err.count("\n") == 1 and err.startswith("error: plan demo: point T01-F01")
-    assert "above field_source.max_current_a 0.5 A" in err
+    assert err.count("\n") == 1
+    assert err.startswith(f"error: {DEMO}: fields.directions[0]: point T01-F01 field (50000, 0, 0) nT")
+    assert "above field_source.max_current_a 0.5 A (line 19)" in err
 
 
 def test_check_names_file_key_and_line_of_a_bad_plan(tmp_path, capsys):
