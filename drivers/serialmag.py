@@ -154,7 +154,6 @@ class SerialMagnetometer(Device):
         if set_reset not in SET_RESET_MODES:
             raise OptionError(f"{name}: set_reset {set_reset!r} is not one of {', '.join(SET_RESET_MODES)}")
         _check_rate(name, rate_hz)
-        _check_baud(name, transport.baudrate)
         self.transport = transport
         self.device_id = device_id
         self.rate_hz = rate_hz
@@ -196,6 +195,7 @@ class SerialMagnetometer(Device):
         **kwargs,
     ) -> SerialMagnetometer:
         """One of several HMR2300s on a shared RS-485 line, addressed by `device_id`."""
+        _check_baud(name, line.baudrate)
         transport = line.transport(device_id, name=name, clock=clock, timeout_s=timeout_s, tries=tries)
         return cls(transport, name=name, clock=clock, device_id=device_id, **kwargs)
 

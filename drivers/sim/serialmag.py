@@ -227,6 +227,8 @@ class SerialMagSim:
         if self.line is None:
             SerialMagLine([self])
             self._own_line = True
+        if not self._own_line:
+            raise ValueError(f"device {self.device_id:02d} is on a shared line: start the SerialMagLine")
         return self.line.start()
 
     @property
