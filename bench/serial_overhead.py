@@ -1,16 +1,19 @@
 """Per-sample overhead of the serial magnetometer driver on a pty, against the wire time it cannot beat.
 
-    python bench/serial_overhead.py [--samples 300] [--baud 115200]
+    python bench/serial_overhead.py [--samples 300]
 
-The simulator holds every line back for its 8N1 line time at --baud (and replies with no extra latency),
-so the wall time per sample contains the wire time a real cable would take. Figures printed:
+The HMR2300 runs at 9600 or 19200 baud; the bench works at 19200 (the driver switches the simulated
+device there with *99!BR=F). The simulator holds every line back for its 8N1 line time at the device's
+rate (and replies with no extra latency), so the wall time per sample contains the wire time a real cable
+would take. Figures printed:
 
 - polled: wall time per `*00P` sample minus the wire time of the command (5 bytes) and the reply
   (28 bytes); the same for plain pyserial (write + read_until) on the same pty, as a floor that has
   no driver in it; and the caller thread's CPU time per sample (the driver's own cost).
 - SET/RESET read: four exchanges per sample (]R, P, ]S, P).
-- streamed at 154 Hz: the device sets the pace (one line per 6.49 ms); the overhead is the caller
-  thread's CPU time per sample, to compare with the sample period and the line time.
+- streamed at 60 Hz, the fastest rate a 28-byte ASCII stream fits at 19200 baud: the device sets the
+  pace (one line per 16.7 ms); the overhead is the caller thread's CPU time per sample, to compare with
+  the sample period and the line time.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from drivers.sim.serialmag import SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import line_time_s
 
-MAX_RATE_HZ = 154
+MAX_RATE_HZ = 60  # ASCII: 280 bits per sample, 19200 baud carries at most 68 per second
+BAUD = 19200
 POLL_COMMAND = b"*00P\r"
 
 
@@ -66,9 +70,8 @@ def report(label: str, walls: list[float], cpu_s: float, wire_s: float) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=300)
-    parser.add_argument("--baud", type=int, default=115200)
     args = parser.parse_args()
-    n, baud = args.samples, args.baud
+    n, baud = args.samples, BAUD
 
     reply_s = line_time_s(LINE_BYTES, baud)
     poll_wire_s = line_time_s(len(POLL_COMMAND), baud) + reply_s
@@ -80,9 +83,12 @@ def main() -> None:
     )
 
     world = make_world()
-    with SerialMagSim(world, "dut1", reply_latency_s=0.0, line_baudrate=baud) as sim:
-        raw = serial.Serial(sim.path, baud, timeout=0.5)
-        raw.write(b"\x1b")
+    with SerialMagSim(world, "dut1", reply_latency_s=0.0, line_time=True) as sim:
+        raw = serial.Serial(sim.path, 9600, timeout=0.5)  # the device starts at 9600
+        raw.write(b"\x1b*99WE\r*99!BR=F\r")
+        raw.flush()
+        raw.read(1)  # no reply is sent: this waits the port timeout while the device switches
+        raw.baudrate = baud
 
         def raw_poll() -> None:
             raw.write(POLL_COMMAND)
@@ -118,7 +124,7 @@ def main() -> None:
         streamer.safe_state()
         streamer.close()
     print(
-        f"{'driver read_stream(), 154 Hz':<26} wall per sample {us(wall_s)} (period {us(period_s)}); "
+        f"{'driver read_stream(), 60 Hz':<26} wall per sample {us(wall_s)} (period {us(period_s)}); "
         f"caller CPU {us(cpu_s)} = {cpu_s / period_s:.1%} of the period, "
         f"{cpu_s / reply_s:.1%} of the line time"
     )

@@ -1,35 +1,49 @@
-"""Serial streaming AMR magnetometer in the style of the Honeywell HMR2300 (ASCII protocol).
+"""Honeywell HMR2300 serial AMR magnetometer (ASCII protocol, RS-232 or RS-485).
 
 Constructors (what the station YAML maps onto)::
 
     SerialMagnetometer(transport, *, name, clock=None, device_id=0, rate_hz=20, set_reset="pulse")
     SerialMagnetometer.from_port(port, *, name, clock=None, baudrate=9600, timeout_s=0.5, tries=3,
                                  device_id=0, rate_hz=20, set_reset="pulse")
+    SerialMagnetometer.on_line(line, *, name, device_id, clock=None, timeout_s=0.5, tries=3,
+                               rate_hz=20, set_reset="pulse")     # several devices on one RS-485 line
 
-- transport: a drivers.transports.serial.SerialTransport (it owns timeouts, retries and reconnects).
-- device_id: the `dd` of the commands, 0..98 (99 addresses every device on the bus).
-- rate_hz: continuous-mode rate, one of RATES_HZ.
+- transport: a drivers.transports.serial.SerialTransport (it owns timeouts, retries and reconnects);
+  `line`: a drivers.transports.serial.SerialLine shared by every HMR2300 on the cable.
+- baudrate: the rate the device is at when it powers up, 9600 or 19200 (the only two it has).
+- device_id: the `dd` of the commands, 0..98 (99 addresses every device on the line).
+- rate_hz: continuous-mode rate, one of RATES_HZ that an ASCII stream can carry (see BAUD below).
 - set_reset: "pulse": auto S/R off; every read() does a RESET and a SET pulse with a poll after each and
   reports H = (H_set - H_reset)/2 and the bridge offset (H_set + H_reset)/2 in FieldSample.offset_nt.
   "auto": the device's own auto S/R (`TN`), plain polls, offset not reported. "off": no pulses at all
   (`TF`, one SET at connect so the polarity is known).
 
-Commands (ASCII, `dd` = two-digit id, each ends with CR)::
+Commands and replies, from the datasheet command table (hardware-notes 2.3); `dd` = two-digit id, CR ends
+each::
 
-    *ddP       poll one sample          -> one sample line
-    *ddC       continuous stream        -> sample lines at the set rate until Esc (0x1B)
-    *ddWE      write enable             -> "OK"     (needed before each setting command below)
-    *ddR=nnn   rate in Hz               -> "OK"
-    *ddTN/TF   auto S/R on/off          -> "OK"
-    *dd]S/]R   one SET / RESET pulse    -> "SET" / "RST"
-    *dd#       serial number            -> one text line
-    *ddF       firmware version         -> one text line
-    *ddQ       query setup              -> one text line
-    anything the device does not accept -> "Re-enter"
+    *ddA        ASCII output            -> "ASCII_ON"   (sent at connect; it also finds the baud rate)
+    *ddWE       write enable            -> "OK"         (sent just before each setting command below)
+    *ddR=nnn    rate in Hz              -> "OK"
+    *ddTN/TF    auto S/R on/off         -> "S/R_ON" / "S/R_OFF"
+    *dd]S/]R    one SET / RESET pulse   -> "SET" / "RST"
+    *99WE, *99!BR=F / *99!BR=S   every device on the line to 19200 / 9600 baud; no reply is awaited
+    *ddP        poll one sample         -> one sample line
+    *ddC        continuous stream       -> sample lines at the set rate until Esc (0x1B)
+    *dd#, *ddF, *ddQ   serial number, firmware, setup -> one text line each (format not in the notes)
+    anything the device does not accept -> "Re-enter": a ProtocolError naming the command
 
-The command set is the HMR2300's. The short acknowledgements (OK, SET, RST) are the ones our simulator
-gives; check them against a real unit before relying on them. The HMR2300 has no temperature output:
-temp_c is None (the rig places a temperature probe next to the DUT).
+BAUD. The notes give: 9600 or 19200 baud 8N1, switched with `*99!BR=S|F`, and "19200 baud is needed for
+40 and 50 Hz". They do not give the power-on rate, nor what 60, 100, 123 and 154 Hz need. Arithmetic on
+the 28-byte ASCII sample (280 bits at 8N1): 9600 baud carries at most 34 samples/s and 19200 at most 68,
+so 60 Hz needs 19200 too, and 100 Hz and above cannot be streamed in ASCII at all (presumably the binary
+format is meant for them; its 7-byte layout is not verified in the notes, so this driver does not use
+it). The driver switches the line to 19200 when the rate needs it and never back down (another device on
+the line may need it). After a reopen it finds the device's rate again: `*ddA` at the line's rate, then
+at the other one.
+
+Shared RS-485 line: each device answers only its own id; the line's lock keeps one device's exchanges
+(and a whole SET/RESET read or stream) together. The HMR2300 has no temperature output: temp_c is None
+(the rig places a temperature probe next to the DUT).
 
 Sample line, 28 bytes: three 7-byte fields, each followed by two spaces, then CR::
 
@@ -52,8 +66,8 @@ import re
 
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
-from drivers.errors import DeviceError, OptionError, ProtocolError
-from drivers.transports.serial import SerialTransport, line_time_s
+from drivers.errors import DeviceError, DeviceTimeout, OptionError, ProtocolError
+from drivers.transports.serial import SerialLine, SerialTransport, line_time_s
 
 log = logging.getLogger("magrig.drivers.serialmag")
 
@@ -64,12 +78,20 @@ RANGE_COUNTS = 30_000  # +-2 gauss
 RATES_HZ = (10, 20, 25, 30, 40, 50, 60, 100, 123, 154)
 SET_RESET_MODES = ("pulse", "auto", "off")
 LINE_BYTES = 28
+BITS_PER_LINE = LINE_BYTES * 10  # 8N1
+BAUD_RATES = (9600, 19200)
+BAUD_CODE = {9600: "S", 19200: "F"}  # *99!BR=S / *99!BR=F
+BROADCAST_ID = 99
+BAUD_SWITCH_S = 0.1  # ours: time given to the devices to change their rate (the notes give none)
 FIELD_COLUMNS = ((0, 7), (9, 16), (18, 25))
 SEPARATOR_COLUMNS = ((7, 9), (16, 18), (25, 27))
 CR = b"\r"
 ESC = b"\x1b"
-OK = b"OK\r"
+# Replies, as the datasheet command table gives them (hardware-notes 2.3)
+OK = b"OK\r"  # *ddWE, *ddR=nnn
+ASCII_ON = b"ASCII_ON\r"  # *ddA
 WRONG_ENTRY = b"Re-enter\r"
+AUTO_SET_RESET_REPLY = {True: b"S/R_ON\r", False: b"S/R_OFF\r"}  # *ddTN / *ddTF
 PULSE_REPLY = {1: b"SET\r", -1: b"RST\r"}
 PULSE_COMMAND = {1: "]S", -1: "]R"}
 
@@ -79,6 +101,12 @@ _FIELD = re.compile(rb"([ -]) *(\d{1,2},\d{3}|\d{1,3})")
 def command(device_id: int, body: str) -> bytes:
     """`*dd<body><CR>`."""
     return b"*%02d%s\r" % (device_id, body.encode("ascii"))
+
+
+def baud_needed(rate_hz: int) -> int | None:
+    """The lowest baud rate whose line carries an ASCII stream at `rate_hz`, None if neither does.
+    The notes name 19200 for 40 and 50 Hz; the rest is the 280-bit line arithmetic (module docstring)."""
+    return next((b for b in BAUD_RATES if rate_hz * BITS_PER_LINE <= b), None)
 
 
 def decode_field(field: bytes) -> int | None:
@@ -108,7 +136,7 @@ def counts_to_nt(counts) -> tuple[float, float, float]:
 
 class SerialMagnetometer(Device):
     kind = "magnetometer"
-    model = "HMR2300-style serial AMR magnetometer"
+    model = "Honeywell HMR2300 serial AMR magnetometer"
 
     def __init__(
         self,
@@ -121,8 +149,8 @@ class SerialMagnetometer(Device):
         set_reset: str = "pulse",
     ):
         super().__init__(name, clock or transport.clock)
-        if not 0 <= device_id <= 99:
-            raise OptionError(f"{name}: device_id {device_id} is not in 0..99")
+        if not 0 <= device_id < BROADCAST_ID:
+            raise OptionError(f"{name}: device_id {device_id} is not in 0..98 (99 addresses every device)")
         if set_reset not in SET_RESET_MODES:
             raise OptionError(f"{name}: set_reset {set_reset!r} is not one of {', '.join(SET_RESET_MODES)}")
         _check_rate(name, rate_hz)
@@ -147,17 +175,36 @@ class SerialMagnetometer(Device):
         tries: int = 3,
         **kwargs,
     ) -> SerialMagnetometer:
-        """Build the transport and the driver from a port path or pyserial URL."""
+        """Build the transport and the driver from a port path or pyserial URL (a port of its own)."""
+        _check_baud(name, baudrate)
         transport = SerialTransport(
             port, name=name, clock=clock, baudrate=baudrate, timeout_s=timeout_s, tries=tries
         )
         return cls(transport, name=name, clock=clock, **kwargs)
 
+    @classmethod
+    def on_line(
+        cls,
+        line: SerialLine,
+        *,
+        name: str,
+        device_id: int,
+        clock: Clock | None = None,
+        timeout_s: float = 0.5,
+        tries: int = 3,
+        **kwargs,
+    ) -> SerialMagnetometer:
+        """One of several HMR2300s on a shared RS-485 line, addressed by `device_id`."""
+        _check_baud(name, line.baudrate)
+        transport = line.transport(device_id, name=name, clock=clock, timeout_s=timeout_s, tries=tries)
+        return cls(transport, name=name, clock=clock, device_id=device_id, **kwargs)
+
     # --- link and setup ---------------------------------------------------------------------------
     def connect(self) -> None:
-        self._ensure_configured()
-        self.serial_number = self._text_query("#", "read serial number")
-        self.firmware = self._text_query("F", "read firmware")
+        with self.transport.session():
+            self._ensure_configured()
+            self.serial_number = self._text_query("#", "read serial number")
+            self.firmware = self._text_query("F", "read firmware")
 
     def close(self) -> None:
         self.transport.close()
@@ -170,33 +217,81 @@ class SerialMagnetometer(Device):
 
     def _ensure_configured(self) -> None:
         """(Re)apply our settings after the first open and after every reopen: a device that was
-        unplugged may have power-cycled to its defaults."""
-        self.transport.open()
-        if self.transport.open_count == self._configured_open_count:
+        unplugged may have power-cycled to its defaults (baud rate included)."""
+        with self.transport.session():
+            self.transport.open()
+            if self.transport.open_count == self._configured_open_count:
+                return
+            self._stop_stream()
+            self._find_device()
+            self._raise_baud_for(self.rate_hz)
+            auto = self.set_reset == "auto"
+            self._setting("TN" if auto else "TF", AUTO_SET_RESET_REPLY[auto], "set auto set/reset")
+            self._setting(f"R={self.rate_hz}", OK, "set rate")
+            if self.set_reset != "auto":
+                self.pulse(1)
+            self._configured_open_count = self.transport.open_count
+
+    def _find_device(self) -> None:
+        """`*ddA` -> ASCII_ON: ASCII output, and proof that we talk at the device's baud rate. A device
+        that does not answer at the line's rate is tried once at the other one (it may have kept 19200
+        from an earlier run, or power-cycled back to its start-up rate)."""
+        first = self.transport.baudrate
+        try:
+            self._reply_to("A", ASCII_ON, "set ASCII output")
             return
-        self._stop_stream()
-        self._setting("TN" if self.set_reset == "auto" else "TF", "set auto set/reset")
-        self._setting(f"R={self.rate_hz}", "set rate")
-        if self.set_reset != "auto":
-            self.pulse(1)
-        self._configured_open_count = self.transport.open_count
+        except (DeviceTimeout, ProtocolError) as exc:
+            other = next(b for b in BAUD_RATES if b != first)
+            self._warn(f"no answer at {first} baud ({exc.detail}); trying {other}")
+        self.transport.set_baudrate(other)
+        try:
+            self._reply_to("A", ASCII_ON, "set ASCII output")
+        except DeviceError:
+            self.transport.set_baudrate(first)
+            raise
+
+    def _raise_baud_for(self, rate_hz: int) -> None:
+        """Switch every device on the line to 19200 baud if `rate_hz` needs it (never down: another
+        device on a shared line may need the faster rate)."""
+        needed = baud_needed(rate_hz)
+        if needed is None or needed <= self.transport.baudrate:
+            return
+        operation = f"switch line to {needed} baud"
+        self.transport.write(command(BROADCAST_ID, "WE"), operation=operation)
+        switch = command(BROADCAST_ID, f"!BR={BAUD_CODE[needed]}")
+        self.transport.write(switch, operation=operation)
+        # Let the command leave at the old rate and the devices act on it before the port changes (the
+        # notes give ~2 ms per reply, not how long the switch takes); anything sent back is dropped.
+        self.transport.discard_input(line_time_s(len(switch), self.transport.baudrate) + BAUD_SWITCH_S)
+        self.transport.set_baudrate(needed, operation=operation)
+        self._reply_to("A", ASCII_ON, f"{operation} (check)")  # the device answers at the new rate
 
     def _expect(self, line: bytes, wanted: bytes, sent: bytes, operation: str) -> bytes:
         if line == wanted:
             return line
         if line.endswith(WRONG_ENTRY):
-            raise ProtocolError(self.name, operation, f"device answered Re-enter to {sent!r}")
+            raise ProtocolError(
+                self.name, operation, f"device answered Re-enter (command refused) to {sent!r}"
+            )
         raise ProtocolError(self.name, operation, f"expected {wanted!r} after {sent!r}, got {line!r}")
 
-    def _setting(self, body: str, operation: str) -> None:
+    def _reply_to(self, body: str, wanted: bytes, operation: str) -> None:
+        """One command whose datasheet reply is `wanted`, retried."""
+        cmd = self._cmd(body)
+        self.transport.query(
+            cmd, operation=operation, parse=lambda line: self._expect(line, wanted, cmd, operation)
+        )
+
+    def _setting(self, body: str, wanted: bytes, operation: str) -> None:
         """Write-enable, then one setting command; the pair is retried together."""
         we, cmd = self._cmd("WE"), self._cmd(body)
 
         def once() -> None:
             self._expect(self.transport.exchange(we, operation=operation), OK, we, operation)
-            self._expect(self.transport.exchange(cmd, operation=operation), OK, cmd, operation)
+            self._expect(self.transport.exchange(cmd, operation=operation), wanted, cmd, operation)
 
-        self.transport.retry(once, operation=operation)
+        with self.transport.session():
+            self.transport.retry(once, operation=operation)
 
     def _text_query(self, body: str, operation: str) -> str:
         cmd = self._cmd(body)
@@ -212,9 +307,11 @@ class SerialMagnetometer(Device):
     def set_rate(self, rate_hz: int) -> None:
         """Continuous-mode output rate, one of RATES_HZ."""
         _check_rate(self.name, rate_hz)
-        self._ensure_configured()
-        self._setting(f"R={rate_hz}", "set rate")
-        self.rate_hz = rate_hz
+        with self.transport.session():
+            self._ensure_configured()
+            self._raise_baud_for(rate_hz)
+            self._setting(f"R={rate_hz}", OK, "set rate")
+            self.rate_hz = rate_hz
 
     def pulse(self, polarity: int) -> None:
         """One SET (+1) or RESET (-1) pulse: flips the sign of the bridge's field response."""
@@ -227,8 +324,9 @@ class SerialMagnetometer(Device):
 
     def query_setup(self) -> str:
         """The device's own one-line setup summary (`*ddQ`)."""
-        self._ensure_configured()
-        return self._text_query("Q", "query setup")
+        with self.transport.session():
+            self._ensure_configured()
+            return self._text_query("Q", "query setup")
 
     # --- samples ----------------------------------------------------------------------------------
     def _decode(self, line: bytes, operation: str) -> tuple[int, int, int]:
@@ -259,12 +357,24 @@ class SerialMagnetometer(Device):
 
     def read(self) -> FieldSample:
         """One sample. In "pulse" mode H = (H_set - H_reset)/2, counts are the SET reading's."""
+        with self.transport.session():  # the RESET/SET pair must not interleave with another device
+            return self._read()
+
+    def _read(self) -> FieldSample:
         for _ in range(self.transport.tries):
             self._ensure_configured()
             opened = self.transport.open_count
-            if self.set_reset != "pulse":
-                return self._sample(self.poll_counts(), None)
-            reset, set_ = self._pulsed_pair()
+            try:
+                if self.set_reset != "pulse":
+                    return self._sample(self.poll_counts(), None)
+                reset, set_ = self._pulsed_pair()
+            except DeviceError as exc:
+                if self.transport.open_count == opened:
+                    raise
+                # The port was reopened under us: the device may be at other settings (baud rate
+                # included), so the commands failed for that; reconfigure and repeat.
+                self._warn(f"port reopened during a read ({exc.detail}); reconfiguring")
+                continue
             if self.transport.open_count != opened:  # reconnected mid-sequence: polarity unknown
                 self._warn("reconnected during a SET/RESET read; repeating it")
                 continue
@@ -273,7 +383,7 @@ class SerialMagnetometer(Device):
                 offset_nt=_half_sum_nt(reset, set_),
                 flags=_saturated(set_) | _saturated(reset),
             )
-        raise DeviceError(self.name, "read", "the port kept reconnecting during the SET/RESET sequence")
+        raise DeviceError(self.name, "read", "the port kept reconnecting during the read")
 
     def _sample(self, counts, offset_nt) -> FieldSample:
         """A sample from one reading; a known bridge offset is subtracted."""
@@ -286,7 +396,12 @@ class SerialMagnetometer(Device):
 
     def read_stream(self, n: int) -> list[FieldSample]:
         """`n` samples from continuous mode, then the stream is stopped. In "pulse" mode the bridge
-        offset is measured once with a RESET/SET pair first and subtracted from every sample."""
+        offset is measured once with a RESET/SET pair first and subtracted from every sample. The line
+        is this device's until the stream has stopped."""
+        with self.transport.session():
+            return self._read_stream(n)
+
+    def _read_stream(self, n: int) -> list[FieldSample]:
         operation = "stream samples"
         self._ensure_configured()
         offset_nt = _half_sum_nt(*self._pulsed_pair()) if self.set_reset == "pulse" else None
@@ -346,6 +461,8 @@ class SerialMagnetometer(Device):
             **super().describe(),
             "model": self.model,
             "port": self.transport.port,
+            "baudrate": self.transport.baudrate,
+            "shared_line": self.transport.shared,
             "device_id": self.device_id,
             "serial_number": self.serial_number,
             "firmware": self.firmware,
@@ -360,6 +477,18 @@ class SerialMagnetometer(Device):
 def _check_rate(name: str, rate_hz: int) -> None:
     if rate_hz not in RATES_HZ:
         raise OptionError(f"{name}: rate_hz {rate_hz} is not one of {', '.join(map(str, RATES_HZ))}")
+    if baud_needed(rate_hz) is None:
+        streamable = [r for r in RATES_HZ if baud_needed(r)]
+        raise OptionError(
+            f"{name}: rate_hz {rate_hz}: a {LINE_BYTES}-byte ASCII sample stream at {rate_hz} Hz needs "
+            f"{rate_hz * BITS_PER_LINE} baud, above the device's fastest 19200; "
+            f"use one of {', '.join(map(str, streamable))}"
+        )
+
+
+def _check_baud(name: str, baudrate: int) -> None:
+    if baudrate not in BAUD_RATES:
+        raise OptionError(f"{name}: baudrate {baudrate}: the HMR2300 runs at 9600 or 19200 only")
 
 
 def _half_sum_nt(reset, set_, reset_sign: int = 1) -> tuple[float, float, float]:

@@ -148,8 +148,7 @@ class CampaignRunner:
         reading = self.rig.chamber.read()
         self.status.chamber_c = reading.air_c
         if reading.fault:
-            what = "alarm" if reading.alarm else "temperature input error"
-            raise Hold(f"chamber {what}")
+            raise Hold(f"chamber {reading.problem}")
 
     def _dut_temps(self, cache: dict | None = None) -> dict[str, float | None]:
         """Each DUT's temperature from its temp source (a sensor is read once per call)."""

@@ -185,14 +185,18 @@ def _factories(station, plan, clock, world, started) -> list[tuple[str, Callable
     ch = station.chamber
     register_map = "f4t" if ch.type == "watlow_f4t" else "f4"
 
+    alarm = getattr(ch, "alarm", None)  # station-given alarm register; none by default
+    if ch.simulated:
+        from drivers.sim.chamber import SIM_STATION_ALARM as alarm  # the sim plays a lab that has one
+
     def chamber_sim():
         from drivers.sim.chamber import ChamberSim
 
-        return started(ChamberSim(world, register_map, ch.unit))
+        return started(ChamberSim(world, register_map, ch.unit, alarm=alarm))
 
     chamber_cls = WatlowF4T if ch.type == "watlow_f4t" else WatlowF4
     out.append((ch.name, lambda: chamber_cls(_modbus(ch, clock, chamber_sim), name=ch.name, clock=clock,
-                                             **ch.limits.model_dump())))
+                                             alarm=alarm, **ch.limits.model_dump())))
 
     fs = station.field_source
     if isinstance(fs, cfg.Coils):

@@ -1,13 +1,18 @@
 """Simulated Watlow chamber controller: a real pymodbus server whose registers drive and show the World.
 
     ChamberSim(world, register_map="f4t" | "f4", unit=1, *, word_order="little", decimals=1,
-               units_c=True, range_c=(-73.0, 175.0), framing="tcp")
+               units_c=True, range_c=(-73.0, 175.0), framing="tcp", alarm=None)
+
+Only registers documented in hardware-notes 3.1 (F4) and 3.2 (F4T) exist; any other address gets
+exception 2 (illegal data address), as from a real controller. `alarm` (a drivers.chamber.ChamberAlarm)
+adds the register a lab's station names for its alarm; without it there is none, as in the documents.
 
 A setpoint write moves world.set_chamber_setpoint (out-of-range values get exception 3, as a real
 controller refuses them); F4T ramp writes set world.set_chamber_ramp (ramp off = the chamber's natural
 rate, the world's ramp at construction). Reads refresh the temperature, setpoint and alarm registers
 from the world lazily, so a SimClock may jump. Fault hooks: the server's (silence, fail_next, unplug,
-replug), plus world.chamber_alarm -> alarm register, and `input_error = True` -> input error register.
+replug), world.chamber_alarm -> the configured alarm register (the first of its bits, or 1), and
+`input_error = True` -> the F4's input error register 101 (the F4T documents none).
 """
 
 from __future__ import annotations
@@ -18,9 +23,14 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import SimData, SimDevice
 
 from drivers import chamber as regs
+from drivers.chamber import ChamberAlarm
 from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import decode_float32, decode_int16, encode_float32, encode_int16
+
+# The simulated station plays a lab whose controller has an alarm-summary register and whose station
+# file names it (the Watlow documents give none). The address is that imagined lab's, not Watlow's.
+SIM_STATION_ALARM = ChamberAlarm(register=60000, kind="nonzero", meaning="alarm summary")
 
 RAMP_REGISTERS = {regs.F4T_RAMP_ACTION, regs.F4T_RAMP_SCALE, regs.F4T_RAMP_RATE, regs.F4T_RAMP_RATE + 1}
 
@@ -37,6 +47,7 @@ class ChamberSim(SimulatedModbusDevice):
         units_c: bool = True,
         range_c: tuple[float, float] = (-73.0, 175.0),
         framing: str = "tcp",
+        alarm: ChamberAlarm | None = None,
     ):
         if register_map not in ("f4t", "f4"):
             raise ValueError(f"register_map must be 'f4t' or 'f4', not {register_map!r}")
@@ -49,6 +60,7 @@ class ChamberSim(SimulatedModbusDevice):
         self.range_c = range_c
         self.natural_ramp_c_per_min = world.ramp_c_per_min
         self.input_error = False
+        self.alarm = alarm
 
     def sim_device(self) -> SimDevice:
         if self.register_map == "f4t":
@@ -59,8 +71,17 @@ class ChamberSim(SimulatedModbusDevice):
     def _setpoint_ok(self, setpoint_c: float) -> bool:
         return math.isfinite(setpoint_c) and self.range_c[0] <= setpoint_c <= self.range_c[1]
 
-    def _statusregister_block(self) -> tuple[int, int]:
-        return int(bool(self.world.chamber_alarm)), int(self.input_error)
+    def _alarm_word(self) -> int:
+        if not self.world.chamber_alarm:
+            return 0
+        return 1 << min(self.alarm.bits) if self.alarm.kind == "bits" else 1
+
+    def _alarm_blocks(self) -> list[SimData]:
+        return [register_block(self.alarm.register, [0], readonly=True)] if self.alarm else []
+
+    def _refresh_alarm(self, registers: list[int], start: int, address: int, count: int) -> None:
+        if self.alarm and address <= self.alarm.register < address + count:
+            registers[self.alarm.register - start] = self._alarm_word()
 
     # --- F4T data map 1 ---------------------------------------------------------------------------
     def _f4(self, value: float) -> list[int]:
@@ -75,7 +96,7 @@ class ChamberSim(SimulatedModbusDevice):
             register_block(regs.F4T_RAMP_RATE, self._f4(self.natural_ramp_c_per_min)),
             register_block(regs.F4T_CLOSED_LOOP_SETPOINT, self._f4(self.world.setpoint_c), readonly=True),
             register_block(regs.F4T_CHAMBER_TEMP, self._f4(air_c), readonly=True),
-            register_block(regs.ALARM_REGISTER, [0, 0], readonly=True),  # alarm, then input error (ours)
+            *self._alarm_blocks(),
         ]
 
     async def _f4t_action(self, function_code, start, address, count, registers, set_values):
@@ -85,7 +106,7 @@ class ChamberSim(SimulatedModbusDevice):
         if set_values is None:  # a read: bring the live registers up to the world's present
             put(regs.F4T_CHAMBER_TEMP, self._f4(self.world.chamber_air_c()))
             put(regs.F4T_CLOSED_LOOP_SETPOINT, self._f4(self.world.setpoint_c))
-            put(regs.ALARM_REGISTER, list(self._statusregister_block()))
+            self._refresh_alarm(registers, start, address, count)
             return None
         value = value_after_write(registers, start, address, set_values)
         written = set(range(address, address + len(set_values)))
@@ -108,7 +129,7 @@ class ChamberSim(SimulatedModbusDevice):
         if not (math.isfinite(rate) and rate > 0):
             return ExcCodes.ILLEGAL_VALUE
         rate_per_min = rate if scale == regs.RAMP_SCALE_PER_MINUTE else rate / 60.0
-        ramping = action in (regs.RAMP_ON_SETPOINT, 13)  # 13 = "both" (startup and set point)
+        ramping = action in (regs.RAMP_ON_SETPOINT, regs.RAMP_BOTH)
         # the chamber cannot ramp faster than its heater and compressor allow
         self.world.set_chamber_ramp(
             min(rate_per_min, self.natural_ramp_c_per_min) if ramping else self.natural_ramp_c_per_min
@@ -127,17 +148,16 @@ class ChamberSim(SimulatedModbusDevice):
             register_block(regs.F4_SETPOINT, [self._to_word(self.world.setpoint_c, d)]),
             register_block(regs.F4_PRECISION, [d]),
             register_block(regs.F4_UNITS, [regs.F4_UNITS_C if self.units_c else 0], readonly=True),
-            register_block(regs.ALARM_REGISTER, [0], readonly=True),
+            *self._alarm_blocks(),
         ]
 
     async def _f4_action(self, function_code, start, address, count, registers, set_values):
         decimals = registers[regs.F4_PRECISION - start]
         if set_values is None:
-            alarm, input_error = self._statusregister_block()
             registers[regs.F4_TEMP - start] = self._to_word(self.world.chamber_air_c(), decimals)
-            registers[regs.F4_INPUT_ERROR - start] = input_error
+            registers[regs.F4_INPUT_ERROR - start] = int(self.input_error)
             registers[regs.F4_SETPOINT - start] = self._to_word(self.world.setpoint_c, decimals)
-            registers[regs.ALARM_REGISTER - start] = alarm
+            self._refresh_alarm(registers, start, address, count)
             return None
         value = value_after_write(registers, start, address, set_values)
         written = range(address, address + len(set_values))

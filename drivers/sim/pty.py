@@ -5,6 +5,7 @@
       .write(data)       firmware -> driver bytes (dropped, not blocked on, if the driver stops reading)
       .unplug()          stop the reader, close both ends: the driver's port fails like a pulled cable
       .plugged           True between plug() and unplug()
+      .port_baudrate()   the baud rate the driver's end is set to (termios), None if unplugged
 
 The driver opens the slave end with an ordinary `serial.Serial(path)`, so the real pyserial code path
 runs (open, termios, select, read). The slave is put in raw mode first; otherwise the line discipline
@@ -22,11 +23,15 @@ from __future__ import annotations
 import logging
 import os
 import select
+import termios
 import threading
 import tty
 from collections.abc import Callable
 
 log = logging.getLogger("magrig.sim.pty")
+_BAUD_OF_SPEED = {
+    getattr(termios, f"B{b}"): b for b in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+}
 
 
 class PtyLink:
@@ -84,6 +89,16 @@ class PtyLink:
                     self._on_receive(data)
                 except Exception:  # a firmware bug must not kill the cable silently
                     log.exception("pty firmware handler failed")
+
+    def port_baudrate(self) -> int | None:
+        """The speed the driver set on its end of the cable (a pty keeps it, like a UART would)."""
+        if self._slave is None:
+            return None
+        try:
+            speed = termios.tcgetattr(self._slave)[5]  # ospeed, a B* constant
+        except termios.error:
+            return None
+        return _BAUD_OF_SPEED.get(speed)
 
     def write(self, data: bytes) -> None:
         """Send bytes to the driver. A full buffer (nobody reading) drops bytes like a UART overrun."""

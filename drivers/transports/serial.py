@@ -1,9 +1,11 @@
 """Serial transport: line-oriented I/O with timeouts, bounded retries, reconnect and a raw-byte log.
 
-Constructor (what the station YAML maps onto)::
+Constructors (what the station YAML maps onto)::
 
     SerialTransport(port, *, name, clock=None, baudrate=9600, timeout_s=0.5, tries=3,
-                    backoff_s=0.02, opener=None)
+                    backoff_s=0.02, opener=None)                      # a port of its own
+    line = SerialLine(port, *, baudrate=9600, opener=None)             # one RS-485 line, several devices
+    line.transport(device_id, *, name, clock=None, timeout_s=0.5, tries=3, backoff_s=0.02)
 
 - port: a device path ("/dev/ttyUSB0", a pty slave or a stable symlink to one) or a pyserial URL
   ("loop://", "socket://host:port", "rfc2217://..."), opened with `serial.serial_for_url`.
@@ -21,12 +23,22 @@ Unplugging shows up as OSError / SerialException (a subclass of OSError) on read
 then closes the port and raises DeviceNotFound; the next attempt reopens the same path, so a device that
 comes back under the same name (a udev by-id link, the simulator's stable link) is picked up again.
 `open_count` tells a driver that a reopen happened (the device may have power-cycled: reconfigure it).
+
+Shared line: a SerialLine is the cable: one pyserial handle, its baud rate, its receive buffer and one
+lock. Each device on it gets its own SerialTransport from `line.transport(device_id, name=...)` (its own
+name in errors, its own timeouts and tries); every call takes the line's lock, so one exchange never
+interleaves with another device's, and `with transport.session():` holds the line for a sequence (a
+SET/RESET read, a stream). The devices' replies carry no address, so routing is by turn: the reply on the
+line belongs to the device whose command was just sent while it holds the line. Device ids are unique
+per line. The port closes when the last of its devices closes it.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import termios
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -34,7 +46,7 @@ from typing import Any, TypeVar
 import serial
 
 from drivers.clock import Clock, RealClock
-from drivers.errors import DeviceNotFound, DeviceTimeout
+from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError
 from drivers.transports.retry import with_retries
 
 T = TypeVar("T")
@@ -52,12 +64,62 @@ def line_time_s(n_bytes: int, baudrate: int) -> float:
     return n_bytes * BITS_PER_BYTE_8N1 / baudrate
 
 
+def _locked(method: Callable[..., T]) -> Callable[..., T]:
+    """Run the method holding the line's lock: one device's exchange at a time on a shared line."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        with self.line.lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper
+
+
 def _open_with_pyserial(port: str, *, baudrate: int, timeout_s: float) -> Any:
     return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s)
 
 
+class SerialLine:
+    """One serial port (cable) and what belongs to it rather than to a device on it."""
+
+    def __init__(self, port: str, *, baudrate: int = 9600, opener: Callable[..., Any] | None = None):
+        self.port = port
+        self.baudrate = baudrate
+        self.opener = opener or _open_with_pyserial
+        self.lock = threading.RLock()
+        self.ser: Any = None
+        self.port_timeout_s: float | None = None
+        self.rx = bytearray()
+        self.open_count = 0
+        self.users: set[int] = set()  # ids of the transports that have the port open
+        self.device_ids: dict[int, str] = {}
+
+    def transport(self, device_id: int, *, name: str, **kwargs) -> SerialTransport:
+        """The transport of device `device_id` on this line (kwargs: clock, timeout_s, tries, backoff_s)."""
+        with self.lock:
+            if self.device_ids.get(device_id, name) != name:
+                raise OptionError(
+                    f"{name}: device id {device_id} on {self.port} is already {self.device_ids[device_id]}'s"
+                )
+            self.device_ids[device_id] = name
+        return SerialTransport(self.port, name=name, line=self, **kwargs)
+
+    def close_port(self) -> None:
+        """Close the port for every device on the line; never raises."""
+        with self.lock:
+            ser, self.ser = self.ser, None
+            self.rx.clear()
+            self.users.clear()
+            if ser is not None:
+                try:
+                    ser.close()
+                except Exception as exc:  # noqa: BLE001 - closing a dead port must not raise
+                    log.debug("%s: close: %s", self.port, exc)
+
+
 class SerialTransport:
-    """One serial port, shared by one driver. Not thread-safe: one caller at a time."""
+    """One device's view of a serial port: its name, timeouts and retries. Thread-safe through the line's
+    lock (a port of its own, or a SerialLine shared with other devices)."""
 
     def __init__(
         self,
@@ -70,59 +132,87 @@ class SerialTransport:
         tries: int = 3,
         backoff_s: float = 0.02,
         opener: Callable[..., Any] | None = None,
+        line: SerialLine | None = None,
     ):
-        self.port = port
+        self.line = line or SerialLine(port, baudrate=baudrate, opener=opener)
+        self.port = self.line.port
         self.name = name
         self.clock = clock or RealClock()
-        self.baudrate = baudrate
         self.timeout_s = timeout_s
         self.tries = tries
         self.backoff_s = backoff_s
-        self._opener = opener or _open_with_pyserial
-        self._ser: Any = None
-        self._port_timeout_s: float | None = None
-        self._rx = bytearray()
-        self.open_count = 0
 
     # --- link -------------------------------------------------------------------------------------
     @property
+    def baudrate(self) -> int:
+        return self.line.baudrate
+
+    @property
+    def open_count(self) -> int:
+        return self.line.open_count
+
+    @property
+    def shared(self) -> bool:
+        return len(self.line.device_ids) > 1
+
+    @property
     def is_open(self) -> bool:
-        return self._ser is not None
+        return self.line.ser is not None
+
+    def session(self) -> threading.RLock:
+        """`with transport.session():` keeps the line to this device for a sequence of exchanges."""
+        return self.line.lock
 
     def open(self) -> None:
         """Open the port if it is not open. Raises DeviceNotFound if the port cannot be opened."""
-        if self._ser is not None:
-            return
-        try:
-            self._ser = self._opener(self.port, baudrate=self.baudrate, timeout_s=self.timeout_s)
-        except (*PORT_ERRORS, ValueError) as exc:
-            raise DeviceNotFound(self.name, "open port", f"cannot open {self.port}: {exc}") from exc
-        self._port_timeout_s = self.timeout_s
-        self._rx.clear()
-        self.open_count += 1
-        log.debug("%s: opened %s at %d baud", self.name, self.port, self.baudrate,
+        line = self.line
+        with line.lock:
+            line.users.add(id(self))
+            if line.ser is not None:
+                return
+            try:
+                line.ser = line.opener(line.port, baudrate=line.baudrate, timeout_s=self.timeout_s)
+            except (*PORT_ERRORS, ValueError) as exc:
+                line.users.discard(id(self))
+                raise DeviceNotFound(self.name, "open port", f"cannot open {line.port}: {exc}") from exc
+            line.port_timeout_s = self.timeout_s
+            line.rx.clear()
+            line.open_count += 1
+        log.debug("%s: opened %s at %d baud", self.name, line.port, line.baudrate,
                   extra={"device": self.name})
 
     def close(self) -> None:
-        """Release the port; never raises."""
-        ser, self._ser = self._ser, None
-        self._rx.clear()
-        if ser is not None:
+        """Release the port (closed when no other device on the line has it open); never raises."""
+        with self.line.lock:
+            self.line.users.discard(id(self))
+            if not self.line.users:
+                self.line.close_port()
+
+    def set_baudrate(self, baudrate: int, *, operation: str = "set baud rate") -> None:
+        """Send what is queued at the old rate, then switch the open port (and later opens) to `baudrate`."""
+        with self.line.lock:
+            self.line.baudrate = baudrate
+            if self.line.ser is None:
+                return
             try:
-                ser.close()
-            except Exception as exc:  # noqa: BLE001 - closing a dead port must not raise
-                log.debug("%s: close: %s", self.name, exc, extra={"device": self.name})
+                self.line.ser.flush()
+                self.line.ser.baudrate = baudrate
+            except PORT_ERRORS as exc:
+                raise self._lost(operation, exc) from exc
+            self.line.rx.clear()
+        log.debug("%s: %s now at %d baud", self.name, self.port, baudrate, extra={"device": self.name})
 
     def _lost(self, operation: str, exc: BaseException) -> DeviceNotFound:
         """The port went away (unplug): close it so the next attempt reopens it."""
-        self.close()
+        self.line.close_port()
         return DeviceNotFound(self.name, operation, f"port {self.port} lost: {exc}")
 
     def _port(self) -> Any:
         self.open()
-        return self._ser
+        return self.line.ser
 
     # --- bytes ------------------------------------------------------------------------------------
+    @_locked
     def write(self, data: bytes, *, operation: str = "write") -> None:
         """Send `data` once (no retry). A lost port raises DeviceNotFound after closing it."""
         ser = self._port()
@@ -135,9 +225,10 @@ class SerialTransport:
         except PORT_ERRORS as exc:
             raise self._lost(operation, exc) from exc
 
+    @_locked
     def flush_input(self) -> None:
         """Drop whatever has arrived but not been read (stale replies, stream tail)."""
-        self._rx.clear()
+        self.line.rx.clear()
         ser = self._port()
         try:
             ser.reset_input_buffer()
@@ -145,10 +236,11 @@ class SerialTransport:
             raise self._lost("flush input", exc) from exc
 
     def _set_port_timeout(self, seconds: float) -> None:
-        if seconds != self._port_timeout_s:
-            self._ser.timeout = seconds
-            self._port_timeout_s = seconds
+        if seconds != self.line.port_timeout_s:
+            self.line.ser.timeout = seconds
+            self.line.port_timeout_s = seconds
 
+    @_locked
     def read_line(
         self, terminator: bytes = b"\r", timeout_s: float | None = None, *, operation: str = "read line"
     ) -> bytes:
@@ -158,36 +250,37 @@ class SerialTransport:
         deadline = time.monotonic() + timeout
         ser = self._port()
         while True:
-            end = self._rx.find(terminator)
+            end = self.line.rx.find(terminator)
             if end >= 0:
                 end += len(terminator)
-                line = bytes(self._rx[:end])
-                del self._rx[:end]
+                line = bytes(self.line.rx[:end])
+                del self.line.rx[:end]
                 if log.isEnabledFor(logging.DEBUG):
                     log.debug("%s < %r", self.name, line, extra={"device": self.name})
                 return line
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                partial = bytes(self._rx)
-                self._rx.clear()
+                partial = bytes(self.line.rx)
+                self.line.rx.clear()
                 what = f"incomplete line {partial!r}" if partial else "no reply"
                 raise DeviceTimeout(self.name, operation, f"{what} within {timeout:g} s")
             try:
                 # Blocking waits use the port's own timeout. Changing it costs system calls, so it is
                 # changed only when far off: a call ends at most 10 % of its timeout late.
-                if not 0.5 * remaining <= self._port_timeout_s <= remaining + 0.1 * timeout:
+                if not 0.5 * remaining <= self.line.port_timeout_s <= remaining + 0.1 * timeout:
                     self._set_port_timeout(remaining)
                 waiting = ser.in_waiting
                 chunk = ser.read(waiting if waiting else 1)
             except PORT_ERRORS as exc:
                 raise self._lost(operation, exc) from exc
-            self._rx += chunk
+            self.line.rx += chunk
 
+    @_locked
     def discard_input(self, quiet_s: float = 0.05) -> int:
         """Read and drop bytes until the line has been quiet for `quiet_s` (e.g. the tail of a stream
         after it was stopped). Returns the number of bytes dropped."""
-        dropped = len(self._rx)
-        self._rx.clear()
+        dropped = len(self.line.rx)
+        self.line.rx.clear()
         ser = self._port()
         try:
             self._set_port_timeout(quiet_s)
@@ -200,6 +293,7 @@ class SerialTransport:
         return dropped
 
     # --- requests ---------------------------------------------------------------------------------
+    @_locked
     def retry(self, op: Callable[[], T], *, operation: str, tries: int | None = None) -> T:
         """`op` with this transport's bounded retries; the final error names device and operation."""
         return with_retries(
@@ -211,6 +305,7 @@ class SerialTransport:
             clock=self.clock,
         )
 
+    @_locked
     def exchange(
         self, command: bytes, *, operation: str, terminator: bytes = b"\r", timeout_s: float | None = None
     ) -> bytes:
@@ -219,6 +314,7 @@ class SerialTransport:
         self.write(command, operation=operation)
         return self.read_line(terminator, timeout_s, operation=operation)
 
+    @_locked
     def query(
         self,
         command: bytes,

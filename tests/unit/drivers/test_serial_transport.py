@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import logging
 import termios
+import threading
 
 import pytest
 import serial
 
 from drivers.clock import SimClock
-from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
-from drivers.transports.serial import SerialTransport, line_time_s
+from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
+from drivers.transports.serial import SerialLine, SerialTransport, line_time_s
 
 
 class ScriptedPort:
@@ -25,6 +26,8 @@ class ScriptedPort:
         self.timeout = None
         self.closed = False
         self.fail_with = fail_with  # raised by every call once set: a pulled cable
+        self.baudrate = 9600
+        self.write_bauds: list[int] = []  # the port's baud rate at each write
 
     def _check(self):
         if self.fail_with is not None:
@@ -38,6 +41,7 @@ class ScriptedPort:
     def write(self, data: bytes) -> int:
         self._check()
         self.writes.append(data)
+        self.write_bauds.append(self.baudrate)
         assert self.transcript, f"unexpected write {data!r}: transcript finished"
         expected, reply = self.transcript.pop(0)
         assert data == expected, f"driver sent {data!r}, transcript expects {expected!r}"
@@ -49,6 +53,9 @@ class ScriptedPort:
         out = bytes(self.rx[:size])
         del self.rx[:size]
         return out
+
+    def flush(self) -> None:
+        self._check()
 
     def reset_input_buffer(self) -> None:
         self._check()
@@ -62,10 +69,12 @@ def scripted_transport(*ports: ScriptedPort, name: str = "dut2", **kwargs) -> Se
     """A transport whose successive opens return `ports` in order (then fail as a missing port)."""
     queue = list(ports)
 
-    def opener(port, **_):
+    def opener(port, *, baudrate, **_):
         if not queue:
             raise serial.SerialException(f"could not open port {port}: No such file or directory")
-        return queue.pop(0)
+        opened = queue.pop(0)
+        opened.baudrate = baudrate
+        return opened
 
     kwargs.setdefault("timeout_s", 0.01)
     return SerialTransport("/dev/ttyFAKE0", name=name, clock=SimClock(), opener=opener, **kwargs)
@@ -161,3 +170,68 @@ def test_unknown_port_is_device_not_found():
 def test_line_time_of_a_sample_line():
     assert line_time_s(28, 115200) == pytest.approx(2.4306e-3, rel=1e-4)
     assert line_time_s(28, 9600) == pytest.approx(29.17e-3, rel=1e-3)
+
+
+# --- a shared RS-485 line -------------------------------------------------------------------------
+def shared_line(port: ScriptedPort) -> SerialLine:
+    def opener(path, *, baudrate, **_):
+        port.baudrate = baudrate
+        return port
+
+    return SerialLine("/dev/ttyRS485", baudrate=9600, opener=opener)
+
+
+def test_devices_on_one_line_share_one_port_and_keep_their_own_names():
+    port = ScriptedPort([(b"*01P\r", b""), (b"*02#\r", b"SN2\r")])
+    line = shared_line(port)
+    a = line.transport(1, name="dut1", clock=SimClock(), timeout_s=0.01, tries=1)
+    b = line.transport(2, name="dut2", clock=SimClock(), timeout_s=0.01, tries=1)
+    with pytest.raises(DeviceTimeout, match=r"^dut1: poll sample: no reply"):
+        a.query(b"*01P\r", operation="poll sample", parse=bytes)
+    assert b.query(b"*02#\r", operation="read serial", parse=bytes) == b"SN2\r"
+    assert a.open_count == b.open_count == 1 and a.shared and b.shared
+    a.close()
+    assert not port.closed  # dut2 still has it open
+    b.close()
+    assert port.closed and not a.is_open
+
+
+def test_a_device_id_is_taken_once_per_line():
+    line = shared_line(ScriptedPort())
+    line.transport(3, name="dut1")
+    with pytest.raises(OptionError, match="dut2: device id 3 on /dev/ttyRS485 is already dut1's"):
+        line.transport(3, name="dut2")
+
+
+def test_a_session_keeps_the_line_from_other_threads():
+    line = shared_line(ScriptedPort())
+    a = line.transport(1, name="dut1")
+    got: list[bool] = []
+
+    def other_device() -> None:
+        free = line.lock.acquire(blocking=False)
+        if free:
+            line.lock.release()
+        got.append(free)
+
+    with a.session():
+        worker = threading.Thread(target=other_device)
+        worker.start()
+        worker.join()
+    assert got == [False]
+    worker = threading.Thread(target=other_device)
+    worker.start()
+    worker.join()
+    assert got == [False, True]
+
+
+def test_baud_rate_switch_applies_to_the_open_port_and_to_later_opens():
+    port = ScriptedPort([(b"*00A\r", b"ASCII_ON\r")])
+    t = scripted_transport(port, ScriptedPort())
+    t.open()
+    t.set_baudrate(19200)
+    t.query(b"*00A\r", operation="probe", parse=bytes)
+    assert port.write_bauds == [19200] and t.baudrate == 19200
+    t.close()
+    t.open()
+    assert t.line.ser.baudrate == 19200

@@ -1,4 +1,9 @@
-"""Transcript tests of the HMR2300-style serial magnetometer: literal bytes sent and replied."""
+"""Transcript tests of the HMR2300 serial magnetometer: literal bytes sent and replied.
+
+Every command and reply below is spelled out from the datasheet command table in hardware-notes 2.3
+(`*ddWE` -> `OK`, `*ddR=nnn` -> `OK`, `*ddTN`/`TF` -> `S/R_ON`/`S/R_OFF`, `*dd]S`/`]R` -> `SET`/`RST`,
+`*ddA` -> `ASCII_ON`, `*99!BR=F` for 19200 baud, `Re-enter` for a wrong entry), not from the driver.
+The serial number and firmware lines are our simulator's text (the notes give no format for them)."""
 
 from __future__ import annotations
 
@@ -7,7 +12,7 @@ import logging
 import pytest
 
 from drivers.errors import DeviceTimeout, OptionError, ProtocolError
-from drivers.serialmag import SerialMagnetometer, parse_sample_line
+from drivers.serialmag import SerialMagnetometer, baud_needed, parse_sample_line
 from drivers.sim.serialmag import format_sample_line
 from tests.unit.drivers.test_serial_transport import ScriptedPort, scripted_transport
 
@@ -15,9 +20,10 @@ from tests.unit.drivers.test_serial_transport import ScriptedPort, scripted_tran
 SAMPLE = b" 12,345  - 1,234      567  \r"
 
 CONNECT_PULSE_MODE = [
-    (b"\x1b", b""),
+    (b"\x1b", b""),  # Esc: stop a stream left running
+    (b"*00A\r", b"ASCII_ON\r"),
     (b"*00WE\r", b"OK\r"),
-    (b"*00TF\r", b"OK\r"),
+    (b"*00TF\r", b"S/R_OFF\r"),
     (b"*00WE\r", b"OK\r"),
     (b"*00R=20\r", b"OK\r"),
     (b"*00]S\r", b"SET\r"),
@@ -26,8 +32,9 @@ CONNECT_PULSE_MODE = [
 ]
 CONNECT_AUTO_MODE = [
     (b"\x1b", b""),
+    (b"*00A\r", b"ASCII_ON\r"),
     (b"*00WE\r", b"OK\r"),
-    (b"*00TN\r", b"OK\r"),
+    (b"*00TN\r", b"S/R_ON\r"),
     (b"*00WE\r", b"OK\r"),
     (b"*00R=20\r", b"OK\r"),
     (b"*00#\r", b"SM2300-0001\r"),
@@ -108,20 +115,80 @@ def test_device_id_goes_into_every_command():
 
 
 def test_rate_is_write_enabled_and_checked_before_writing():
-    mag, port = connected([(b"*00WE\r", b"OK\r"), (b"*00R=154\r", b"OK\r")])
-    mag.set_rate(154)
-    assert mag.rate_hz == 154 and port.writes[-2:] == [b"*00WE\r", b"*00R=154\r"]
+    mag, port = connected([(b"*00WE\r", b"OK\r"), (b"*00R=30\r", b"OK\r")])
+    mag.set_rate(30)
+    assert mag.rate_hz == 30 and port.writes[-2:] == [b"*00WE\r", b"*00R=30\r"]
     sent = len(port.writes)
     with pytest.raises(OptionError, match="dut2: rate_hz 33 is not one of 10, 20, 25"):
         mag.set_rate(33)
+    with pytest.raises(OptionError, match=r"dut2: rate_hz 154: a 28-byte ASCII .* needs 43120 baud"):
+        mag.set_rate(154)
     assert len(port.writes) == sent
 
 
-def test_re_enter_reply_to_a_setting_ends_in_protocol_error():
-    mag, _ = connected([(b"*00WE\r", b"OK\r"), (b"*00R=50\r", b"Re-enter\r")] * 3)
-    with pytest.raises(ProtocolError, match=r"dut2: set rate: device answered Re-enter to b'\*00R=50\\r'"):
-        mag.set_rate(50)
+def test_rates_that_need_19200_baud():
+    # the notes: 19200 for 40 and 50 Hz; 60 Hz by the 280-bit line arithmetic; 100 Hz and up: neither
+    assert [baud_needed(r) for r in (10, 20, 25, 30, 40, 50, 60, 100, 123, 154)] == [
+        9600, 9600, 9600, 9600, 19200, 19200, 19200, None, None, None,
+    ]
+
+
+def test_a_rate_that_needs_19200_switches_every_device_on_the_line_first():
+    mag, port = connected(
+        [
+            (b"*99WE\r", b""),  # id 99: every device, no reply awaited
+            (b"*99!BR=F\r", b""),
+            (b"*00A\r", b"ASCII_ON\r"),  # the device answers at the new rate
+            (b"*00WE\r", b"OK\r"),
+            (b"*00R=50\r", b"OK\r"),
+        ]
+    )
+    mag.set_rate(50)
+    assert port.write_bauds[-5:] == [9600, 9600, 19200, 19200, 19200]
+    assert mag.transport.baudrate == 19200 and port.transcript == []
+
+
+def test_connect_finds_a_device_left_at_19200_baud():
+    connect = [(b"\x1b", b""), *[(b"*00A\r", b"")] * 3, *CONNECT_AUTO_MODE[1:]]
+    port = ScriptedPort(connect)
+    mag = SerialMagnetometer(scripted_transport(port), name="dut2", set_reset="auto")
+    mag.connect()
+    assert port.write_bauds[:5] == [9600, 9600, 9600, 9600, 19200] and port.transcript == []
+
+
+@pytest.mark.parametrize(
+    ("call", "sent", "operation"),
+    [
+        (lambda m: m.set_rate(25), b"*00R=25\r", "set rate"),
+        (lambda m: m.pulse(-1), b"*00]R\r", "reset pulse"),
+        (lambda m: m.pulse(1), b"*00]S\r", "set pulse"),
+    ],
+)
+def test_re_enter_ends_in_a_protocol_error_naming_the_command(call, sent, operation):
+    we = [(b"*00WE\r", b"OK\r")] if sent.startswith(b"*00R") else []
+    mag, _ = connected([*we, (sent, b"Re-enter\r")] * 3)
+    with pytest.raises(ProtocolError) as err:
+        call(mag)
+    assert str(err.value) == (
+        f"dut2: {operation}: device answered Re-enter (command refused) to {sent!r} (after 3 tries)"
+    )
     assert mag.rate_hz == 20
+
+
+def test_re_enter_at_connect_is_a_protocol_error():
+    start = [(b"\x1b", b""), (b"*00A\r", b"ASCII_ON\r")]
+    port = ScriptedPort(start + [(b"*00WE\r", b"OK\r"), (b"*00TF\r", b"Re-enter\r")] * 3)
+    mag = SerialMagnetometer(scripted_transport(port), name="dut2")
+    with pytest.raises(ProtocolError, match=r"^dut2: set auto set/reset: device answered Re-enter"):
+        mag.connect()
+
+
+def test_a_generic_ok_is_not_the_datasheet_reply_to_tf():
+    start = [(b"\x1b", b""), (b"*00A\r", b"ASCII_ON\r")]
+    port = ScriptedPort(start + [(b"*00WE\r", b"OK\r"), (b"*00TF\r", b"OK\r")] * 3)
+    mag = SerialMagnetometer(scripted_transport(port), name="dut2")
+    with pytest.raises(ProtocolError, match=r"expected b'S/R_OFF\\r' after b'\*00TF\\r', got b'OK\\r'"):
+        mag.connect()
 
 
 def test_noise_before_a_sample_is_dropped_and_logged(caplog):
@@ -208,7 +275,9 @@ def test_safe_state_never_raises_on_a_dead_port(caplog):
 
 def test_bad_settings_are_config_errors():
     transport = scripted_transport()
-    with pytest.raises(OptionError, match="dut2: device_id 100"):
-        SerialMagnetometer(transport, name="dut2", device_id=100)
+    with pytest.raises(OptionError, match="dut2: device_id 99 is not in 0..98"):
+        SerialMagnetometer(transport, name="dut2", device_id=99)
+    with pytest.raises(OptionError, match="dut2: baudrate 115200: the HMR2300 runs at 9600 or 19200 only"):
+        SerialMagnetometer.from_port("/dev/null", name="dut2", baudrate=115200)
     with pytest.raises(OptionError, match="dut2: set_reset 'sometimes'"):
         SerialMagnetometer(transport, name="dut2", set_reset="sometimes")
