@@ -26,6 +26,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pydantic import Field, ValidationInfo, field_validator
+
+from drivers import registry
 from drivers.base import Device
 from drivers.clock import Clock
 from drivers.errors import LimitError, OptionError
@@ -67,11 +70,37 @@ class ChamberReading:
         return self.alarm or self.input_error
 
 
+class ChamberLimits(registry.Options):
+    """A chamber's options in the station file (`limits:`): what the driver refuses to command."""
+
+    min_setpoint_c: float
+    max_setpoint_c: float
+    max_ramp_c_per_min: float = Field(gt=0)
+    safe_setpoint_c: float = 25.0
+
+    @field_validator("max_setpoint_c")
+    @classmethod
+    def _above_min(cls, value: float, info: ValidationInfo) -> float:
+        low = info.data.get("min_setpoint_c")
+        if low is not None and value <= low:
+            raise ValueError("must be above min_setpoint_c")
+        return value
+
+    @field_validator("safe_setpoint_c")
+    @classmethod
+    def _inside(cls, value: float, info: ValidationInfo) -> float:
+        low, high = info.data.get("min_setpoint_c"), info.data.get("max_setpoint_c")
+        if low is not None and high is not None and not low <= value <= high:
+            raise ValueError("must lie between min_setpoint_c and max_setpoint_c")
+        return value
+
+
 class _WatlowChamber(Device):
     """Limits, safe state and description shared by both register maps."""
 
     kind = "chamber"
     model = "Watlow"
+    ramps_setpoint = False  # True: set_ramp_rate() makes the controller ramp towards the next setpoint
 
     def __init__(
         self,
@@ -154,6 +183,7 @@ class WatlowF4T(_WatlowChamber):
     """Watlow F4T, Data Map 1: float32 registers, low word first unless the controller is set otherwise."""
 
     model = "Watlow F4T (data map 1)"
+    ramps_setpoint = True
 
     def __init__(
         self,
@@ -255,3 +285,19 @@ class WatlowF4(_WatlowChamber):
                 f"at {self.decimals} decimals"
             )
         self.transport.write_int16(F4_SETPOINT, scaled, operation=operation)
+
+
+# --- registration -----------------------------------------------------------------------------------
+def _builder(cls):
+    def build(link: ModbusTransport, limits: ChamberLimits, *, name: str, clock: Clock, **_) -> Device:
+        return cls(link, name=name, clock=clock, **limits.model_dump())
+
+    return build
+
+
+registry.register(registry.DeviceSpec(
+    role="chamber", type="watlow_f4t", options=ChamberLimits, transports=registry.MODBUS_KINDS,
+    build=_builder(WatlowF4T), simulator="drivers.sim.chamber:simulate"))
+registry.register(registry.DeviceSpec(
+    role="chamber", type="watlow_f4", options=ChamberLimits, transports=registry.MODBUS_KINDS,
+    build=_builder(WatlowF4), simulator="drivers.sim.chamber:simulate"))

@@ -18,6 +18,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pydantic import Field
+
+from drivers import registry
 from drivers.base import Device
 from drivers.clock import Clock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
@@ -200,3 +203,17 @@ class CoilController(Device):
                     f"{self.max_current_a} A"
                 )
         return values
+
+
+# --- registration -----------------------------------------------------------------------------------
+class CoilOptions(registry.Options):
+    max_current_a: float = Field(gt=0, description="the driver refuses any larger setpoint")
+
+
+def _build(link: ModbusTransport, options: CoilOptions, *, name: str, clock: Clock, **_) -> CoilController:
+    return CoilController(link, name=name, clock=clock, max_current_a=options.max_current_a)
+
+
+registry.register(registry.DeviceSpec(
+    role="field_source", type="coils", options=CoilOptions, transports=registry.MODBUS_KINDS,
+    build=_build, simulator="drivers.sim.coils:simulate"))

@@ -18,6 +18,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import SimData, SimDevice
 
 from drivers import chamber as regs
+from drivers.registry import SimModbus, SimRequest
 from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import decode_float32, decode_int16, encode_float32, encode_int16
@@ -150,3 +151,8 @@ class ChamberSim(SimulatedModbusDevice):
                 return ExcCodes.ILLEGAL_VALUE
             self.world.set_chamber_setpoint(setpoint_c)
         return None
+
+
+def simulate(req: SimRequest) -> SimModbus:
+    """The station's simulated chamber: the register map follows the chamber type."""
+    return SimModbus(ChamberSim(req.world, "f4t" if req.type == "watlow_f4t" else "f4", req.unit))

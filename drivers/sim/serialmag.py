@@ -41,6 +41,7 @@ import time
 
 import numpy as np
 
+from drivers.registry import SimRequest, SimSerial
 from drivers.sim.pty import PtyLink
 from drivers.sim.world import World
 
@@ -294,3 +295,7 @@ class SerialMagSim:
         thread, self._stream_thread = self._stream_thread, None
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=2.0)
+
+
+def simulate(req: SimRequest) -> SimSerial:
+    return SimSerial(SerialMagSim(req.world, req.name), baudrate=9600, timeout_s=0.5)
