@@ -22,7 +22,7 @@ from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.truths import AIR_C, dut_truth, mount_truth
 from drivers.sim.world import DutTruth, World
-from rig.config.base import ModbusTcp
+from rig.configbase import ModbusTcp
 from rig.links import open_link
 
 LOOPBACK = "127.0.0.1"

@@ -4,10 +4,10 @@
     campaign.plan, campaign.station          # validated models
     campaign.plan_text, campaign.station_text, campaign.plan_path, campaign.station_path
 
-The models live beside this file: base.py (transports, the device base), station.py (what is on the
-bench, built from the device registry), plan.py (what to do), sim.py (the simulated world a station
-states). Field sources are in rig/fieldsources/. Every error is a one-line ConfigError naming the file,
-the key path and the line.
+The models live beside this file: station.py (what is on the bench, built from the device registry),
+plan.py (what to do), sim.py (the simulated world a station states); the shared pieces (transports, the
+device base) in rig/configbase.py, field sources in rig/fieldsources/. Every error is a one-line
+ConfigError naming the file, the key path and the line.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.config.base import I2c, ModbusRtu, ModbusTcp, Serial, Sim, Strict
 from rig.config.plan import (
     Cube24Fields,
     DirectionFields,
@@ -43,6 +42,7 @@ from rig.config.station import (
     TemperatureSensor,
     TemperatureSensorConfig,
 )
+from rig.configbase import I2c, ModbusRtu, ModbusTcp, Serial, Sim, Strict
 from rig.fieldsources import Coils, FieldSource, SiteFromModel, SiteFromReference, SiteFromVector, Turntable
 from rig.yamlload import load_model, read_text
 

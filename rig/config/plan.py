@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 
 from rig import fieldsets
-from rig.config.base import PositiveFloat, Strict, Vec3
+from rig.configbase import PositiveFloat, Strict, Vec3
 from rig.yamlload import KeyPathError
 
 

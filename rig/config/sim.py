@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from rig.config.base import Mat3, PositiveFloat, Strict, Vec3
+from rig.configbase import Mat3, PositiveFloat, Strict, Vec3
 
 
 class TruthSpec(Strict):

@@ -19,8 +19,8 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 from pydantic import Field, create_model, model_validator
 
 from drivers import registry
-from rig.config.base import DeviceConfig, Strict, transport_type
 from rig.config.sim import SimWorld
+from rig.configbase import DeviceConfig, Strict, transport_type
 from rig.errors import ConfigError
 from rig.fieldsources import FieldSource
 from rig.yamlload import KeyPathError

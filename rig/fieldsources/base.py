@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import Field
 
 from drivers import registry
-from rig.config.base import DeviceConfig, ModbusTransport
+from rig.configbase import DeviceConfig, ModbusTransport
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:

@@ -15,7 +15,7 @@ from pydantic import Field, model_validator
 from drivers.coils import CoilOptions
 from drivers.errors import LimitError
 from rig import fieldsets
-from rig.config.base import Mat3, PositiveFloat, Vec3
+from rig.configbase import Mat3, PositiveFloat, Vec3
 from rig.errors import ConfigError
 from rig.fieldsources.base import FieldSourceConfig
 from rig.reference import TYPICAL_FIELD_NT, CoilReference, currents_for_field

@@ -16,7 +16,7 @@ from pydantic import BaseModel, Discriminator, Field, Tag
 
 from drivers.errors import LimitError
 from drivers.turntable import TurntableOptions
-from rig.config.base import Strict, Vec3
+from rig.configbase import Strict, Vec3
 from rig.errors import ConfigError
 from rig.fieldsources.base import SETTLE_TIMEOUT_S, FieldSourceConfig
 from rig.reference import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
