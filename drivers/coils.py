@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pydantic import Field
 
 from drivers import registry
-from drivers.base import Device
+from drivers.base import Device, wait_until
 from drivers.clock import Clock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
@@ -153,24 +153,25 @@ class CoilController(Device):
     def wait_settled(self, timeout_s: float = 1.0, tol_a: float = 1e-3) -> CoilReading:
         """Poll until every readback is within tol_a of its setpoint; DeviceFault on a fault,
         DeviceTimeout after timeout_s (on the injected clock)."""
-        deadline = self.clock.now() + timeout_s
-        while True:
-            reading = self.read()
+
+        def settled(reading: CoilReading) -> bool:
             if reading.faults:
                 raise DeviceFault(
                     self.name, "wait settled", f"controller reports {', '.join(sorted(reading.faults))}"
                 )
             errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
-            if max(errors) <= tol_a:
-                return reading
-            if self.clock.now() >= deadline:
-                raise DeviceTimeout(
-                    self.name,
-                    "wait settled",
-                    f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
-                    f"{reading.setpoints_a} A after {timeout_s:g} s",
-                )
-            self.clock.sleep(self.poll_s)
+            return max(errors) <= tol_a
+
+        def timed_out(reading: CoilReading) -> DeviceTimeout:
+            return DeviceTimeout(
+                self.name,
+                "wait settled",
+                f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
+                f"{reading.setpoints_a} A after {timeout_s:g} s",
+            )
+
+        return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
+                          timed_out=timed_out)
 
     def clear_faults(self) -> None:
         self.transport.write_register(COMMAND, COMMAND_CLEAR_FAULTS, operation="clear faults")

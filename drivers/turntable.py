@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from drivers import registry
-from drivers.base import Device
+from drivers.base import Device, wait_until
 from drivers.clock import Clock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
@@ -152,21 +152,22 @@ class Turntable(Device):
         )
 
     def wait_settled(self, timeout_s: float = 60.0) -> TurntableReading:
-        deadline = self.clock.now() + timeout_s
-        while True:
-            reading = self.read()
+
+        def settled(reading: TurntableReading) -> bool:
             if reading.fault:
                 raise DeviceFault(self.name, "wait settled", f"drive fault code {self._fault_code()}")
-            if reading.in_position and self._at_target(reading):
-                return reading
-            if self.clock.now() >= deadline:
-                raise DeviceTimeout(
-                    self.name,
-                    "wait settled",
-                    f"not in position after {timeout_s:g} s (at az {reading.az_deg:.3f} "
-                    f"el {reading.el_deg:.3f}, target {self._target_deg})",
-                )
-            self.clock.sleep(self.poll_s)
+            return reading.in_position and self._at_target(reading)
+
+        def timed_out(reading: TurntableReading) -> DeviceTimeout:
+            return DeviceTimeout(
+                self.name,
+                "wait settled",
+                f"not in position after {timeout_s:g} s (at az {reading.az_deg:.3f} "
+                f"el {reading.el_deg:.3f}, target {self._target_deg})",
+            )
+
+        return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
+                          timed_out=timed_out)
 
     def home(self) -> None:
         self.transport.write_register(COMMAND, COMMAND_HOME, operation="home")

@@ -42,12 +42,12 @@ import time
 import numpy as np
 
 from drivers.registry import SimRequest, SimSerial
+from drivers.serialmag import RATES_HZ
 from drivers.sim.pty import PtyLink
 from drivers.sim.world import World
 
 COUNTS_PER_GAUSS = 15_000
 NT_PER_GAUSS = 100_000.0
-RATES_HZ = (10, 20, 25, 30, 40, 50, 60, 100, 123, 154)
 ESC = 0x1B
 SAMPLE_LINE_BYTES = 28
 _COMMAND = re.compile(rb"\*(\d\d)(.+)")
