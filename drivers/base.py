@@ -8,8 +8,9 @@ Limits are checked before anything is written (raise drivers.errors.LimitError).
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from drivers.clock import Clock, RealClock
 
@@ -73,6 +74,24 @@ class Device:
             self.safe_state()
         finally:
             self.close()
+
+
+R = TypeVar("R")
+
+
+def wait_until(clock: Clock, read: Callable[[], R], settled: Callable[[R], bool], *, timeout_s: float,
+               poll_s: float, timed_out: Callable[[R], Exception]) -> R:
+    """The movers' wait_settled loop: read(), return the reading once settled(reading) holds, else sleep
+    poll_s on the injected clock; after timeout_s raise timed_out(last reading). `settled` may raise
+    (a fault will not settle)."""
+    deadline = clock.now() + timeout_s
+    while True:
+        reading = read()
+        if settled(reading):
+            return reading
+        if clock.now() >= deadline:
+            raise timed_out(reading)
+        clock.sleep(poll_s)
 
 
 def make_all_safe(devices: Iterable[Device]) -> list[str]:

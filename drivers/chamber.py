@@ -38,9 +38,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from pydantic import ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from pydantic.dataclasses import dataclass as validated_dataclass
 
+from drivers import registry
 from drivers.base import Device
 from drivers.clock import Clock
 from drivers.errors import LimitError, OptionError
@@ -135,11 +144,38 @@ class ChamberReading:
         return "; ".join(self.problems)
 
 
+class ChamberLimits(registry.Options):
+    """A chamber's options in the station file (`limits:`): what the driver refuses to command."""
+
+    min_setpoint_c: float
+    max_setpoint_c: float
+    max_ramp_c_per_min: float = Field(gt=0)
+    safe_setpoint_c: float = 25.0
+    max_deviation_c: float | None = Field(DEFAULT_MAX_DEVIATION_C, gt=0, description="None: not watched")
+
+    @field_validator("max_setpoint_c")
+    @classmethod
+    def _above_min(cls, value: float, info: ValidationInfo) -> float:
+        low = info.data.get("min_setpoint_c")
+        if low is not None and value <= low:
+            raise ValueError("must be above min_setpoint_c")
+        return value
+
+    @field_validator("safe_setpoint_c")
+    @classmethod
+    def _inside(cls, value: float, info: ValidationInfo) -> float:
+        low, high = info.data.get("min_setpoint_c"), info.data.get("max_setpoint_c")
+        if low is not None and high is not None and not low <= value <= high:
+            raise ValueError("must lie between min_setpoint_c and max_setpoint_c")
+        return value
+
+
 class _WatlowChamber(Device):
     """Limits, the rig's own watch, the optional alarm register, safe state and description."""
 
     kind = "chamber"
     model = "Watlow"
+    ramps_setpoint = False  # True: set_ramp_rate() makes the controller ramp towards the next setpoint
 
     def __init__(
         self,
@@ -290,6 +326,7 @@ class WatlowF4T(_WatlowChamber):
     """Watlow F4T, Data Map 1: float32 registers, low word first unless the controller is set otherwise."""
 
     model = "Watlow F4T (data map 1)"
+    ramps_setpoint = True
 
     def __init__(self, transport: ModbusTransport, *, word_order: WordOrder = "little", **options):
         super().__init__(transport, **options)
@@ -379,3 +416,28 @@ class WatlowF4(_WatlowChamber):
                 f"at {self.decimals} decimals"
             )
         self.transport.write_int16(F4_SETPOINT, scaled, operation=operation)
+
+
+# --- registration -----------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class ChamberSettings:
+    """What a chamber driver (and its simulator) is built with: the station's `limits:` and its
+    optional `alarm:` register."""
+
+    limits: ChamberLimits
+    alarm: ChamberAlarm | None = None
+
+
+def _builder(cls):
+    def build(link: ModbusTransport, settings: ChamberSettings, *, name: str, clock: Clock, **_) -> Device:
+        return cls(link, name=name, clock=clock, alarm=settings.alarm, **settings.limits.model_dump())
+
+    return build
+
+
+registry.register(registry.DeviceSpec(
+    role="chamber", type="watlow_f4t", options=ChamberLimits, transports=registry.MODBUS_KINDS,
+    build=_builder(WatlowF4T), simulator="drivers.sim.chamber:simulate"))
+registry.register(registry.DeviceSpec(
+    role="chamber", type="watlow_f4", options=ChamberLimits, transports=registry.MODBUS_KINDS,
+    build=_builder(WatlowF4), simulator="drivers.sim.chamber:simulate"))

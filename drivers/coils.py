@@ -18,7 +18,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from drivers.base import Device
+from pydantic import Field
+
+from drivers import registry
+from drivers.base import Device, wait_until
 from drivers.clock import Clock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
@@ -150,24 +153,25 @@ class CoilController(Device):
     def wait_settled(self, timeout_s: float = 1.0, tol_a: float = 1e-3) -> CoilReading:
         """Poll until every readback is within tol_a of its setpoint; DeviceFault on a fault,
         DeviceTimeout after timeout_s (on the injected clock)."""
-        deadline = self.clock.now() + timeout_s
-        while True:
-            reading = self.read()
+
+        def settled(reading: CoilReading) -> bool:
             if reading.faults:
                 raise DeviceFault(
                     self.name, "wait settled", f"controller reports {', '.join(sorted(reading.faults))}"
                 )
             errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
-            if max(errors) <= tol_a:
-                return reading
-            if self.clock.now() >= deadline:
-                raise DeviceTimeout(
-                    self.name,
-                    "wait settled",
-                    f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
-                    f"{reading.setpoints_a} A after {timeout_s:g} s",
-                )
-            self.clock.sleep(self.poll_s)
+            return max(errors) <= tol_a
+
+        def timed_out(reading: CoilReading) -> DeviceTimeout:
+            return DeviceTimeout(
+                self.name,
+                "wait settled",
+                f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
+                f"{reading.setpoints_a} A after {timeout_s:g} s",
+            )
+
+        return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
+                          timed_out=timed_out)
 
     def clear_faults(self) -> None:
         self.transport.write_register(COMMAND, COMMAND_CLEAR_FAULTS, operation="clear faults")
@@ -200,3 +204,17 @@ class CoilController(Device):
                     f"{self.max_current_a} A"
                 )
         return values
+
+
+# --- registration -----------------------------------------------------------------------------------
+class CoilOptions(registry.Options):
+    max_current_a: float = Field(gt=0, description="the driver refuses any larger setpoint")
+
+
+def _build(link: ModbusTransport, options: CoilOptions, *, name: str, clock: Clock, **_) -> CoilController:
+    return CoilController(link, name=name, clock=clock, max_current_a=options.max_current_a)
+
+
+registry.register(registry.DeviceSpec(
+    role="field_source", type="coils", options=CoilOptions, transports=registry.MODBUS_KINDS,
+    build=_build, simulator="drivers.sim.coils:simulate"))

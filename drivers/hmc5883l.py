@@ -18,7 +18,11 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import ClassVar, Literal
 
+from pydantic import Field, field_validator
+
+from drivers import registry
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
@@ -202,3 +206,42 @@ class HMC5883L(Device):
     def _check_gain(self, gain: int) -> None:
         if gain not in range(len(GAIN_LSB_PER_GAUSS)):
             raise OptionError(f"{self.name}: gain code {gain!r}: must be 0..7")
+
+
+# --- registration -----------------------------------------------------------------------------------
+class HMC5883LOptions(registry.Options):
+    TYPE: ClassVar[str] = "hmc5883l"
+    RATES_HZ: ClassVar[tuple[float, ...]] = OUTPUT_RATE_HZ[:-1]  # 220 Hz is the HMC5983's only
+
+    gain: int = Field(1, ge=0, le=7)
+    rate_hz: float = 15.0
+    averaging: Literal[1, 2, 4, 8] = 8
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _a_rate_of_the_chip(cls, value: float) -> float:
+        if value not in cls.RATES_HZ:
+            raise ValueError(f"{cls.TYPE} runs at one of {', '.join(f'{r:g}' for r in cls.RATES_HZ)} Hz")
+        return value
+
+
+class HMC5983Options(HMC5883LOptions):
+    TYPE: ClassVar[str] = "hmc5983"
+    RATES_HZ: ClassVar[tuple[float, ...]] = OUTPUT_RATE_HZ
+
+
+def _build(link: registry.I2cLink, options: HMC5883LOptions, *, name: str, clock: Clock, **_) -> HMC5883L:
+    return HMC5883L(link.bus, link.address, name=name, clock=clock, variant=options.TYPE.upper(),
+                    gain=options.gain, averaging=options.averaging,
+                    output_rate_code=OUTPUT_RATE_HZ.index(options.rate_hz))
+
+
+def _sample_time_s(options: HMC5883LOptions, set_reset_pair: bool) -> float:
+    return 1.0 / options.rate_hz
+
+
+for _options, _has_temperature in ((HMC5883LOptions, False), (HMC5983Options, True)):
+    registry.register(registry.DeviceSpec(
+        role="magnetometer", type=_options.TYPE, options=_options, transports=("i2c",), build=_build,
+        simulator="drivers.sim.hmc5883l:simulate", has_temperature=_has_temperature,
+        sample_time=_sample_time_s, rates_hz=_options.RATES_HZ))

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Literal
 
+from drivers import registry
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
@@ -275,3 +277,27 @@ class MMC5983MA(Device):
     def _check_bandwidth(bandwidth: int) -> None:
         if bandwidth not in range(len(MEASUREMENT_TIME_S)):
             raise OptionError(f"MMC5983MA bandwidth code {bandwidth!r}: must be 0, 1, 2 or 3")
+
+
+# --- registration -----------------------------------------------------------------------------------
+class MMC5983MAOptions(registry.Options):
+    bandwidth_hz: Literal[100, 200, 400, 800] = 100
+    set_reset: bool = True
+
+
+def _build(link: registry.I2cLink, options: MMC5983MAOptions, *, name: str, clock: Clock,
+           set_reset: bool = True) -> MMC5983MA:
+    """`set_reset=False` (the plan's `set_reset: off`) turns SET/RESET off whatever the option says."""
+    return MMC5983MA(link.bus, link.address, name=name, clock=clock,
+                     bandwidth=BANDWIDTH_HZ.index(options.bandwidth_hz),
+                     set_reset=set_reset and options.set_reset)
+
+
+def _sample_time_s(options: MMC5983MAOptions, set_reset_pair: bool) -> float:
+    one = MEASUREMENT_TIME_S[BANDWIDTH_HZ.index(options.bandwidth_hz)] + 0.002  # + bus transfer
+    return 2 * (one + SET_RESET_WAIT_S) if set_reset_pair else one
+
+
+registry.register(registry.DeviceSpec(
+    role="magnetometer", type="mmc5983ma", options=MMC5983MAOptions, transports=("i2c",), build=_build,
+    simulator="drivers.sim.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s))

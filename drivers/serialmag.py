@@ -64,6 +64,9 @@ from __future__ import annotations
 import logging
 import re
 
+from pydantic import field_validator
+
+from drivers import registry
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, DeviceTimeout, OptionError, ProtocolError
@@ -498,3 +501,34 @@ def _half_sum_nt(reset, set_, reset_sign: int = 1) -> tuple[float, float, float]
 
 def _saturated(counts) -> frozenset[str]:
     return frozenset({"saturated"}) if any(abs(c) >= RANGE_COUNTS for c in counts) else frozenset()
+
+
+# --- registration -----------------------------------------------------------------------------------
+class SerialMagOptions(registry.Options):
+    rate_hz: float = 20
+    set_reset: bool = True
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _a_rate_of_the_device(cls, value: float) -> float:
+        if value not in RATES_HZ:
+            raise ValueError(f"serialmag runs at one of {', '.join(f'{r:g}' for r in RATES_HZ)} Hz")
+        return value
+
+
+def _build(link: registry.SerialLink, options: SerialMagOptions, *, name: str, clock: Clock,
+           set_reset: bool = True) -> SerialMagnetometer:
+    pulse = set_reset and options.set_reset
+    return SerialMagnetometer.from_port(link.port, name=name, clock=clock, baudrate=link.baudrate,
+                                        timeout_s=link.timeout_s, rate_hz=int(options.rate_hz),
+                                        set_reset="pulse" if pulse else "off")
+
+
+def _sample_time_s(options: SerialMagOptions, set_reset_pair: bool) -> float:
+    return 1.0 / options.rate_hz
+
+
+registry.register(registry.DeviceSpec(
+    role="magnetometer", type="serialmag", options=SerialMagOptions, transports=("serial",), build=_build,
+    simulator="drivers.sim.serialmag:simulate", has_temperature=False, sample_time=_sample_time_s,
+    rates_hz=RATES_HZ))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 
+from drivers import registry
 from drivers.base import Device, TempSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
@@ -176,3 +177,13 @@ class TMP117(Device):
     def _write_config(self, mode: int) -> None:
         word = config_word(mode, self.averaging, self.conversion_code)
         self.link.write_block(REG_CONFIGURATION, word, "configuration")
+
+
+# --- registration -----------------------------------------------------------------------------------
+def _build(link: registry.I2cLink, options: registry.NoOptions, *, name: str, clock: Clock, **_) -> TMP117:
+    return TMP117(link.bus, link.address, name=name, clock=clock)
+
+
+registry.register(registry.DeviceSpec(
+    role="temperature", type="tmp117", options=registry.NoOptions, transports=("i2c",), build=_build,
+    simulator="drivers.sim.tmp117:simulate", has_temperature=True))

@@ -17,7 +17,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from drivers.base import Device
+import numpy as np
+from pydantic import Field, field_validator
+
+from drivers import registry
+from drivers.base import Device, wait_until
 from drivers.clock import Clock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
 from drivers.transports.modbus import ModbusTransport, decode_int32, encode_int32
@@ -43,6 +47,15 @@ STATUS_HOMED = 1 << 3
 FAULT_NONE, FAULT_DRIVE = 0, 1
 
 MDEG_PER_DEG = 1000
+
+
+def rotation_deg(az_deg: float, el_deg: float) -> np.ndarray:
+    """Table frame -> lab frame rotation: azimuth about z, then elevation about the table's y axis.
+    Home pose (0, 0): table x north, y east, z down; a field B_lab reads R^T B_lab on the table."""
+    a, e = math.radians(az_deg), math.radians(el_deg)
+    rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(e), 0, math.sin(e)], [0, 1, 0], [-math.sin(e), 0, math.cos(e)]])
+    return rz @ ry
 
 
 def angles_to_words(angles_deg) -> list[int]:
@@ -139,21 +152,22 @@ class Turntable(Device):
         )
 
     def wait_settled(self, timeout_s: float = 60.0) -> TurntableReading:
-        deadline = self.clock.now() + timeout_s
-        while True:
-            reading = self.read()
+
+        def settled(reading: TurntableReading) -> bool:
             if reading.fault:
                 raise DeviceFault(self.name, "wait settled", f"drive fault code {self._fault_code()}")
-            if reading.in_position and self._at_target(reading):
-                return reading
-            if self.clock.now() >= deadline:
-                raise DeviceTimeout(
-                    self.name,
-                    "wait settled",
-                    f"not in position after {timeout_s:g} s (at az {reading.az_deg:.3f} "
-                    f"el {reading.el_deg:.3f}, target {self._target_deg})",
-                )
-            self.clock.sleep(self.poll_s)
+            return reading.in_position and self._at_target(reading)
+
+        def timed_out(reading: TurntableReading) -> DeviceTimeout:
+            return DeviceTimeout(
+                self.name,
+                "wait settled",
+                f"not in position after {timeout_s:g} s (at az {reading.az_deg:.3f} "
+                f"el {reading.el_deg:.3f}, target {self._target_deg})",
+            )
+
+        return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
+                          timed_out=timed_out)
 
     def home(self) -> None:
         self.transport.write_register(COMMAND, COMMAND_HOME, operation="home")
@@ -202,3 +216,27 @@ class Turntable(Device):
                     f"{self.name}: {axis} {angle:.3f} deg is outside {axis}_limits_deg [{low}, {high}]"
                 )
         return values
+
+
+# --- registration -----------------------------------------------------------------------------------
+class TurntableOptions(registry.Options):
+    az_limits_deg: tuple[float, float] = (-360.0, 360.0)
+    el_limits_deg: tuple[float, float] = (-180.0, 180.0)
+    rate_deg_s: float = Field(10.0, gt=0, description="slew rate, for move-time estimates")
+
+    @field_validator("az_limits_deg", "el_limits_deg")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if value[0] >= value[1]:
+            raise ValueError("lower limit must be below the upper limit")
+        return value
+
+
+def _build(link: ModbusTransport, options: TurntableOptions, *, name: str, clock: Clock, **_) -> Turntable:
+    return Turntable(link, name=name, clock=clock, az_limits_deg=options.az_limits_deg,
+                     el_limits_deg=options.el_limits_deg)
+
+
+registry.register(registry.DeviceSpec(
+    role="field_source", type="turntable", options=TurntableOptions, transports=registry.MODBUS_KINDS,
+    build=_build, simulator="drivers.sim.turntable:simulate"))

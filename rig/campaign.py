@@ -1,4 +1,4 @@
-"""The campaign: plan points as step generators, the rig-aware handlers the engine calls, and a whole run.
+"""The campaign: plan points as engine tasks (command generators), the handlers the engine calls, a run.
 
     outcome = run_campaign(campaign=load_campaign(plan_path), session_path=path)   # or resume=True
     outcome.result.status, outcome.result.reason, outcome.fits
@@ -7,7 +7,7 @@ What run_campaign does with the pieces:
     runner = CampaignRunner(rig, plan, points, session, status=RunStatus())
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session, ...)
     runner.engine = engine
-    engine.run(runner.steps(), done_ids=session.done_point_ids())
+    engine.run(runner.tasks(), done_ids=session.done_point_ids())
 
 Step and dwell: a point sets the chamber and waits for every DUT's temperature to be stable when the
 temperature step changes (or when it is retaken after a hold or a pause), then moves the field, lets it
@@ -30,7 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.chamber import WatlowF4T
 from drivers.clock import Clock
 from rig import __version__
 from rig import config as cfg
@@ -45,12 +44,13 @@ from rig.engine import (
     RunStatus,
     SetChamber,
     Settle,
-    Step,
+    Task,
     WaitStable,
 )
 from rig.errors import ERRORS, ConfigError, SessionError
+from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.plan import Point, compile_plan
-from rig.reference import CoilReference, TableReference, reference_for
+from rig.reference import reference_for
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
 from rig.station import Rig, RunLock, open_rig
 from rig.store import SampleRow
@@ -58,7 +58,6 @@ from rig.store import SampleRow
 log = logging.getLogger("magrig.campaign")
 
 HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many settling bands before the point is held
-FIELD_SETTLE_TIMEOUT_S = 5.0  # coils; a turntable gets its travel time on top
 
 
 def poll_interval_s(criteria: SettleCriteria) -> float:
@@ -107,7 +106,8 @@ class CampaignRunner:
         self.session = session
         self.status = status or RunStatus()
         self.engine: Engine | None = None
-        self.reference: CoilReference | TableReference = reference_for(rig.station)
+        self.source = rig.station.field_source  # the field source's config: how to drive and read it
+        self.reference = reference_for(rig.station)
         self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
@@ -116,18 +116,17 @@ class CampaignRunner:
         self._settle_stats: dict = {}
 
     # --- the plan as generators -------------------------------------------------------------------
-    def steps(self) -> list[Step]:
-        return [Step(p.id, functools.partial(self.point_steps, p)) for p in self.points]
+    def tasks(self) -> list[Task]:
+        return [Task(p.id, functools.partial(self.point_commands, p)) for p in self.points]
 
-    def point_steps(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
+    def point_commands(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
         criteria = criteria_of(point.stability)
         if retake or self.stable_at_c != point.setpoint_c:
             self.stable_at_c = None
             yield SetChamber(point.setpoint_c, point.ramp_c_per_min)
             self._settle_stats = yield WaitStable(point.setpoint_c, criteria)
             self.stable_at_c = point.setpoint_c
-        target = point.field_nt if point.field_nt is not None else point.angles_deg
-        yield MoveField(tuple(target))
+        yield MoveField(point.command)
         yield Settle(point.settle_s)
         yield CollectPoint(point, criteria.band_c * HOLD_BAND_FACTOR)
         yield Checkpoint(point.id)
@@ -139,7 +138,7 @@ class CampaignRunner:
 
     def set_chamber(self, cmd: SetChamber) -> None:
         chamber = self.rig.chamber
-        if cmd.ramp_c_per_min is not None and isinstance(chamber, WatlowF4T):
+        if cmd.ramp_c_per_min is not None and getattr(chamber, "ramps_setpoint", False):
             chamber.set_ramp_rate(cmd.ramp_c_per_min)
         chamber.set(cmd.temp_c)
         self.status.settling = f"chamber -> {cmd.temp_c:g} degC"
@@ -193,26 +192,15 @@ class CampaignRunner:
             self.engine.wait(poll_s, poll_s)
 
     def move_field(self, cmd: MoveField) -> None:
-        if isinstance(self.reference, CoilReference):
-            self.rig.field_source.set(self.reference.currents_for(cmd.target))
-        else:
-            self.rig.field_source.set(cmd.target)
+        self.rig.field_source.set(self.reference.command(cmd.target))
 
     def settle(self, cmd: Settle) -> None:
-        source = self.rig.field_source
-        if isinstance(self.reference, CoilReference):
-            source.wait_settled(FIELD_SETTLE_TIMEOUT_S)
-        else:
-            travel_s = 360.0 / self.rig.station.field_source.rate_deg_s
-            source.wait_settled(FIELD_SETTLE_TIMEOUT_S + travel_s)
+        self.rig.field_source.wait_settled(self.source.settle_timeout_s())
         self.engine.wait(cmd.seconds, max(cmd.seconds, 1e-3))
 
     def _reference_now(self) -> np.ndarray:
         """The reference field from what the field source reports now (readback currents / angles)."""
-        reading = self.rig.field_source.read()
-        if isinstance(self.reference, CoilReference):
-            return self.reference.field_nt(reading.currents_a)
-        return self.reference.field_nt((reading.az_deg, reading.el_deg))
+        return self.reference.field_nt(self.reference.readback(self.rig.field_source.read()))
 
     def collect_point(self, cmd: CollectPoint) -> None:
         point: Point = cmd.point
@@ -329,7 +317,7 @@ def run_campaign(
         rig = open_rig(station, plan, clock)  # connects and makes every device safe FIRST
         try:
             check_temp_sources(rig)
-            home_turntable(rig)
+            station.field_source.prepare(rig.field_source)  # e.g. home a table that lost its home
             if on_rig is not None:
                 on_rig(rig)
             if resume:
@@ -354,21 +342,13 @@ def record_final_state(rig: Rig, session) -> None:
     named "<device> final" (the evidence that the run ended with coils at 0 A / table stopped and the
     chamber at its safe setpoint)."""
     with contextlib.suppress(*ERRORS):
-        rig.field_source.wait_settled(FIELD_SETTLE_TIMEOUT_S)  # readbacks follow the safe setpoints
+        rig.field_source.wait_settled(SETTLE_TIMEOUT_S)  # readbacks follow the safe setpoints
     for dev in (rig.chamber, rig.field_source):
         try:
             reading = dataclasses.asdict(dev.read())
         except Exception as exc:  # a dead link: say so instead of claiming anything
             reading = {"error": str(exc)}
         session.record_snapshot(f"{dev.name} final", reading)
-
-
-def home_turntable(rig: Rig) -> None:
-    """A turntable that lost its home (power cycle) is homed before the first move."""
-    table = rig.field_source
-    if hasattr(table, "home") and not table.read().homed:
-        table.home()
-        table.wait_settled(FIELD_SETTLE_TIMEOUT_S + 720.0 / rig.station.field_source.rate_deg_s)
 
 
 def check_temp_sources(rig: Rig) -> None:
@@ -409,7 +389,7 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     if prompt is not None and hasattr(display, "suspended"):
         engine.prompt = display.suspended(prompt)  # no live panel redrawing over the question
     with display or contextlib.nullcontext():
-        result = engine.run(runner.steps(), done_ids=done)
+        result = engine.run(runner.tasks(), done_ids=done)
     record_final_state(rig, session)
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
     if result.status == COMPLETED:

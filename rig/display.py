@@ -51,7 +51,7 @@ class LiveDisplay:
         s = self.status
         head = Table.grid(padding=(0, 2))
         head.add_row("point", f"{s.point_id or '-'}  ({s.points_done}/{s.points_total} done)",
-                     "step", s.step or "-")
+                     "command", s.command or "-")
         chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f} C"
         duts = ", ".join(f"{k} {v:.2f} C" for k, v in s.dut_temps_c.items()) or "-"
         head.add_row("chamber", chamber, "DUTs", duts)

@@ -1,10 +1,10 @@
-"""The run engine: executes campaign steps written as plain generators, and alone decides pause, resume,
+"""The run engine: executes campaign tasks written as plain generators, and alone decides pause, resume,
 abort, holds and the final safe state.
 
-A step is one point of the plan (`Step(point_id, make)`); `make(retake)` returns a generator that yields
+A task is one point of the plan (`Task(point_id, make)`); `make(retake)` returns a generator that yields
 small commands (`SetChamber`, `WaitStable`, `MoveField`, `Settle`, `CollectPoint`, `Checkpoint`) and
 receives each command's result. The engine looks the command's type up in its `handlers` (the rig-aware
-code in rig/campaign.py) and runs it. Steps never catch Ctrl-C, never call safe_state() and never record
+code in rig/campaign.py) and runs it. Tasks never catch Ctrl-C, never call safe_state() and never record
 exit status: that is the engine's job, so every exit path is the same.
 
 - Ctrl-C (SIGINT) asks for a pause; the engine takes it at the next safe point (a command boundary, or a
@@ -13,15 +13,15 @@ exit status: that is the engine's job, so every exit path is the same.
   recorded: a point is stored in one transaction). A second Ctrl-C, or SIGTERM, aborts.
 - A `Hold` (chamber alarm, DUT temperature out of band) or a `DeviceError` (a fault that survived the
   transport's retries) holds the run: the engine logs it, waits `hold_wait_s`, and retakes the point with
-  `retake=True` (the step then re-settles). After `max_retakes` retakes of one point it aborts with the
+  `retake=True` (the task then re-settles). After `max_retakes` retakes of one point it aborts with the
   reason.
 - Whatever happens (completion, abort, an unexpected exception), every device gets safe_state() and the
   session records the exit status and reason.
 
-Continuous mode (sampling while the chamber ramps) fits the same engine: its step would yield
+Continuous mode (sampling while the chamber ramps) fits the same engine: its task would yield
 `SetChamber(target, ramp_c_per_min=...)` without `WaitStable`, then a loop of `MoveField` + `CollectPoint`
 (each sample already carries its own DUT temperature) with a `Checkpoint` after each stored block, until
-the DUT reaches the target. Only a new step generator and its point list are needed; holds, pause, resume
+the DUT reaches the target. Only a new task generator and its point list are needed; holds, pause, resume
 by point id and the final safe state stay as they are.
 """
 
@@ -47,7 +47,7 @@ ABORTED = "aborted"
 FAILED = "failed"
 
 
-# --- commands a step yields ------------------------------------------------------------------------
+# --- commands a task yields ------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SetChamber:
     temp_c: float
@@ -95,7 +95,9 @@ Command = SetChamber | WaitStable | MoveField | Settle | CollectPoint | Checkpoi
 
 
 @dataclass(frozen=True)
-class Step:
+class Task:
+    """One point of the plan as the engine runs it ("step" is kept for temperature steps)."""
+
     point_id: str
     make: Callable[[bool], Generator[Any, Any, None]]
 
@@ -122,7 +124,7 @@ class RunStatus:
     """What the live display shows; the handlers update it as they go."""
 
     point_id: str = ""
-    step: str = ""
+    command: str = ""  # the command being run, or "paused" / "hold: ..."
     points_done: int = 0
     points_total: int = 0
     chamber_c: float | None = None
@@ -142,7 +144,7 @@ class _Abort(Exception):
 
 
 class Engine:
-    """Runs steps; see the module docstring for the rules it enforces."""
+    """Runs tasks; see the module docstring for the rules it enforces."""
 
     def __init__(
         self,
@@ -210,13 +212,13 @@ class Engine:
             log.error("could not record event %s: %s", kind, exc)
 
     # --- running ----------------------------------------------------------------------------------
-    def run(self, steps: Iterable[Step], done_ids: Iterable[str] = ()) -> RunResult:
-        """Run every step whose point is not in `done_ids`; always ends with safe_state() everywhere."""
-        steps = list(steps)
+    def run(self, tasks: Iterable[Task], done_ids: Iterable[str] = ()) -> RunResult:
+        """Run every task whose point is not in `done_ids`; always ends with safe_state() everywhere."""
+        tasks = list(tasks)
         done = set(done_ids)
-        todo = [s for s in steps if s.point_id not in done]
-        self.status.points_total = len(steps)
-        self.status.points_done = len(steps) - len(todo)
+        todo = [t for t in tasks if t.point_id not in done]
+        self.status.points_total = len(tasks)
+        self.status.points_done = len(tasks) - len(todo)
         self.status.started_t = self.clock.now()
         status, reason = FAILED, "not started"
         self.log_handler = SessionLogHandler(self.session)
@@ -224,10 +226,10 @@ class Engine:
         magrig_log.addHandler(self.log_handler)
         with _signals_to(self):
             try:
-                self.event("run", f"{len(todo)} of {len(steps)} points to take")
-                for step in todo:
-                    self._run_point(step)
-                status, reason = COMPLETED, f"all {len(steps)} points taken"
+                self.event("run", f"{len(todo)} of {len(tasks)} points to take")
+                for task in todo:
+                    self._run_point(task)
+                status, reason = COMPLETED, f"all {len(tasks)} points taken"
             except _Abort as exc:
                 status, reason = ABORTED, str(exc)
             except KeyboardInterrupt:
@@ -252,33 +254,33 @@ class Engine:
                    failed=failed)
         return failed
 
-    def _run_point(self, step: Step) -> None:
+    def _run_point(self, task: Task) -> None:
         retakes = 0
         retake = False
         while True:
             t0 = self.clock.now()
             try:
-                self._run_generator(step, retake)
+                self._run_generator(task, retake)
                 self.status.points_done += 1
                 self.status.point_durations_s.append(self.clock.now() - t0)
                 return
             except _Pause:
-                self._pause(step.point_id)
+                self._pause(task.point_id)
                 retake = True  # the chamber was made safe: settle again
             except (Hold, DeviceError) as exc:
                 retakes += 1
                 if retakes > self.max_retakes:
-                    raise _Abort(f"point {step.point_id}: {exc} (gave up after {self.max_retakes} "
+                    raise _Abort(f"point {task.point_id}: {exc} (gave up after {self.max_retakes} "
                                  f"retakes)") from exc
-                self.event("hold", f"point {step.point_id}: {exc}; retake {retakes} of "
-                           f"{self.max_retakes}", point_id=step.point_id, reason=str(exc))
-                self.status.step = f"hold: {exc}"
+                self.event("hold", f"point {task.point_id}: {exc}; retake {retakes} of "
+                           f"{self.max_retakes}", point_id=task.point_id, reason=str(exc))
+                self.status.command = f"hold: {exc}"
                 self.wait(self.hold_wait_s)
                 retake = True
 
-    def _run_generator(self, step: Step, retake: bool) -> None:
-        self.status.point_id = step.point_id
-        gen = step.make(retake)
+    def _run_generator(self, task: Task, retake: bool) -> None:
+        self.status.point_id = task.point_id
+        gen = task.make(retake)
         try:
             reply = None
             recorded = False  # after CollectPoint the point is stored: run to its end, never retake it
@@ -290,7 +292,7 @@ class Engine:
                 handler = self.handlers.get(type(command))
                 if handler is None:
                     raise MagrigError(f"no handler for command {type(command).__name__}")
-                self.status.step = type(command).__name__
+                self.status.command = type(command).__name__
                 reply = handler(command)
         except StopIteration:
             return
@@ -299,7 +301,7 @@ class Engine:
 
     def _pause(self, point_id: str) -> None:
         self.event("pause", f"paused at point {point_id} (not recorded yet)", point_id=point_id)
-        self.status.step = "paused"
+        self.status.command = "paused"
         self.make_safe()
         answer = "abort"
         if self.prompt is not None:

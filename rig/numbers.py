@@ -111,6 +111,7 @@ FIELD_TYPES: dict[tuple[str, str], Any] = {
     ("ChamberLimits", "max_setpoint_c"): TEMP_C,
     ("ChamberLimits", "safe_setpoint_c"): TEMP_C,
     ("ChamberLimits", "max_ramp_c_per_min"): bounded(gt=0, hi=100.0),
+    ("ChamberLimits", "max_deviation_c"): bounded(gt=0, hi=1_000.0),
     # field sources
     ("Coils", "max_current_a"): bounded(gt=0, hi=A_MAX),
     ("Coils", "coil_constants_nt_per_a"): NT_VEC,  # each row

@@ -6,10 +6,6 @@
 
 Point ids are stable: `T03-F07` is temperature step 3, field 7 (coils); `T03-O07` orientation 7
 (turntable). Numbers are 1-based and zero-padded to at least 2 digits (3 when there are > 99).
-Sizes are counted before anything is expanded: a plan over MAX_POINTS points, MAX_SAMPLES_PER_DUT
-samples per DUT or MAX_DURATION_S is refused (ConfigError) before memory is allocated for it.
-Errors found here carry `blame = (document, key path, what)`; `located_errors(campaign)` turns them
-into the `FILE: key.path: what (line N)` form of every config error.
 For coils the target is the total field (lab frame, nT) the coils must make, ambient included; for a
 turntable it is (az_deg, el_deg).
 """
@@ -23,28 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rig import fieldsets
-from rig.config import (
-    COIL_FIELD_KINDS,
-    TABLE_FIELD_KINDS,
-    TYPICAL_FIELD_NT,
-    Campaign,
-    Coils,
-    Cube24Fields,
-    DirectionFields,
-    FibonacciFields,
-    GridOrientations,
-    ListOrientations,
-    Plan,
-    Stability,
-    Station,
-    Turntable,
-    VectorFields,
-)
+from rig.config import Campaign, Plan, Stability, Station
 from rig.errors import ConfigError, LimitError
-from rig.reference import currents_for_field, station_site_field_nt, table_field_nt
-from rig.yamlload import KeyPath, format_path, locate_in_text
+from rig.yamlload import KeyPath, blamed, format_path, locate_in_text
 
+# Bounds on every expansion, checked before anything is built (a hostile plan must not exhaust memory).
 MAX_TEMPERATURES = 1_000
 MAX_FIELDS = 10_000
 MAX_POINTS = 100_000
@@ -62,25 +41,18 @@ class Point:
     temp_index: int  # 1-based
     setpoint_c: float
     field_index: int  # 1-based
-    field_nt: tuple[float, float, float] | None  # coils: total field to make, lab frame
-    angles_deg: tuple[float, float] | None  # turntable: (az, el)
+    command: tuple[float, ...]  # the field source's target: a field vector (nT) or (az, el) (deg)
+    target: dict  # the same as stored with the point: {"field_nt": [...]} or {"az_deg", "el_deg"}
     samples: int
     settle_s: float
     ramp_c_per_min: float
     stability: Stability
 
     @property
-    def target(self) -> dict:
-        """The commanded target as plain data (stored with the point)."""
-        if self.field_nt is not None:
-            return {"field_nt": list(self.field_nt)}
-        return {"az_deg": self.angles_deg[0], "el_deg": self.angles_deg[1]}  # type: ignore[index]
-
-
-def blamed(err: Exception, path: KeyPath, what: str, document: str = "plan") -> Exception:
-    """Mark an error with the config key it is about (see located_errors)."""
-    err.blame = (document, tuple(path), what)  # type: ignore[attr-defined]
-    return err
+    def field_nt(self) -> tuple[float, float, float] | None:
+        """The commanded field, when the target is one (coils)."""
+        value = self.target.get("field_nt")
+        return None if value is None else tuple(value)
 
 
 def _plan_error(cls: type[Exception], plan: Plan, path: KeyPath, what: str) -> Exception:
@@ -116,29 +88,11 @@ def count_temperatures(plan: Plan) -> int:
     return math.floor(span + 1e-9) + 1
 
 
-def count_fields(plan: Plan) -> int:
-    """Number of field targets, counted without making them."""
-    fs = plan.fields
-    if isinstance(fs, GridOrientations):
-        n = len(fs.az_deg) * len(fs.el_deg)
-    elif isinstance(fs, ListOrientations):
-        n = len(fs.angles_deg)
-    elif isinstance(fs, VectorFields):
-        n = len(fs.vectors_nt)
-    else:
-        if isinstance(fs, Cube24Fields):
-            per = 24
-        else:
-            per = fs.n if isinstance(fs, FibonacciFields) else len(fs.directions)
-        n = per * len(fs.magnitude_list())
-    if n > MAX_FIELDS:
-        raise _plan_error(ConfigError, plan, ("fields",), f"{n} field targets; at most {MAX_FIELDS}")
-    return n
-
-
-def check_size(plan: Plan, station: Station) -> tuple[int, int]:
+def check_size(plan: Plan) -> tuple[int, int]:
     """(temperatures, fields) of the plan; ConfigError before anything big is built."""
-    n_temps, n_fields = count_temperatures(plan), count_fields(plan)
+    n_temps, n_fields = count_temperatures(plan), plan.fields.count()
+    if n_fields > MAX_FIELDS:
+        raise _plan_error(ConfigError, plan, ("fields",), f"{n_fields} field targets; at most {MAX_FIELDS}")
     n_points = n_temps * n_fields
     if n_points > MAX_POINTS:
         raise _plan_error(ConfigError, plan, ("fields",), f"{n_temps} temperatures x {n_fields} fields = "
@@ -152,35 +106,8 @@ def check_size(plan: Plan, station: Station) -> tuple[int, int]:
 
 
 def field_targets(plan: Plan, station: Station) -> list[tuple[float, ...]]:
-    """Field vectors (nT) for coils or (az, el) pairs for a turntable, in plan order."""
-    fs = plan.fields
-    source = station.field_source
-    if isinstance(source, Coils) and fs.kind not in COIL_FIELD_KINDS:
-        raise _plan_error(ConfigError, plan, ("fields", "kind"),
-                          f"{fs.kind!r} needs a turntable; station {station.name} has coils "
-                          f"(use one of {', '.join(sorted(COIL_FIELD_KINDS))})")
-    if isinstance(source, Turntable) and fs.kind not in TABLE_FIELD_KINDS:
-        raise _plan_error(ConfigError, plan, ("fields", "kind"),
-                          f"{fs.kind!r} needs coils; station {station.name} has a turntable "
-                          f"(use one of {', '.join(sorted(TABLE_FIELD_KINDS))})")
-    if isinstance(fs, GridOrientations):
-        return fieldsets.grid_orientations(fs.az_deg, fs.el_deg)
-    if isinstance(fs, ListOrientations):
-        return [tuple(map(float, a)) for a in fs.angles_deg]
-    if isinstance(fs, Cube24Fields | FibonacciFields | DirectionFields):
-        if isinstance(fs, Cube24Fields):
-            directions = fieldsets.cube24_directions()
-        elif isinstance(fs, FibonacciFields):
-            directions = fieldsets.fibonacci_directions(fs.n)
-        else:
-            try:
-                directions = fieldsets.normalised(fs.directions)
-            except ValueError as exc:
-                raise _plan_error(ConfigError, plan, ("fields", "directions"), str(exc)) from None
-        vectors = fieldsets.scaled(directions, fs.magnitude_list())
-    else:
-        vectors = np.asarray(fs.vectors_nt, float)
-    return [tuple(float(x) for x in v) for v in vectors]
+    """The field source's targets for the plan's field set, in plan order."""
+    return station.field_source.targets(plan.fields, plan.name, station.name)
 
 
 def point_id(temp_index: int, field_index: int, n_temps: int, n_fields: int, letter: str = "F") -> str:
@@ -189,24 +116,23 @@ def point_id(temp_index: int, field_index: int, n_temps: int, n_fields: int, let
 
 
 def compile_plan(plan: Plan, station: Station) -> list[Point]:
-    check_size(plan, station)
+    check_size(plan)
     steps = plan.temperatures.step_list()
+    source = station.field_source
     targets = field_targets(plan, station)
-    coils = isinstance(station.field_source, Coils)
-    letter = "F" if coils else "O"
     points = []
     for ti, step in enumerate(steps, start=1):
         stability = plan.temperatures.stability_for(step)
         ramp = step.ramp_c_per_min or plan.temperatures.ramp_c_per_min
         for fi, target in enumerate(targets, start=1):
             points.append(Point(
-                id=point_id(ti, fi, len(steps), len(targets), letter),
+                id=point_id(ti, fi, len(steps), len(targets), source.point_letter),
                 index=len(points),
                 temp_index=ti,
                 setpoint_c=step.setpoint_c,
                 field_index=fi,
-                field_nt=target if coils else None,  # type: ignore[arg-type]
-                angles_deg=None if coils else target,  # type: ignore[arg-type]
+                command=tuple(target),
+                target=source.record(target),
                 samples=plan.samples_per_point,
                 settle_s=plan.settle_s,
                 ramp_c_per_min=ramp,
@@ -226,7 +152,7 @@ class PlanCheck:
     samples_per_dut: int
     duration_s: float
     breakdown_s: dict[str, float]
-    max_current_a: float | None = None
+    source_lines: list[str] = field(default_factory=list)  # the field source's own figures
     warnings: list[str] = field(default_factory=list)
 
     def summary_lines(self) -> list[str]:
@@ -236,8 +162,7 @@ class PlanCheck:
             f"estimated duration {format_duration(self.duration_s)} ("
             + ", ".join(f"{k} {format_duration(v)}" for k, v in self.breakdown_s.items()) + ")",
         ]
-        if self.max_current_a is not None:
-            lines.append(f"largest coil current {self.max_current_a:.3f} A")
+        lines += self.source_lines
         lines += [f"warning: {w}" for w in self.warnings]
         return lines
 
@@ -276,54 +201,29 @@ def _check_setpoints(plan: Plan, station: Station, points: list[Point]) -> None:
 
 
 def _field_path(plan: Plan, field_index: int) -> KeyPath:
-    """The plan key of one field target, where the plan lists them one by one."""
+    """The plan key of one field target (1-based), where the plan lists them one by one."""
     keys = {"vectors": "vectors_nt", "orientations": "angles_deg", "directions": "directions"}
     key = keys.get(plan.fields.kind)
-    return ("fields", key, field_index - 1) if key else ("fields",)
+    if key is None:
+        return ("fields",)
+    listed = getattr(plan.fields, "listed_index", lambda i: i)(field_index - 1)
+    return ("fields", key, listed)
 
 
-def _check_coils(plan: Plan, coils: Coils, points: list[Point], warnings: list[str]) -> float:
-    """Largest current magnitude over all points; LimitError when one exceeds max_current_a."""
-    inv = np.linalg.inv(coils.constants)
-    if isinstance(coils.ambient_nt, str):
-        ambient = np.zeros(3)
-        margin = np.linalg.norm(inv, axis=1) * coils.ambient_max_nt  # worst case over |ambient| <= max
-        assumption = (f"any ambient up to {coils.ambient_max_nt:g} nT (field_source.ambient_max_nt; "
-                      "ambient_nt is 'measure')")
-        warnings.append(f"ambient field not yet measured: currents checked for {assumption}")
-    else:
-        ambient, margin = np.asarray(coils.ambient_nt, float), np.zeros(3)
-        assumption = "the station's ambient_nt"
-    largest = 0.0
-    for p in points:
-        worst = np.abs(currents_for_field(p.field_nt, coils.constants, ambient)) + margin
-        axis = int(np.argmax(worst))
-        if worst[axis] > coils.max_current_a:
-            n_dirs = len(plan.fields.directions) if isinstance(plan.fields, DirectionFields) else 0
-            index = (p.field_index - 1) % n_dirs + 1 if n_dirs else p.field_index  # magnitude-major
-            path = _field_path(plan, index)
-            raise _plan_error(
-                LimitError, plan, path,
-                f"point {p.id} field {_fmt_vec(p.field_nt)} nT needs {worst[axis]:.3f} A "
-                f"in coil {'xyz'[axis]} with {assumption}, above field_source.max_current_a "
-                f"{coils.max_current_a:g} A"
-            )
-        largest = max(largest, float(worst[axis]))
-    return largest
+def _check_targets(plan: Plan, station: Station, points: list[Point], warnings: list[str]) -> list[str]:
+    """The field source's limits, with the error blamed on the plan key of the offending target."""
+    try:
+        return station.field_source.check_targets(plan.name, points, warnings)
+    except LimitError as err:
+        point = getattr(err, "point", None)
+        if point is None:
+            raise
+        what = str(err).removeprefix(f"plan {plan.name}: ")
+        raise blamed(err, _field_path(plan, point.field_index), what) from None
 
 
-def _check_angles(plan: Plan, table: Turntable, points: list[Point]) -> None:
-    for p in points:
-        for value, key, (lo, hi) in zip(p.angles_deg, ("az_limits_deg", "el_limits_deg"),  # type: ignore[arg-type]
-                                        (table.az_limits_deg, table.el_limits_deg), strict=True):
-            if not lo <= value <= hi:
-                raise _plan_error(LimitError, plan, _field_path(plan, p.field_index),
-                                  f"point {p.id} angle {value:g} deg is outside "
-                                  f"field_source.{key} [{lo:g}, {hi:g}]")
-
-
-def _fmt_vec(v) -> str:
-    return "(" + ", ".join(f"{x:.0f}" for x in v) + ")"
+def _stated(value: float | None, assumed: float) -> float:
+    return assumed if value is None else value
 
 
 def _settle_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st: Stability) -> float:
@@ -337,25 +237,20 @@ def estimate_duration(plan: Plan, station: Station, points: list[Point],
                       n_fields: int) -> dict[str, float]:
     """Seconds spent ramping, waiting for stability, moving/settling and sampling. DUTs are assumed to
     be read one after another; real-station mounts are assumed to lag by ASSUMED_THERMAL_LAG_S."""
-    lags = [station.sim.duts[d.name].thermal_lag_s if d.simulated and d.name in station.sim.duts
-            else ASSUMED_THERMAL_LAG_S for d in station.duts]
+    lags = [_stated(station.sim.duts[d.name].thermal_lag_s if d.simulated and d.name in station.sim.duts
+                    else None, ASSUMED_THERMAL_LAG_S) for d in station.duts]
     lag_s = max(lags)
     ramp_s = stable_s = 0.0
-    temp = station.sim.air_c if station.chamber.simulated else ASSUMED_START_C
+    temp = _stated(station.sim.air_c if station.chamber.simulated else None, ASSUMED_START_C)
     for p in points[::n_fields]:
         rate = min(p.ramp_c_per_min, station.chamber.limits.max_ramp_c_per_min)
         delta = p.setpoint_c - temp
         ramp_s += abs(delta) / rate * 60.0
         stable_s += _settle_after_ramp_s(delta, rate, lag_s, p.stability)
         temp = p.setpoint_c
-    move_s = sum(p.settle_s for p in points)
-    source = station.field_source
-    if isinstance(source, Turntable):
-        angles = np.array([(0.0, 0.0)] + [p.angles_deg for p in points])
-        travel = float(np.abs(np.diff(angles, axis=0)).max(axis=1).sum())  # both axes move at once
-        move_s += travel / source.rate_deg_s
+    move_s = sum(p.settle_s for p in points) + station.field_source.move_time_s([p.command for p in points])
     pair = plan.set_reset == "pair"
-    per_sample = sum(d.sample_time_s(pair and d.type in ("mmc5983ma", "serialmag")) for d in station.duts)
+    per_sample = sum(d.spec.sample_time_s(d.options, pair) for d in station.duts)
     sampling_s = per_sample * sum(p.samples for p in points)
     return {"ramps": ramp_s, "stability": stable_s, "moves+settle": move_s, "sampling": sampling_s}
 
@@ -365,12 +260,7 @@ def t24_design_problem(points: list[Point], station: Station) -> str | None:
     fields and setpoints with calib's own Gram test: the sensor's axes are taken as the lab's."""
     from calib.gram import GramAccumulator
 
-    if isinstance(station.field_source, Coils):
-        fields = np.array([p.field_nt for p in points])
-    else:
-        site = station_site_field_nt(station.field_source)
-        site = np.asarray(TYPICAL_FIELD_NT) if site is None else site
-        fields = np.array([table_field_nt(site, *p.angles_deg) for p in points])
+    fields = np.array([station.field_source.nominal_field_nt(p.command) for p in points])
     temps = np.array([p.setpoint_c for p in points])
     samples = [p.samples for p in points]
     acc = GramAccumulator(temp_ref_c=float(temps.mean()))
@@ -408,19 +298,10 @@ def check_campaign(campaign: Campaign) -> PlanCheck:
 def check_plan(plan: Plan, station: Station) -> PlanCheck:
     """Validate `plan` against `station` without touching hardware. Raises LimitError naming the limit."""
     points = compile_plan(plan, station)
-    n_temps, n_fields = check_size(plan, station)
+    n_temps, n_fields = check_size(plan)
     warnings: list[str] = []
     _check_setpoints(plan, station, points)
-    largest = None
-    source = station.field_source
-    if isinstance(source, Coils):
-        largest = _check_coils(plan, source, points, warnings)
-        span = fieldsets.span_ratio(np.array([p.field_nt for p in points[:n_fields]]))
-        if span < 0.2:
-            warnings.append(f"field directions barely span 3-D (ratio {span:.2f}): the scale and cross-axis "
-                            "terms will be poorly determined")
-    else:
-        _check_angles(plan, source, points)
+    source_lines = _check_targets(plan, station, points, warnings)
     if "t24" in plan.fit.models:
         problem = t24_design_problem(points, station)
         if problem:
@@ -435,6 +316,6 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
         samples_per_dut=len(points) * plan.samples_per_point,
         duration_s=sum(breakdown.values()),
         breakdown_s=breakdown,
-        max_current_a=largest,
+        source_lines=source_lines,
         warnings=warnings,
     )

@@ -1,14 +1,18 @@
-"""The true field at the DUT, from what the rig commands.
+"""The true field at the DUT, from what the rig commands: the maths every field source uses.
 
 Coils (lab frame):      B = C @ I + ambient        C: coil constants 3x3 (nT/A), I: currents (A)
                         I = C^-1 (B - ambient)     (`currents_for_field`)
-Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.sim.world.rotation_deg);
-                        the table's home pose has x north, y east, z down, so B_site is NED.
+Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.turntable.rotation_deg,
+                        which the simulated world uses too); the table's home pose has x north, y east,
+                        z down, so B_site is NED.
 Site field: a vector given in the station, measured by a reference magnetometer, or the World Magnetic
 Model (WMM-2025, pygeomag) at the site's latitude, longitude, altitude and date, in nT north/east/down.
 
-    ref = reference_for(station, ambient_nt=measured)  # CoilReference or TableReference
-    ref.field_nt(target)                              # currents (coils) or (az, el) (turntable)
+A Reference turns a plan target into the device's setting (`command`), and the device's readback into
+the field at the sensor (`field_nt(readback(reading))`):
+
+    ref = reference_for(station)        # station.field_source.reference(measured_nt)
+    device.set(ref.command(target)); ref.field_nt(ref.readback(device.read()))
 """
 
 from __future__ import annotations
@@ -17,9 +21,10 @@ import datetime as dt
 
 import numpy as np
 
-from drivers.sim.world import rotation_deg
-from rig.config import Coils, SiteFromModel, SiteFromReference, SiteFromVector, Station, Turntable
+from drivers.turntable import rotation_deg
 from rig.errors import ConfigError
+
+TYPICAL_FIELD_NT = (19_136.0, 891.0, 45_594.0)  # WMM at 52 N 5 E, 2026: used when nothing is stated
 
 
 def coil_field_nt(coil_constants_nt_per_a, currents_a, ambient_nt) -> np.ndarray:
@@ -57,6 +62,8 @@ def site_field_ned_nt(lat_deg: float, lon_deg: float, alt_km: float, date: dt.da
 
 
 class CoilReference:
+    """Targets are total fields (lab frame); the device's setting is three currents."""
+
     def __init__(self, coil_constants_nt_per_a, ambient_nt):
         self.coil_constants = np.asarray(coil_constants_nt_per_a, float)
         self.ambient_nt = np.asarray(ambient_nt, float)
@@ -67,8 +74,17 @@ class CoilReference:
     def currents_for(self, target_nt) -> np.ndarray:
         return currents_for_field(target_nt, self.coil_constants, self.ambient_nt)
 
+    def command(self, target) -> np.ndarray:
+        return self.currents_for(target)
+
+    @staticmethod
+    def readback(reading) -> tuple[float, float, float]:
+        return reading.currents_a
+
 
 class TableReference:
+    """Targets are (az, el) orientations, which are also the device's setting."""
+
     def __init__(self, site_field_nt):
         self.site_field_nt = np.asarray(site_field_nt, float)
 
@@ -76,30 +92,19 @@ class TableReference:
         az_deg, el_deg = angles_deg
         return table_field_nt(self.site_field_nt, az_deg, el_deg)
 
+    @staticmethod
+    def command(target) -> tuple[float, ...]:
+        return tuple(target)
 
-def station_site_field_nt(table: Turntable) -> np.ndarray | None:
-    """The site field the station file states (None when a reference magnetometer must measure it)."""
-    site = table.site_field
-    if isinstance(site, SiteFromVector):
-        return np.asarray(site.vector_nt, float)
-    if isinstance(site, SiteFromModel):
-        return site_field_ned_nt(site.lat_deg, site.lon_deg, site.alt_km, site.date, site.model)
-    assert isinstance(site, SiteFromReference)
-    return None
+    @staticmethod
+    def readback(reading) -> tuple[float, float]:
+        return reading.az_deg, reading.el_deg
 
 
-def reference_for(station: Station, *, ambient_nt=None, site_field_nt=None) -> CoilReference | TableReference:
-    """The reference for `station`. `ambient_nt` (coils) or `site_field_nt` (turntable) must be given when
-    the station says to measure it; when given, they override the station's value."""
-    source = station.field_source
-    if isinstance(source, Coils):
-        ambient = ambient_nt if ambient_nt is not None else source.ambient_nt
-        if isinstance(ambient, str):
-            raise ConfigError(f"station {station.name}: field_source.ambient_nt is 'measure': "
-                              "measure it first")
-        return CoilReference(source.constants, ambient)
-    site = site_field_nt if site_field_nt is not None else station_site_field_nt(source)
-    if site is None:
-        raise ConfigError(f"station {station.name}: the site field must be measured by the reference "
-                          "magnetometer first")
-    return TableReference(site)
+def reference_for(station, measured_nt=None):
+    """The station's reference. `measured_nt` (the ambient for coils, the site field for a turntable)
+    must be given when the station says to measure it; when given, it overrides the station's value."""
+    try:
+        return station.field_source.reference(measured_nt)
+    except ConfigError as exc:
+        raise ConfigError(f"station {station.name}: {exc}") from None

@@ -396,3 +396,10 @@ def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
     if found:
         raise ConfigError(located(source, lines, *found))
     return result
+
+
+def blamed(err: Exception, path: KeyPath, what: str, document: str = "plan") -> Exception:
+    """Mark an error found after loading with the config key it is about (`document` is "plan" or
+    "station"), so whoever holds the file texts can say `FILE: key.path: what (line N)`."""
+    err.blame = (document, tuple(path), what)  # type: ignore[attr-defined]
+    return err

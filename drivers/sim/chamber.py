@@ -24,13 +24,10 @@ from pymodbus.simulator import SimData, SimDevice
 
 from drivers import chamber as regs
 from drivers.chamber import ChamberAlarm
+from drivers.registry import SimModbus, SimRequest
 from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import decode_float32, decode_int16, encode_float32, encode_int16
-
-# The simulated station plays a lab whose controller has an alarm-summary register and whose station
-# file names it (the Watlow documents give none). The address is that imagined lab's, not Watlow's.
-SIM_STATION_ALARM = ChamberAlarm(register=60000, kind="nonzero", meaning="alarm summary")
 
 RAMP_REGISTERS = {regs.F4T_RAMP_ACTION, regs.F4T_RAMP_SCALE, regs.F4T_RAMP_RATE, regs.F4T_RAMP_RATE + 1}
 
@@ -170,3 +167,10 @@ class ChamberSim(SimulatedModbusDevice):
                 return ExcCodes.ILLEGAL_VALUE
             self.world.set_chamber_setpoint(setpoint_c)
         return None
+
+
+def simulate(req: SimRequest) -> SimModbus:
+    """The station's simulated chamber: the register map follows the chamber type; an alarm register
+    is served only where the station names one (req.options is a drivers.chamber.ChamberSettings)."""
+    register_map = "f4t" if req.type == "watlow_f4t" else "f4"
+    return SimModbus(ChamberSim(req.world, register_map, req.unit, alarm=req.options.alarm))

@@ -20,6 +20,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import SimDevice
 
 from drivers import coils as regs
+from drivers.registry import SimModbus, SimRequest
 from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import encode_string
@@ -142,3 +143,10 @@ class CoilSim(SimulatedModbusDevice):
             self._after_change()
             set_values[regs.COMMAND - address] = 0  # a command register reads back 0
         return None
+
+
+def simulate(req: SimRequest) -> SimModbus:
+    """A controller rated above the station's max_current_a, so the driver's own limit is what bites."""
+    limit = req.options.max_current_a
+    return SimModbus(CoilSim(req.world, req.unit, compliance_limit_a=max(2.0, limit),
+                             rated_current_a=max(3.0, limit)))

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from drivers import hmc5883l as hmc
+from drivers.registry import SimI2c, SimRequest
 from drivers.sim.i2c_bus import RegisterChip
 from drivers.sim.world import World
 
@@ -103,3 +104,7 @@ class HMC5883LSim(RegisterChip):
         if mode == hmc.MODE_SINGLE:
             self.registers[hmc.REG_STATUS] &= ~hmc.STATUS_RDY
             self.done_at = math.inf if self.never_ready else now + hmc.MEASUREMENT_TIME_S
+
+
+def simulate(req: SimRequest) -> SimI2c:
+    return SimI2c(HMC5883LSim(req.world, req.name, req.type.upper()), hmc.ADDRESS)

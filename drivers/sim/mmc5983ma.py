@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from drivers import mmc5983ma as mmc
+from drivers.registry import SimI2c, SimRequest
 from drivers.sim.i2c_bus import RegisterChip
 from drivers.sim.world import World
 
@@ -129,3 +130,7 @@ class MMC5983MASim(RegisterChip):
             self.continuous_count = 0
         else:
             self.continuous_period_s = None
+
+
+def simulate(req: SimRequest) -> SimI2c:
+    return SimI2c(MMC5983MASim(req.world, req.name), mmc.ADDRESS)

@@ -64,11 +64,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from drivers.registry import SimRequest, SimSerial
 from drivers.sim.pty import PtyLink
 from drivers.sim.world import World
 
 COUNTS_PER_GAUSS = 15_000
 NT_PER_GAUSS = 100_000.0
+# The simulator keeps its own copy of the datasheet's rate list on purpose: a simulator that imported the
+# driver's table would agree with any mistake in it.
 RATES_HZ = (10, 20, 25, 30, 40, 50, 60, 100, 123, 154)
 BAUD_OF_CODE = {"S": 9600, "F": 19200}  # *99!BR=S / *99!BR=F
 POWER_ON_BAUD = 9600
@@ -428,3 +431,7 @@ class SerialMagSim:
         thread, self._stream_thread = self._stream_thread, None
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=2.0)
+
+
+def simulate(req: SimRequest) -> SimSerial:
+    return SimSerial(SerialMagSim(req.world, req.name), baudrate=9600, timeout_s=0.5)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 from drivers import tmp117 as tmp
+from drivers.registry import SimI2c, SimRequest
 from drivers.sim.world import World
 
 AVG_COUNTS = {code: n for n, code in tmp.AVG_CODES.items()}
@@ -117,3 +118,8 @@ class TMP117Sim:
             self._start_conversions()
         elif register in WRITABLE:
             self.words[register] = word
+
+
+def simulate(req: SimRequest) -> SimI2c:
+    """The probe reads the temperature of the DUT it sits beside."""
+    return SimI2c(TMP117Sim(req.world, req.beside or req.name), tmp.ADDRESS)

@@ -16,6 +16,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import SimDevice
 
 from drivers import turntable as regs
+from drivers.registry import SimModbus, SimRequest
 from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import encode_string
@@ -113,3 +114,8 @@ class TurntableSim(SimulatedModbusDevice):
         else:
             return ExcCodes.ILLEGAL_VALUE
         return None
+
+
+def simulate(req: SimRequest) -> SimModbus:
+    return SimModbus(TurntableSim(req.world, req.unit, az_limits_deg=req.options.az_limits_deg,
+                                  el_limits_deg=req.options.el_limits_deg))

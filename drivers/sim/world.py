@@ -19,7 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.synthetic import random_t24_params
 from drivers.clock import Clock
+from drivers.turntable import rotation_deg
 
 MAX_THERMAL_STEP_S = 2.0  # integration sub-step; the lag model is exact within a step of constant air
 
@@ -51,28 +53,19 @@ class DutTruth:
 
     @classmethod
     def random(cls, rng: np.random.Generator, *, noise_nt: float = 20.0, thermal_lag_s: float = 600.0):
-        """Errors of the size an AMR datasheet allows: ~2 % scale, ~1 % cross-axis, 100s of nT offset."""
-        S = np.eye(3) + rng.normal(0, 0.01, (3, 3))
-        S[np.diag_indices(3)] = 1 + rng.normal(0, 0.02, 3)
-        K = rng.normal(0, 1.5e-4, (3, 3))  # ~150 ppm/degC
+        """Errors of the size an AMR datasheet allows (calib.synthetic.random_t24_params), then a bridge
+        offset of a few uT drifting some 10 nT/degC."""
+        p = random_t24_params(rng)
         return cls(
-            S=S,
-            K=K,
-            b_nt=rng.normal(0, 400, 3),
-            kb_nt_per_c=rng.normal(0, 5, 3),
+            S=p["S"],
+            K=p["K"],
+            b_nt=p["b_nt"],
+            kb_nt_per_c=p["kb_nt_per_c"],
             bridge_offset_nt=rng.normal(0, 2000, 3),
             bridge_offset_tc_nt_per_c=rng.normal(0, 20, 3),
             noise_nt=noise_nt,
             thermal_lag_s=thermal_lag_s,
         )
-
-
-def rotation_deg(az_deg: float, el_deg: float) -> np.ndarray:
-    """Table frame -> lab frame rotation: azimuth about z (up), then elevation about the table's y axis."""
-    a, e = math.radians(az_deg), math.radians(el_deg)
-    rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
-    ry = np.array([[math.cos(e), 0, math.sin(e)], [0, 1, 0], [-math.sin(e), 0, math.cos(e)]])
-    return rz @ ry
 
 
 @dataclass

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rig.errors import FitError
+from rig.fieldsets import fibonacci_directions  # the probes: the plans' own spiral
 
 MODELS = ("t24", "p12", "scalar")
 VECTOR_MODELS = ("t24", "p12")  # outputs in the reference frame; scalar is known up to a rotation only
@@ -209,15 +210,6 @@ def step_table(ds, flagged: np.ndarray, err: Errors) -> list[StepRow]:
 
 
 # ---------------------------------------------------------------------------------------------- coverage
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    """n nearly evenly spread unit vectors (N, 3)."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = np.pi * (1 + 5**0.5) * i
-    r = np.sqrt(1 - z**2)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 def nearest_sample_deg(probe_unit: np.ndarray, direction_nt: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ from calib import calfile
 from rig.campaign import run_campaign
 from rig.config import load_campaign, load_station
 from rig.plan import compile_plan
+from rig.simstation import dut_truths
 from tests.system.campaign_helpers import (
     DEMO_PLAN,
     SIM_STATION,
@@ -47,7 +48,7 @@ def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
     expected = {(p.id, d): campaign.plan.samples_per_point for p in points for d in duts}
     assert counts["per_point_dut"] == expected
 
-    truths = load_station(station).sim_dut_truths()
+    truths = dut_truths(load_station(station))
     for dut, truth in truths.items():
         cal = calfile.load(tmp_path / f"demo.{dut}.t24.yaml")
         for key, true in (("S", truth.S), ("K", truth.K), ("b_nt", truth.b_nt),

@@ -9,6 +9,8 @@ import pytest
 
 from rig.config import CONFIGS_DIR, DEFAULT_STATION, Plan, Station, load_campaign, load_plan, load_station
 from rig.errors import ConfigError
+from rig.reference import TYPICAL_FIELD_NT
+from rig.simstation import dut_truths
 
 PLAN = """\
 name: t
@@ -241,11 +243,11 @@ def test_simulated_truths_are_seeded_per_dut_and_explicit_ones_are_kept(tmp_path
               thermal_lag_s: 120
         """)
     station = load_station(write(tmp_path, "s.yaml", explicit))
-    truth = station.sim_dut_truths()["m0"]
+    truth = dut_truths(station)["m0"]
     assert truth.S[0, 0] == 1.01 and list(truth.b_nt) == [100, -50, 20] and truth.thermal_lag_s == 120
     assert not truth.K.any() and truth.noise_nt == 0
     sim = load_station(DEFAULT_STATION)
-    a, b = sim.sim_dut_truths(), sim.sim_dut_truths()
+    a, b = dut_truths(sim), dut_truths(sim)
     assert set(a) == {"mmc0", "serial0"}
     assert (a["mmc0"].S == b["mmc0"].S).all() and not (a["mmc0"].S == a["serial0"].S).all()
     assert a["serial0"].thermal_lag_s == sim.sim.duts["serial0"].thermal_lag_s
@@ -254,27 +256,34 @@ def test_simulated_truths_are_seeded_per_dut_and_explicit_ones_are_kept(tmp_path
 def test_simulated_ambient_and_site_defaults(tmp_path):
     station = load_station(write(tmp_path, "s.yaml", STATION.replace("ambient_nt: [0, 0, 0]",
                                                                      "ambient_nt: [1, 2, 3]")))
-    assert list(station.sim_ambient_nt()) == [1, 2, 3]  # the coils' stated ambient
-    assert list(load_station(DEFAULT_STATION).sim_ambient_nt()) == [15000, 500, 42000]
-    assert len(station.sim_site_field_nt()) == 3
+    world = station.field_source.world_field(station.sim)
+    assert list(world["ambient_nt"]) == [1, 2, 3]  # the coils' stated ambient
+    sim = load_station(DEFAULT_STATION)
+    assert list(sim.field_source.world_field(sim.sim)["ambient_nt"]) == [15000, 500, 42000]
+    data = station.model_dump()
+    data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"},
+                            "site_field": {"reference_magnetometer": "m0"}}
+    table = Station.model_validate(data)
+    assert list(table.field_source.world_field(table.sim)["site_field_nt"]) == list(TYPICAL_FIELD_NT)
 
 
-def test_dut_options_become_valid_driver_arguments():
+def test_dut_options_build_their_drivers_through_the_registry():
     from drivers.clock import SimClock
-    from drivers.hmc5883l import HMC5883L, OUTPUT_RATE_HZ
-    from drivers.mmc5983ma import MMC5983MA
-    from drivers.serialmag import SerialMagnetometer
+    from drivers.hmc5883l import OUTPUT_RATE_HZ
+    from drivers.registry import I2cLink, SerialLink
 
-    classes = {"mmc5983ma": MMC5983MA, "hmc5983": HMC5883L, "serialmag": SerialMagnetometer}
+    links = {"i2c": I2cLink(object(), 0x30), "serial": SerialLink("/dev/null-not-opened", 9600, 0.5)}
     station = load_station(CONFIGS_DIR / "stations" / "lab-example.yaml")
+    built = {}
     for dut in station.duts:
-        for set_reset in (True, False):
-            kwargs = dut.driver_options(set_reset)
-            driver = classes[dut.type](object(), name=dut.name, clock=SimClock(), **kwargs)  # no I/O yet
+        for set_reset in (True, False):  # constructing does no I/O
+            driver = dut.spec.build(links[dut.transport.kind], dut.options, name=dut.name, clock=SimClock(),
+                                    set_reset=set_reset)
             assert driver.name == dut.name
-    hmc = station.dut("hmc-b")
-    assert OUTPUT_RATE_HZ[hmc.driver_options()["output_rate_code"]] == hmc.options.rate_hz
-    assert station.dut("mmc-a").driver_options(set_reset=False)["set_reset"] is False
+            built[dut.name, set_reset] = driver
+    assert OUTPUT_RATE_HZ[built["hmc-b", True].output_rate_code] == station.dut("hmc-b").options.rate_hz
+    assert built["mmc-a", True].set_reset is True and built["mmc-a", False].set_reset is False
+    assert built["ser-c", True].set_reset == "pulse" and built["ser-c", False].set_reset == "off"
 
 
 def test_rates_a_device_cannot_run_at_are_refused(tmp_path):

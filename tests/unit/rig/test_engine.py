@@ -21,7 +21,7 @@ from rig.engine import (
     Hold,
     MoveField,
     SetChamber,
-    Step,
+    Task,
 )
 from rig.errors import DeviceTimeout
 from rig.store import Session, session_tables
@@ -107,7 +107,7 @@ class Rig:
                 yield CollectPoint(pid)
                 yield Checkpoint(pid)
             return gen
-        return [Step(pid, make(pid)) for pid in ids]
+        return [Task(pid, make(pid)) for pid in ids]
 
 
 def make_engine(rig: Rig, session: RecordingSession, **kw) -> Engine:

@@ -75,19 +75,19 @@ PLANS = {
 }
 
 STATIONS = {
-    "DUT name with /": (_rename_dut("a/b"), "duts[0].name", 31),
-    "non-ASCII DUT name": (_rename_dut("mägo"), "duts[0].name", 31),
+    "DUT name with /": (_rename_dut("a/b"), "duts[0].name", 35),
+    "non-ASCII DUT name": (_rename_dut("mägo"), "duts[0].name", 35),
     "DUT names equal but for case": (STATION.replace("name: serial0", "name: MMC0")
                                      .replace("    serial0:", "    MMC0:")
-                                     .replace("beside: serial0", "beside: MMC0"), "duts[1].name", 36),
+                                     .replace("beside: serial0", "beside: MMC0"), "duts[1].name", 40),
     "inf ambient": (_station(AMBIENT, AMBIENT.replace("15000", ".inf")),
-                    "field_source.ambient_nt[0]", 28),
+                    "field_source.ambient_nt[0]", 32),
     "boolean ambient": (_station(AMBIENT, AMBIENT.replace("15000", "true")),
-                        "field_source.ambient_nt[0]", 28),
+                        "field_source.ambient_nt[0]", 32),
     "nan coil constant": (_station("- [50000, 0, 0]", "- ['nan', 0, 0]"),
-                          "field_source.coil_constants_nt_per_a[0][0]", 25),
+                          "field_source.coil_constants_nt_per_a[0][0]", 29),
     "huge coil constant": (_station("- [50000, 0, 0]", "- [1.0e+300, 0, 0]"),
-                           "field_source.coil_constants_nt_per_a", 24),
+                           "field_source.coil_constants_nt_per_a", 28),
 }
 
 ERROR_LINE = re.compile(r"error: (?P<file>\S+): (?P<path>\S+): (?P<what>.+) \(line (?P<line>\d+)\)\n")
@@ -183,4 +183,4 @@ def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsy
     assert main(["run", "--resume", str(session), "--no-live"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "duts[0].name: 'a/b': character '/' is not allowed" in err
-    assert "(line 31)" in err
+    assert "(line 35)" in err

@@ -107,7 +107,7 @@ def test_turntable_orientations_and_ids():
     plan = make_plan(fields={"kind": "grid"})
     points = compile_plan(plan, table_station())
     assert len(points) == 4 * 16 and points[0].id == "T01-O01"
-    assert points[1].angles_deg == (0.0, -90.0) and points[4].angles_deg == (-90.0, 0.0)  # a turn per tilt
+    assert points[1].command == (0.0, -90.0) and points[4].command == (-90.0, 0.0)  # a turn per tilt
     assert points[1].target == {"az_deg": 0.0, "el_deg": -90.0}
 
 
@@ -136,7 +136,7 @@ def test_ambient_counts_in_the_currents():
 def test_unmeasured_ambient_is_checked_for_the_worst_case():
     plan = make_plan(fields={"kind": "vectors", "vectors_nt": [[0, 0, 40_000]]})
     report = check_plan(plan, coil_station(ambient_nt="measure", ambient_max_nt=50_000))
-    assert report.max_current_a == pytest.approx(1.8)
+    assert report.source_lines == ["largest coil current 1.800 A"]
     assert any("not yet measured" in w for w in report.warnings)
     with pytest.raises(LimitError, match="ambient_max_nt"):
         check_plan(plan, coil_station(ambient_nt="measure", ambient_max_nt=70_000))

@@ -101,10 +101,10 @@ def test_measured_quantities_must_be_supplied():
     station = _table_station({"reference_magnetometer": "mmc0"})
     with pytest.raises(ConfigError, match="reference magnetometer"):
         reference_for(station)
-    assert np.allclose(reference_for(station, site_field_nt=[5.0, 0, 0]).site_field_nt, [5.0, 0, 0])
+    assert np.allclose(reference_for(station, [5.0, 0, 0]).site_field_nt, [5.0, 0, 0])
     data = load_station(DEFAULT_STATION).model_dump()
     data["field_source"]["ambient_nt"] = "measure"
     measuring = Station.model_validate(data)
     with pytest.raises(ConfigError, match="measure it first"):
         reference_for(measuring)
-    assert np.allclose(reference_for(measuring, ambient_nt=AMBIENT).ambient_nt, AMBIENT)
+    assert np.allclose(reference_for(measuring, AMBIENT).ambient_nt, AMBIENT)

@@ -1,0 +1,155 @@
+"""Device specs: what the rest of the project needs to know about each device type, declared once by its
+driver module.
+
+    spec = registry.spec("magnetometer", "mmc5983ma")
+    opts = spec.options.model_validate({"bandwidth_hz": 200})     # the station's `options:` for it
+    dev = spec.build(link, opts, name="mmc0", clock=clock, set_reset=True)
+    spec.sample_time_s(opts, set_reset_pair=True)                # for `rig check`'s duration estimate
+
+A spec names its role (ROLES), its station `type`, its options model (pydantic, in the driver module), the
+transport kinds it accepts (besides `sim`), how it is built on an opened link, its simulator (a
+"module:function" string resolved only when a station asks for a simulated device, so production code
+never imports drivers.sim), its timing, and whether it measures its own temperature.
+
+Links a builder receives: a drivers.transports.modbus.ModbusTransport (Modbus devices), an `I2cLink`, or
+a `SerialLink`. A simulator function takes a `SimRequest` and returns a `SimModbus`, `SimI2c` or
+`SimSerial` endpoint; the station builder turns that into the same link kinds.
+
+Adding a device type: its driver module ends with `registry.register(DeviceSpec(...))`, and its module
+name goes into DRIVER_MODULES below (the one registration line).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+from drivers.base import Device
+
+ROLES = ("chamber", "field_source", "magnetometer", "temperature")
+DRIVER_MODULES = (
+    "drivers.chamber",
+    "drivers.coils",
+    "drivers.turntable",
+    "drivers.mmc5983ma",
+    "drivers.hmc5883l",
+    "drivers.serialmag",
+    "drivers.tmp117",
+)
+MODBUS_KINDS = ("modbus_tcp", "modbus_rtu")
+
+
+class Options(BaseModel):
+    """Base of every options model: unknown keys are refused."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class NoOptions(Options):
+    pass
+
+
+@dataclass(frozen=True)
+class I2cLink:
+    bus: Any  # smbus2.SMBus or a simulated bus with the same methods
+    address: int
+
+
+@dataclass(frozen=True)
+class SerialLink:
+    port: str
+    baudrate: int
+    timeout_s: float
+
+
+@dataclass(frozen=True)
+class SimRequest:
+    """What a simulator is told about the device it stands in for."""
+
+    world: Any  # drivers.sim.world.World
+    name: str  # the device's name (for a magnetometer: its name in the world)
+    type: str
+    options: Any
+    unit: int = 1  # Modbus device id
+    beside: str | None = None  # temperature sensors: the DUT they are mounted next to
+
+
+@dataclass
+class SimModbus:
+    server: Any  # start() -> TCP port on 127.0.0.1, stop()
+
+
+@dataclass
+class SimI2c:
+    chip: Any  # register model to attach to a simulated bus
+    address: int
+
+
+@dataclass
+class SimSerial:
+    firmware: Any  # start() -> pty path, stop()
+    baudrate: int = 9600
+    timeout_s: float = 0.5
+
+
+Builder = Callable[..., Device]  # build(link, options, *, name, clock, set_reset) -> Device
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    role: str
+    type: str
+    options: type[BaseModel]
+    transports: tuple[str, ...]
+    build: Builder
+    simulator: str  # "drivers.sim.<module>:<function>", function(SimRequest) -> SimModbus|SimI2c|SimSerial
+    has_temperature: bool = False
+    sample_time: Callable[[Any, bool], float] | None = None  # (options, set_reset_pair) -> s per reading
+    rates_hz: tuple[float, ...] = ()
+
+    def sample_time_s(self, options, set_reset_pair: bool) -> float:
+        """Estimated time for one reading (duration estimates; the driver sets the real pace)."""
+        return 0.0 if self.sample_time is None else self.sample_time(options, set_reset_pair)
+
+    def load_simulator(self) -> Callable[[SimRequest], Any]:
+        module, _, function = self.simulator.partition(":")
+        return getattr(importlib.import_module(module), function)
+
+
+_SPECS: dict[tuple[str, str], DeviceSpec] = {}
+_loaded = False
+
+
+def register(spec: DeviceSpec) -> DeviceSpec:
+    if spec.role not in ROLES:
+        raise ValueError(f"device spec {spec.type}: role {spec.role!r} is not one of {ROLES}")
+    _SPECS[(spec.role, spec.type)] = spec
+    return spec
+
+
+def _load() -> None:
+    global _loaded
+    if not _loaded:
+        _loaded = True
+        for module in DRIVER_MODULES:
+            importlib.import_module(module)
+
+
+def specs(role: str) -> list[DeviceSpec]:
+    """Every registered spec of `role`, in registration order."""
+    _load()
+    return [s for (r, _), s in _SPECS.items() if r == role]
+
+
+def spec(role: str, type_: str) -> DeviceSpec:
+    _load()
+    try:
+        return _SPECS[(role, type_)]
+    except KeyError:
+        known = ", ".join(s.type for s in specs(role))
+        raise KeyError(f"no {role} of type {type_!r} (known: {known})") from None
+

@@ -1,0 +1,155 @@
+"""Station files (what is on the bench): strict models built from the device registry.
+
+    name; sim (the simulated world, rig/config/sim.py);
+    chamber {type, transport, unit, limits}; field_source {kind: coils | turntable, ...};
+    duts [{name, type, transport, options, temp_source}];
+    temperature_sensors [{name, type, transport, beside}].
+
+The `type:` values, each type's options (`limits:` of a chamber, `options:` of a magnetometer) and the
+transport kinds it takes come from its driver's spec (drivers/registry.py); field sources come from
+rig/fieldsources/. Simulation is explicit: a device is simulated exactly when its transport is
+`{kind: sim}` (`device.simulated`), and `Station.simulated_devices()` is what a session records. Nothing
+falls back to a simulator on failure.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, ClassVar, Literal, Union
+
+from pydantic import Field, create_model, model_validator
+
+from drivers import registry
+from drivers.chamber import ChamberAlarm, ChamberSettings
+from rig.config.sim import SimWorld
+from rig.configbase import DeviceConfig, Strict, transport_type
+from rig.errors import ConfigError
+from rig.fieldsources import FieldSource
+from rig.yamlload import KeyPathError
+
+
+class ChamberConfig(DeviceConfig):
+    role: ClassVar[str] = "chamber"
+
+    name: str = "chamber"
+    unit: int = Field(1, ge=0, le=247, description="Modbus device id")
+
+    alarm: ChamberAlarm | None = Field(
+        None, description="the controller's alarm register, where the lab has one (Watlow maps give none)")
+
+    @property
+    def device_options(self) -> Any:
+        return ChamberSettings(self.limits, self.alarm)  # type: ignore[attr-defined]
+
+    def sim_request(self, world) -> registry.SimRequest:
+        return registry.SimRequest(world, self.name, self.device_type, self.device_options, unit=self.unit)
+
+
+class DutConfig(DeviceConfig):
+    role: ClassVar[str] = "magnetometer"
+
+    name: str
+    temp_source: str = Field(description='a temperature sensor\'s name, or "self" (the chip\'s own sensor)')
+
+    @model_validator(mode="before")
+    @classmethod
+    def _options_of_the_type(cls, data: Any) -> Any:
+        """An option of another type is named as such, not just as an unknown key."""
+        if isinstance(data, dict) and isinstance(data.get("options"), dict):
+            spec = registry.spec(cls.role, data["type"])
+            allowed = spec.options.model_fields
+            for key in data["options"]:
+                if key not in allowed:
+                    known = ", ".join(sorted(allowed))
+                    raise KeyPathError(("options", key), f"not an option of {spec.type} (allowed: {known})")
+        return data
+
+    @model_validator(mode="after")
+    def _own_temperature(self):
+        if self.temp_source == "self" and not self.spec.has_temperature:
+            raise KeyPathError(("temp_source",),
+                               f"{self.device_type} has no temperature sensor; name a TMP117")
+        return self
+
+
+class TemperatureSensorConfig(DeviceConfig):
+    role: ClassVar[str] = "temperature"
+
+    name: str
+    beside: str = Field(description="the DUT this sensor is mounted next to")
+
+    def sim_request(self, world) -> registry.SimRequest:
+        return registry.SimRequest(world, self.name, self.device_type, self.device_options,
+                                   beside=self.beside)
+
+
+def _by_type(base: type[DeviceConfig], options_key: str) -> Any:
+    """One model per registered type of `base.role` (its options model under `options_key`), chosen by
+    the `type:` key."""
+    members = []
+    for spec in registry.specs(base.role):
+        fields: dict[str, Any] = {
+            "type": (Literal[spec.type], ...),
+            "transport": (transport_type(spec.transports), ...),
+            options_key: (spec.options, ...) if options_key == "limits" else (spec.options, spec.options()),
+        }
+        members.append(create_model(f"{base.__name__}_{spec.type}", __base__=base, **fields))
+    return Annotated[Union[tuple(members)], Field(discriminator="type")]  # noqa: UP007 - built at run time
+
+
+Chamber = _by_type(ChamberConfig, "limits")
+Dut = _by_type(DutConfig, "options")
+TemperatureSensor = _by_type(TemperatureSensorConfig, "options")
+
+
+class Station(Strict):
+    name: str
+    sim: SimWorld = SimWorld()
+    chamber: Chamber
+    field_source: FieldSource
+    duts: list[Dut] = Field(min_length=1)
+    temperature_sensors: list[TemperatureSensor] = []
+
+    @model_validator(mode="after")
+    def _references(self):
+        seen: set[str] = set()
+        for path, dev in self._named_devices():
+            if dev.name in seen:
+                raise KeyPathError((*path, "name"), f"device name {dev.name!r} is used twice")
+            seen.add(dev.name)
+        sensors = {s.name for s in self.temperature_sensors}
+        duts = {d.name for d in self.duts}
+        for i, d in enumerate(self.duts):
+            if d.temp_source != "self" and d.temp_source not in sensors:
+                known = ", ".join(sorted(sensors)) or "none defined"
+                raise KeyPathError(("duts", i, "temp_source"),
+                                   f"no temperature sensor {d.temp_source!r} (sensors: {known}; or 'self')")
+        for i, s in enumerate(self.temperature_sensors):
+            if s.beside not in duts:
+                raise KeyPathError(("temperature_sensors", i, "beside"), f"no DUT named {s.beside!r}")
+        for name in self.sim.duts:
+            if name not in duts:
+                raise KeyPathError(("sim", "duts", name), f"no DUT named {name!r} in duts")
+        for path, message in self.field_source.station_problems(duts):
+            raise KeyPathError(("field_source", *path), message)
+        return self
+
+    def _named_devices(self):
+        yield ("chamber",), self.chamber
+        yield ("field_source",), self.field_source
+        for i, d in enumerate(self.duts):
+            yield ("duts", i), d
+        for i, s in enumerate(self.temperature_sensors):
+            yield ("temperature_sensors", i), s
+
+    def devices(self) -> list[DeviceConfig]:
+        return [dev for _, dev in self._named_devices()]
+
+    def simulated_devices(self) -> dict[str, bool]:
+        """{device name: simulated?} - recorded in every session."""
+        return {dev.name: dev.simulated for dev in self.devices()}
+
+    def dut(self, name: str) -> DutConfig:
+        for d in self.duts:
+            if d.name == name:
+                return d
+        raise ConfigError(f"station {self.name}: no DUT named {name!r}")

@@ -1,0 +1,29 @@
+"""Field sources: the station's `field_source:`, one module per kind, behind rig/fieldsources/base.py.
+
+Adding one (a reference magnetometer, a measured ambient): a module here with a FieldSourceConfig
+subclass (its `kind`, the field sets it makes, its reference), its driver in drivers/ with a registry
+spec of role "field_source" and the same type, and one line in KINDS below.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Union
+
+from pydantic import Field
+
+from rig.fieldsources.base import FieldSourceConfig
+from rig.fieldsources.coils import Coils
+from rig.fieldsources.turntable import SiteFromModel, SiteFromReference, SiteFromVector, Turntable
+
+KINDS: tuple[type[FieldSourceConfig], ...] = (Coils, Turntable)
+
+FieldSource = Annotated[Union[KINDS], Field(discriminator="kind")]  # noqa: UP007 - built from KINDS
+
+
+def makers_of(field_kind: str) -> str:
+    """Which field sources make a plan's `fields.kind`, for messages ("coils", "a turntable")."""
+    return " or ".join(k.described for k in KINDS if field_kind in k.field_kinds) or "no field source"
+
+
+__all__ = ["KINDS", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",
+           "SiteFromVector", "Turntable", "makers_of"]

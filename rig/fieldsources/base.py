@@ -1,0 +1,110 @@
+"""The field-source interface: everything the plan, `rig check`, the campaign and the simulated station
+ask of a field source, so that none of them asks which kind it is.
+
+A field source is the station's `field_source:` (a pydantic model with `kind:`) and knows:
+- `field_kinds`: the plan field sets (`fields.kind`) it can make; `targets(fields)` expands one;
+- `record(target)`: how a point's target is stored; `point_letter`: F (fields) or O (orientations);
+- `reference(measured_nt)`: the Reference that turns a target into the device's setting and the
+  device's readback into the reference field (rig/reference.py);
+- `nominal_field_nt(target)`: the field at the sensor for design checks; `move_time_s(targets)`;
+  `settle_timeout_s()`; `check_targets(...)`: limit checks for `rig check`;
+- `prepare(device)`: what to do before the first move (home a table); `world_field(sim)`: the simulated
+  world's field keywords (drivers/sim/world.py);
+- `station_problems(dut_names)`: cross-references into the rest of the station.
+Its driver (drivers/registry.py, role "field_source", type = kind) gets the model itself as options.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from drivers import registry
+from rig.configbase import DeviceConfig, ModbusTransport
+from rig.errors import ConfigError, LimitError
+from rig.yamlload import blamed
+
+if TYPE_CHECKING:
+    from rig.config.sim import SimWorld
+    from rig.plan import Point
+
+SETTLE_TIMEOUT_S = 5.0  # readbacks reach their setpoints well within this; movers add their travel
+
+
+def point_limit_error(plan_name: str, point: Point, what: str) -> LimitError:
+    """A limit a plan's point breaks; `err.point` lets the plan check name the plan key and line."""
+    err = LimitError(f"plan {plan_name}: point {point.id} {what}")
+    err.point = point  # type: ignore[attr-defined]
+    return err
+
+
+class FieldSourceConfig(DeviceConfig):
+    role: ClassVar[str] = "field_source"
+    field_kinds: ClassVar[frozenset[str]] = frozenset()
+    point_letter: ClassVar[str] = "F"
+    described: ClassVar[str] = "a field source"  # for messages: "needs coils", "needs a turntable"
+
+    kind: str
+    name: str
+    transport: ModbusTransport
+    unit: int = Field(1, ge=0, le=247, description="Modbus device id")
+
+    @property
+    def device_type(self) -> str:
+        return self.kind
+
+    @property
+    def device_options(self) -> Any:
+        return self  # the driver's options model is a base class of this one
+
+    def sim_request(self, world) -> registry.SimRequest:
+        return registry.SimRequest(world, self.name, self.kind, self, unit=self.unit)
+
+    # --- plan ---------------------------------------------------------------------------------------
+    def targets(self, fields, plan_name: str, station_name: str) -> list[tuple[float, ...]]:
+        """The targets of the plan's field set, in plan order; ConfigError if this source cannot make
+        that kind of field set."""
+        if fields.kind not in self.field_kinds:
+            from rig.fieldsources import makers_of
+
+            what = (f"{fields.kind!r} needs {makers_of(fields.kind)}; station {station_name} has "
+                    f"{self.described} (use one of {', '.join(sorted(self.field_kinds))})")
+            raise blamed(ConfigError(f"plan {plan_name}: fields.kind: {what}"), ("fields", "kind"), what)
+        try:
+            return fields.targets()
+        except ValueError as exc:
+            path = ("fields", "directions") if fields.kind == "directions" else ("fields",)  # a zero one
+            raise blamed(ConfigError(f"plan {plan_name}: fields.{fields.kind}: {exc}"), path,
+                         str(exc)) from None
+
+    def record(self, target: tuple[float, ...]) -> dict:
+        raise NotImplementedError
+
+    def nominal_field_nt(self, target: tuple[float, ...]) -> np.ndarray:
+        raise NotImplementedError
+
+    def check_targets(self, plan_name: str, points: list[Point], warnings: list[str]) -> list[str]:
+        """Raise LimitError naming the point and the limit; return lines for `rig check`'s summary."""
+        return []
+
+    def move_time_s(self, targets: list[tuple[float, ...]]) -> float:
+        return 0.0
+
+    # --- run ----------------------------------------------------------------------------------------
+    def reference(self, measured_nt=None):
+        raise NotImplementedError
+
+    def settle_timeout_s(self) -> float:
+        return SETTLE_TIMEOUT_S
+
+    def prepare(self, device) -> None:
+        """Called once on the connected device before the first move."""
+
+    # --- station and simulation --------------------------------------------------------------------
+    def station_problems(self, dut_names: set[str]) -> list[tuple[tuple, str]]:
+        return []
+
+    def world_field(self, sim: SimWorld) -> dict:
+        raise NotImplementedError

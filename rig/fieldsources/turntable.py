@@ -1,0 +1,142 @@
+"""Two-axis turntable in the site's field: an orientation (az, el) turns the site field into the sensor.
+
+Home pose (az = el = 0): table x north, y east, z down, so the site field (NED) is the table-frame field at
+home. Sensor-frame field = R^T B_site, R = Rz(az) @ Ry(el) (drivers.turntable.rotation_deg). The site
+field is a vector given in the station, the World Magnetic Model at the site, or measured by a reference
+magnetometer at the start of the campaign.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Annotated, Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import BaseModel, Discriminator, Field, Tag
+
+from drivers.turntable import TurntableOptions
+from rig.configbase import Strict, Vec3
+from rig.errors import ConfigError
+from rig.fieldsources.base import SETTLE_TIMEOUT_S, FieldSourceConfig, point_limit_error
+from rig.reference import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
+
+ORIENTATION_KINDS = frozenset({"grid", "orientations"})
+HOMING_TRAVEL_DEG = 720.0  # the longest way home: a full turn on each axis
+MOVE_TRAVEL_DEG = 360.0  # the longest move the settle wait allows for
+
+
+class SiteFromReference(Strict):
+    reference_magnetometer: str
+
+    def stated_nt(self) -> np.ndarray | None:
+        return None  # measured at the start of the campaign
+
+
+class SiteFromModel(Strict):
+    model: Literal["wmm", "igrf"] = "wmm"
+    lat_deg: float = Field(ge=-90, le=90)
+    lon_deg: float = Field(ge=-180, le=360)
+    alt_km: float = 0.0
+    date: dt.date
+
+    def stated_nt(self) -> np.ndarray | None:
+        return site_field_ned_nt(self.lat_deg, self.lon_deg, self.alt_km, self.date, self.model)
+
+
+class SiteFromVector(Strict):
+    vector_nt: Vec3 = Field(description="north, east, down")
+
+    def stated_nt(self) -> np.ndarray | None:
+        return np.asarray(self.vector_nt, float)
+
+
+_SITE_TAGS = {SiteFromReference: "reference", SiteFromVector: "vector", SiteFromModel: "model"}
+
+
+def _site_kind(value: Any) -> str | None:
+    if isinstance(value, dict):
+        for key, tag in (("reference_magnetometer", "reference"), ("vector_nt", "vector"),
+                         ("lat_deg", "model"), ("model", "model")):
+            if key in value:
+                return tag
+    elif isinstance(value, BaseModel):
+        return _SITE_TAGS[type(value)]
+    return None
+
+
+SiteField = Annotated[
+    Annotated[SiteFromReference, Tag("reference")]
+    | Annotated[SiteFromModel, Tag("model")]
+    | Annotated[SiteFromVector, Tag("vector")],
+    Discriminator(
+        _site_kind,
+        custom_error_type="site_field",
+        custom_error_message="give one of reference_magnetometer, vector_nt, or model with lat_deg/lon_deg",
+    ),
+]
+
+
+class Turntable(FieldSourceConfig, TurntableOptions):
+    field_kinds: ClassVar[frozenset[str]] = ORIENTATION_KINDS
+    point_letter: ClassVar[str] = "O"
+    described: ClassVar[str] = "a turntable"
+
+    kind: Literal["turntable"]
+    name: str = "turntable"
+    site_field: SiteField
+
+    def stated_site_field_nt(self) -> np.ndarray | None:
+        """The site field the station file states (None when a reference magnetometer must measure it)."""
+        return self.site_field.stated_nt()
+
+    # --- plan ---------------------------------------------------------------------------------------
+    def record(self, target) -> dict:
+        return {"az_deg": target[0], "el_deg": target[1]}
+
+    def nominal_field_nt(self, target) -> np.ndarray:
+        site = self.stated_site_field_nt()
+        return table_field_nt(TYPICAL_FIELD_NT if site is None else site, *target)
+
+    def check_targets(self, plan_name, points, warnings) -> list[str]:
+        for p in points:
+            for value, key, (lo, hi) in zip(p.command, ("az_limits_deg", "el_limits_deg"),
+                                            (self.az_limits_deg, self.el_limits_deg), strict=True):
+                if not lo <= value <= hi:
+                    raise point_limit_error(plan_name, p, f"angle {value:g} deg is outside "
+                                            f"field_source.{key} [{lo:g}, {hi:g}]")
+        return []
+
+    def move_time_s(self, targets) -> float:
+        """Both axes move at once, from home through every target in turn."""
+        angles = np.array([(0.0, 0.0), *targets])
+        return float(np.abs(np.diff(angles, axis=0)).max(axis=1).sum()) / self.rate_deg_s
+
+    # --- run ----------------------------------------------------------------------------------------
+    def reference(self, measured_nt=None) -> TableReference:
+        """`measured_nt`: the site field measured at the start (needed with a reference magnetometer)."""
+        site = measured_nt if measured_nt is not None else self.stated_site_field_nt()
+        if site is None:
+            raise ConfigError("the site field must be measured by the reference magnetometer first")
+        return TableReference(site)
+
+    def settle_timeout_s(self) -> float:
+        return SETTLE_TIMEOUT_S + MOVE_TRAVEL_DEG / self.rate_deg_s
+
+    def prepare(self, device) -> None:
+        """A table that lost its home (power cycle) is homed before the first move."""
+        if not device.read().homed:
+            device.home()
+            device.wait_settled(SETTLE_TIMEOUT_S + HOMING_TRAVEL_DEG / self.rate_deg_s)
+
+    # --- station and simulation --------------------------------------------------------------------
+    def station_problems(self, dut_names):
+        name = getattr(self.site_field, "reference_magnetometer", None)
+        if name is not None and name not in dut_names:
+            return [(("site_field", "reference_magnetometer"), f"no magnetometer named {name!r} in duts")]
+        return []
+
+    def world_field(self, sim) -> dict:
+        site = next(v for v in (sim.site_field_nt, self.stated_site_field_nt(), TYPICAL_FIELD_NT)
+                    if v is not None)
+        return {"field_source": "turntable", "site_field_nt": np.asarray(site, float),
+                "turntable_rate_deg_s": self.rate_deg_s}

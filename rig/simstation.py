@@ -1,0 +1,86 @@
+"""The simulated part of a station: ONE world on the campaign clock, and a simulator for every device
+whose transport is `{kind: sim}`. The only production module that imports drivers.sim.
+
+    bench = SimBench(station, clock)
+    link = bench.link(device_config)        # starts the device's simulator; the SAME driver is built on it
+    bench.stop()
+
+Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
+field source (`world_field`), the DUT truths and the simulator's defaults from drivers/sim/truths.py.
+A station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share
+the world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads
+a mount that follows the simulated air.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+from drivers.clock import Clock
+from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
+from drivers.sim.i2c_bus import FakeSMBus
+from drivers.sim.truths import AIR_C, dut_truth, mount_truth
+from drivers.sim.world import DutTruth, World
+from rig.configbase import ModbusTcp
+from rig.links import open_link
+
+LOOPBACK = "127.0.0.1"
+
+
+def dut_truths(station) -> dict[str, DutTruth]:
+    """{DUT name: truth} for the simulated DUTs, from the station's `sim.duts` (defaults applied)."""
+    out = {}
+    for position, dut in enumerate(station.duts):
+        if not dut.simulated:
+            continue
+        spec = station.sim.duts.get(dut.name)
+        if spec is None:
+            out[dut.name] = dut_truth(station.sim.seed, position)
+            continue
+        truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
+        out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
+    return out
+
+
+def make_world(station, clock: Clock) -> World:
+    air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
+    world = World(clock, air_c=air_c, seed=station.sim.seed, **station.field_source.world_field(station.sim))
+    for name, truth in dut_truths(station).items():
+        world.add_dut(name, truth)
+    for sensor in station.temperature_sensors:
+        if sensor.simulated and sensor.beside not in world.duts:
+            world.add_dut(sensor.beside, mount_truth())
+    return world
+
+
+class SimBench:
+    def __init__(self, station, clock: Clock):
+        self.clock = clock
+        self.world = make_world(station, clock)
+        self.running: list[Any] = []
+
+    def link(self, dev_cfg):
+        """Start the device's simulator and return the link its driver is built on."""
+        endpoint = dev_cfg.spec.load_simulator()(dev_cfg.sim_request(self.world))
+        match endpoint:
+            case SimModbus(server=server):
+                loopback = ModbusTcp(kind="modbus_tcp", host=LOOPBACK, port=self._start(server))
+                return open_link(dev_cfg, loopback, self.clock)
+            case SimSerial(firmware=firmware, baudrate=baudrate, timeout_s=timeout_s):
+                return SerialLink(self._start(firmware), baudrate, timeout_s)
+            case SimI2c(chip=chip, address=address):
+                bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
+                bus.attach(address, chip)
+                return I2cLink(bus, address)
+        raise TypeError(f"{dev_cfg.name}: simulator returned {endpoint!r}")
+
+    def _start(self, sim) -> Any:
+        self.running.append(sim)
+        return sim.start()
+
+    def stop(self) -> None:
+        for sim in reversed(self.running):
+            with contextlib.suppress(Exception):
+                sim.stop()
+        self.running.clear()
