@@ -33,15 +33,16 @@ def _unit_options(f):
 
 
 def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None):
-    """A Dataset from a session file (SQLite, via rig.store) or a CSV file."""
+    """A Dataset from a session file (by its name or content; via rig.reader) or a CSV file."""
     from calib import csvio
     from rig.errors import DataError
-    from rig.store import is_session_file, read_dataset
+    from rig.reader import read_dataset
+    from rig.sessionfile import looks_like_session
 
     p = Path(path)
     if not p.is_file():
         raise DataError(f"{p}: no such file")
-    if is_session_file(p):
+    if looks_like_session(p):
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -24,7 +23,13 @@ from rig.engine import (
     Step,
 )
 from rig.errors import DeviceTimeout
-from rig.store import Session, session_tables
+from rig.reader import SessionReader
+from rig.store import Session
+
+
+def session_tables(path) -> dict:
+    with SessionReader(path) as r:
+        return {"session": r.info(), "points": r.points(), "events": r.events()}
 
 
 class FakeDevice:
@@ -54,7 +59,7 @@ class RecordingSession:
 
     @property
     def events(self) -> list[tuple[str, str, dict]]:
-        return [(e["kind"], e["message"], {**json.loads(e["data_json"]), "device": e["device"]})
+        return [(e.kind, e.message, {**e.data, "device": e.device})
                 for e in session_tables(self.path)["events"]]
 
     @property
