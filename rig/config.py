@@ -34,6 +34,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, model_validator
 
+from calib.models import MODELS as CALIBRATION_MODELS
 from rig.errors import ConfigError
 from rig.yamlload import KeyPathError, load_model, read_text
 
@@ -540,7 +541,7 @@ TABLE_FIELD_KINDS = {"grid", "orientations"}
 
 
 class Fit(Strict):
-    models: list[Literal["t24", "p12", "scalar"]] = Field(["t24"], min_length=1)
+    models: list[Literal[CALIBRATION_MODELS]] = Field(["t24"], min_length=1)  # calib's model registry
     robust: bool = False
 
 
