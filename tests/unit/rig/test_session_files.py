@@ -266,3 +266,15 @@ def test_a_full_disk_fails_the_run_in_one_line_and_records_its_exit(tmp_path, ca
         faults = [e for e in r.events() if e.kind == Kind.FAULT]
     assert (info["exit_status"], info["exit_code"]) == ("failed", "store_failed")
     assert faults[0].point_id == "T01-F02" and faults[0].code == Reason.STORE_FAILED
+
+
+def test_sessions_shows_why_a_run_stopped_from_its_code(tmp_path, capsys):
+    from tests.helpers.synthetic_session import SynthOptions, build_session
+
+    build_session(tmp_path / "aborted.session",
+                  SynthOptions(temps_c=(0.0, 20.0), directions=6, samples=1, abort_at_step=2))
+    build_session(tmp_path / "done.session", SynthOptions(temps_c=(0.0,), directions=6, samples=1))
+    assert main(["sessions", str(tmp_path)]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()[1:]}
+    assert "aborted (retakes_exhausted)" in lines["aborted.session"]
+    assert " completed " in lines["done.session"] and "completed (" not in lines["done.session"]
