@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
 
+REPO = Path(__file__).resolve().parents[1]
 TEMPS_C = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
 
 
@@ -38,7 +40,8 @@ def field_vectors(n: int):
 def write_synthetic_session(path: Path, args) -> None:
     import numpy as np
 
-    from rig.report.synthetic_session import SynthOptions, build_session
+    sys.path.insert(0, str(REPO))  # the synthetic session generator is a test helper
+    from tests.helpers.synthetic_session import SynthOptions, build_session
 
     temps = TEMPS_C[: args.temps] if args.temps <= len(TEMPS_C) else tuple(np.linspace(-30, 70, args.temps))
     opts = SynthOptions(

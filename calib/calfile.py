@@ -14,14 +14,18 @@ from calib.errors import DataError
 
 
 def save(cal: Calibration, path: str | os.PathLike) -> None:
-    """Write atomically (temp file + rename)."""
+    """Write atomically (temp file + rename), with the permissions any new file gets (umask).
+    A folder that cannot be written to, or a full disk, raises DataError naming the file."""
     d = cal.to_dict()
-    with atomic_write(path) as f:
-        if str(path).lower().endswith(".json"):
-            json.dump(d, f, indent=2)
-            f.write("\n")
-        else:
-            yaml.safe_dump(d, f, sort_keys=False, default_flow_style=None, width=120)
+    try:
+        with atomic_write(path) as f:
+            if str(path).lower().endswith(".json"):
+                json.dump(d, f, indent=2)
+                f.write("\n")
+            else:
+                yaml.safe_dump(d, f, sort_keys=False, default_flow_style=None, width=120)
+    except OSError as err:
+        raise DataError(f"{path}: cannot write the calibration file ({err.strerror or err})") from None
 
 
 MAX_BYTES = 1 << 20  # a calibration file is a few kB

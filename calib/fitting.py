@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import p12, scalar, t24
+from calib import models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
@@ -23,7 +23,7 @@ def fit(
     balance_orientations: bool | None = None,
     software_version: str = "unknown",
 ) -> Calibration:
-    """Fit `model` ("t24", "p12" or "scalar") to `ds`.
+    """Fit `model` (a name in calib.models.REGISTRY: "t24", "p12", "scalar") to `ds`.
 
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
@@ -32,21 +32,12 @@ def fit(
     software_version: recorded in the calibration file (the application passes its own version).
     """
     check_dataset(ds)
-    fitters = {
-        "t24": lambda w: t24.fit_weighted(ds, w, temp_ref_c),
-        "p12": lambda w: p12.fit_weighted(ds, w),
-        "scalar": lambda w: scalar.fit_weighted(
-            ds,
-            w,
-            temp_ref_c=temp_ref_c,
-            field_norm_nt=field_norm_nt,
-            temperature_terms=temperature_terms,
-            balance_orientations=balance_orientations,
-        ),
-    }
-    if model not in fitters:
-        raise DataError(f"unknown model {model!r}: choose t24, p12 or scalar")
-    fit_weighted = fitters[model]
+    spec = models.spec(model)
+    options = models.FitOptions(temp_ref_c, field_norm_nt, temperature_terms, balance_orientations)
+
+    def fit_weighted(weights):
+        return spec.fit_weighted(ds, weights, options)
+
     if robust:
         cal, _, flagged = irls(fit_weighted, len(ds))
     else:
@@ -56,7 +47,7 @@ def fit(
     field = cal.apply(ds.h_nt, ds.temp_c)
     stats = dict(cal.stats)
     norm = stats.get("field_norm_nt")  # scalar model with one constant |B|
-    stats.update(residual_stats(ds, field, vector=model != "scalar", used=used, norm_nt=norm))
+    stats.update(residual_stats(ds, field, vector=spec.vector, used=used, norm_nt=norm))
     stats.update(
         {"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust}
     )

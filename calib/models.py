@@ -1,4 +1,9 @@
-"""The three calibration models as plain functions: parameters in, calibrated field out.
+"""The calibration models: what each one is (the registry), and each as plain functions (parameters in,
+calibrated field out).
+
+The registry is the one list of models: the CLI's --model choices, the plan's allowed `fit.models`, the
+campaign's fits and the report's model comparison all read it. Adding a model = its module (fit_weighted,
+and its apply below) + its `ModelSpec` in REGISTRY + its tests.
 
 Parameter names and shapes are the contract of the calibration file:
 
@@ -13,21 +18,80 @@ Parameter names and shapes are the contract of the calibration file:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from calib.errors import DataError
 
-PARAM_SHAPES: dict[str, dict[str, tuple[int, ...]]] = {
-    "t24": {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)},
-    "p12": {"k": (3,), "angles_deg": (3,), "b_nt": (3,)},
-    "scalar": {"A": (3, 3), "c_nt": (3,)},
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Options of calib.fit a model may use (each model says which it takes)."""
+
+    temp_ref_c: float | None = None
+    field_norm_nt: float | None = None
+    temperature_terms: bool | None = None
+    balance_orientations: bool | None = None
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    name: str
+    params: dict[str, tuple[int, ...]]  # required parameters and their shapes
+    fit_weighted: Callable  # (dataset, weights or None, FitOptions) -> (Calibration, residuals)
+    vector: bool  # True: output in the reference frame, fitted to the reference vector; False: to |B| only
+    needs_temperature: bool  # every sample must have a temperature
+    optional: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    options: frozenset[str] = frozenset({"temp_ref_c"})  # the FitOptions it uses
+
+
+def _fit_t24(ds, weights, o: FitOptions):
+    from calib import t24
+
+    return t24.fit_weighted(ds, weights, o.temp_ref_c)
+
+
+def _fit_p12(ds, weights, o: FitOptions):
+    from calib import p12
+
+    return p12.fit_weighted(ds, weights)
+
+
+def _fit_scalar(ds, weights, o: FitOptions):
+    from calib import scalar
+
+    return scalar.fit_weighted(ds, weights, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
+                               temperature_terms=o.temperature_terms,
+                               balance_orientations=o.balance_orientations)
+
+
+REGISTRY: dict[str, ModelSpec] = {
+    spec.name: spec
+    for spec in (
+        ModelSpec("t24", {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)}, _fit_t24,
+                  vector=True, needs_temperature=True),
+        ModelSpec("p12", {"k": (3,), "angles_deg": (3,), "b_nt": (3,)}, _fit_p12, vector=True,
+                  needs_temperature=False, options=frozenset()),
+        ModelSpec("scalar", {"A": (3, 3), "c_nt": (3,)}, _fit_scalar, vector=False, needs_temperature=False,
+                  optional={"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
+                  options=frozenset({"temp_ref_c", "field_norm_nt", "temperature_terms",
+                                     "balance_orientations"})),
+    )
 }
-OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
-    "t24": {},
-    "p12": {},
-    "scalar": {"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
-}
-MODELS = tuple(PARAM_SHAPES)
+MODELS = tuple(REGISTRY)
+VECTOR_MODELS = tuple(name for name, spec in REGISTRY.items() if spec.vector)
+PARAM_SHAPES = {name: spec.params for name, spec in REGISTRY.items()}
+OPTIONAL_PARAMS = {name: spec.optional for name, spec in REGISTRY.items()}
+
+
+def spec(model: str) -> ModelSpec:
+    """The model's entry; DataError naming the known models otherwise."""
+    try:
+        return REGISTRY[model]
+    except KeyError:
+        raise DataError(f"unknown calibration model {model!r} (known: {', '.join(MODELS)})") from None
 
 
 def needs_temperature(model: str, params: dict) -> bool:

@@ -48,11 +48,13 @@ from rig.engine import (
     WaitStable,
 )
 from rig.errors import ERRORS, ConfigError, SessionError
+from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
+from rig.lock import SessionLock
 from rig.plan import Point, compile_plan
 from rig.reference import reference_for
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
-from rig.station import Rig, RunLock, open_rig
+from rig.station import Rig, open_rig
 from rig.store import SampleRow
 
 log = logging.getLogger("magrig.campaign")
@@ -147,7 +149,9 @@ class CampaignRunner:
         reading = self.rig.chamber.read()
         self.status.chamber_c = reading.air_c
         if reading.fault:
-            raise Hold(f"chamber {reading.problem}")
+            code = (Reason.CHAMBER_ALARM if reading.alarm else
+                    Reason.CHAMBER_SENSOR if reading.input_error else Reason.CHAMBER_OFF_COURSE)
+            raise Hold(f"chamber {reading.problem}", code=code, device=self.rig.chamber.name)
 
     def _dut_temps(self, cache: dict | None = None) -> dict[str, float | None]:
         """Each DUT's temperature from its temp source (a sensor is read once per call)."""
@@ -171,7 +175,8 @@ class CampaignRunner:
             t = clock.now()
             for dut, temp_c in temps.items():
                 if temp_c is None:
-                    raise Hold(f"{dut}: its temperature source gives no temperature")
+                    raise Hold(f"{dut}: its temperature source gives no temperature",
+                               code=Reason.NO_TEMPERATURE, device=dut)
                 detectors[dut].add(t, temp_c)
             self.status.dut_temps_c = dict(temps)
             states = {dut: d.state for dut, d in detectors.items()}
@@ -180,15 +185,16 @@ class CampaignRunner:
                 f"in band {d.in_band_s:.0f} s)" for dut, d in detectors.items())
             if all(s == STABLE for s in states.values()):
                 waited = t - start
-                self.engine.event("stable", f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
-                                  temps=temps)
+                self.engine.event(Kind.STABLE, f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
+                                  code=Reason.STABLE, temps=temps)
                 return {"target_c": cmd.target_c, "waited_s": waited,
                         "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
                                        "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
             late = [dut for dut, s in states.items() if s == TIMEOUT]
             if late:
                 raise Hold(f"{', '.join(late)} not stable at {cmd.target_c:g} degC within "
-                           f"max_wait_s {cmd.criteria.max_wait_s:g} s")
+                           f"max_wait_s {cmd.criteria.max_wait_s:g} s", code=Reason.SETTLE_TIMEOUT,
+                           device=", ".join(late))
             self.engine.wait(poll_s, poll_s)
 
     def move_field(self, cmd: MoveField) -> None:
@@ -218,10 +224,12 @@ class CampaignRunner:
                 else:
                     temp_c, other_c = sensors[self.rig.temp_sources[dut].name], sample.temp_c
                 if temp_c is None:
-                    raise Hold(f"{dut}: its temperature source gives no temperature")
+                    raise Hold(f"{dut}: its temperature source gives no temperature",
+                               code=Reason.NO_TEMPERATURE, device=dut)
                 if cmd.temp_band_c is not None and abs(temp_c - point.setpoint_c) > cmd.temp_band_c:
                     raise Hold(f"{dut} temperature {temp_c:.2f} degC left {point.setpoint_c:g} +- "
-                               f"{cmd.temp_band_c:g} degC during point {point.id}")
+                               f"{cmd.temp_band_c:g} degC during point {point.id}",
+                               code=Reason.TEMP_OUT_OF_BAND, device=dut)
                 rows.append(SampleRow.from_field_sample(dut, sample, ref_nt, temp_c=temp_c,
                                                         ref_temp_c=other_c))
                 self.status.dut_temps_c[dut] = temp_c
@@ -239,15 +247,16 @@ class CampaignRunner:
 
     def preload_live(self, session_path) -> None:
         """On resume: start the live fits from what the session already holds."""
-        from rig.store import read_dataset
+        from rig.reader import SessionReader
 
-        for dut, live in self.live.items():
-            try:
-                ds = read_dataset(session_path, dut)
-            except ERRORS:
-                continue
-            live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
-            self.live_summaries[dut] = live.summary()
+        with SessionReader(session_path) as reader:
+            for dut, live in self.live.items():
+                try:
+                    ds = reader.dataset(dut)
+                except ERRORS:
+                    continue
+                live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
+                self.live_summaries[dut] = live.summary()
 
     def checkpoint(self, cmd: Checkpoint) -> None:
         log.info("point %s recorded", cmd.point_id)
@@ -271,13 +280,20 @@ def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
     return session_file(out_dir, plan_name)
 
 
-def load_from_session(path: str | Path) -> tuple[cfg.Plan, cfg.Station]:
-    """The plan and the station exactly as the session recorded them (a resume never rereads files)."""
-    from rig.store import Session
+def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.Plan, cfg.Station]:
+    """The plan and the station exactly as the session recorded them (a resume never rereads files).
+    Refused when the plan or station file at its recorded path no longer matches the recorded text:
+    the operator edited it and would expect the edit to apply."""
+    from rig.reader import SessionReader, recorded_files_changed
     from rig.yamlload import load_model
 
-    with Session.open(path) as s:
-        info = s.info()
+    if info is None:
+        with SessionReader(path) as reader:
+            info = reader.info()
+    changed = recorded_files_changed(info)
+    if changed:
+        raise SessionError(f"{path}: cannot resume: {'; '.join(changed)}. A resume runs the recorded plan "
+                           "and station: restore the file(s), or start a new session")
     plan = load_model(cfg.Plan, f"{path} (recorded plan)", info["plan_text"])
     station = load_model(cfg.Station, f"{path} (recorded station)", info["station_text"])
     return plan, station
@@ -300,18 +316,25 @@ def run_campaign(
     New run: `campaign` gives plan and station. Resume: both come from the session itself.
     `display_factory(status, runner)` returns a context manager (the live display) or None;
     `on_rig(rig)` sees the connected rig before the run (benchmarks instrument it, tests inject faults)."""
+    from rig.reader import SessionReader
     from rig.store import Session
 
     wall0 = time.perf_counter()
     session_path = Path(session_path)
     if resume:
-        plan, station = load_from_session(session_path)
+        with SessionReader(session_path) as reader:
+            info, summary = reader.info(), reader.summary()
+        if info["completed"]:  # nothing to take, nothing to fit again
+            done = RunResult(COMPLETED, "the session is already complete; nothing to do",
+                             summary["points_done"], Reason.COMPLETED)
+            return RunOutcome(session_path, done, wall_s=time.perf_counter() - wall0)
+        plan, station = load_from_session(session_path, info)
     else:
         assert campaign is not None
         plan, station = campaign.plan, campaign.station
     points = compile_plan(plan, station)
     reference_for(station)  # a reference the rig cannot know yet (ambient "measure") stops us here
-    lock = RunLock(session_path)
+    lock = SessionLock(session_path)
     lock.acquire()
     try:
         rig = open_rig(station, plan, clock)  # connects and makes every device safe FIRST
@@ -371,10 +394,12 @@ def _check_resumable(session, points: list[Point]) -> None:
 def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, hold_wait_s, max_retakes,
                     resume) -> RunOutcome:
     if lock.stale_pid is not None:
-        session.log_event("stale_lock", f"previous run (pid {lock.stale_pid}) died without finishing; "
-                          "hardware made safe, lock taken over", level="WARNING", pid=lock.stale_pid)
-    session.log_event("start", ("resumed" if resume else "started") + f" with every device made safe; "
-                      f"simulated: {rig.simulated}", simulated=rig.simulated)
+        session.log_event(Kind.STALE_LOCK, f"previous run (pid {lock.stale_pid}) died without finishing; "
+                          "hardware made safe, lock taken over", code=Reason.STALE_LOCK, level="WARNING",
+                          pid=lock.stale_pid)
+    session.log_event(Kind.START, ("resumed" if resume else "started") + f" with every device made safe; "
+                      f"simulated: {rig.simulated}", code=Reason.RESUMED if resume else Reason.STARTED,
+                      simulated=rig.simulated)
     for dev in rig.devices():
         session.record_snapshot(dev.name, dev.describe())
     status = RunStatus()
@@ -403,7 +428,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     import calib
     from calib import calfile
     from rig.outputs import calibration_file
-    from rig.store import read_dataset
+    from rig.reader import read_dataset
 
     out = []
     for dut in station.duts:
@@ -418,8 +443,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 cal = calib.fit(ds, model, robust=plan.fit.robust, software_version=__version__)
             except ERRORS as exc:
                 entry["error"] = str(exc)
-                session.log_event("fit_failed", f"{dut.name} {model}: {exc}", level="WARNING",
-                                  device=dut.name)
+                session.log_event(Kind.FIT_FAILED, f"{dut.name} {model}: {exc}", code=Reason.FIT_FAILED,
+                                  level="WARNING", device=dut.name, model=model)
                 out.append(entry)
                 continue
             try:

@@ -38,6 +38,7 @@ from typing import Any, Protocol
 from drivers.base import make_all_safe
 from drivers.clock import Clock
 from rig.errors import ERRORS, DeviceError, MagrigError
+from rig.events import Kind, Reason, code_of, device_of
 from rig.settle import SettleCriteria
 
 log = logging.getLogger("magrig.engine")
@@ -103,13 +104,19 @@ class Task:
 
 
 class Hold(MagrigError):
-    """Raised by a handler: the point cannot be taken as it is (alarm, temperature out of band)."""
+    """Raised by a handler: the point cannot be taken as it is (alarm, temperature out of band).
+    `code` says why (rig.events.Reason), `device` which device it concerns."""
+
+    def __init__(self, message: str, *, code: Reason = Reason.UNKNOWN, device: str | None = None):
+        super().__init__(message)
+        self.code = code
+        self.device = device
 
 
 class SessionLike(Protocol):
     def log_event(self, kind: str, message: str, **data: Any) -> None: ...
 
-    def finish(self, status: str, reason: str) -> None: ...
+    def finish(self, status: str, reason: str, *, code: Reason | None = None) -> None: ...
 
 
 @dataclass
@@ -117,6 +124,7 @@ class RunResult:
     status: str
     reason: str
     points_done: int
+    code: Reason = Reason.UNKNOWN  # why the run ended (Reason.COMPLETED when it did)
 
 
 @dataclass
@@ -140,7 +148,9 @@ class _Pause(Exception):
 
 
 class _Abort(Exception):
-    pass
+    def __init__(self, message: str, code: Reason):
+        super().__init__(message)
+        self.code = code
 
 
 class Engine:
@@ -169,7 +179,9 @@ class Engine:
         self.log_handler: SessionLogHandler | None = None
         self._pause_requested = threading.Event()
         self._abort_reason: str | None = None
+        self._abort_code = Reason.OPERATOR_ABORT
         self._prompting = False
+        self._events_lost = 0
 
     # --- requests (signal handlers and tests call these) -----------------------------------------
     def request_pause(self) -> None:
@@ -180,9 +192,10 @@ class Engine:
         else:
             self._pause_requested.set()
 
-    def request_abort(self, reason: str) -> None:
+    def request_abort(self, reason: str, code: Reason = Reason.OPERATOR_ABORT) -> None:
         if self._abort_reason is None:
             self._abort_reason = reason
+            self._abort_code = code
         if self._prompting:
             raise KeyboardInterrupt  # stop waiting for the operator's answer
 
@@ -191,7 +204,7 @@ class Engine:
         if self.log_handler is not None:
             self.log_handler.flush_pending()
         if self._abort_reason is not None:
-            raise _Abort(self._abort_reason)
+            raise _Abort(self._abort_reason, self._abort_code)
         if self._pause_requested.is_set():
             raise _Pause()
 
@@ -203,13 +216,16 @@ class Engine:
             self.clock.sleep(min(poll_s, left))
         self.check_interrupt()
 
-    def event(self, kind: str, message: str, **data: Any) -> None:
-        """Record an event in the session and in the live status."""
+    def event(self, kind: Kind, message: str, *, code: Reason, point_id: str | None = None,
+              device: str | None = None, **data: Any) -> None:
+        """Record an event (kind, reason code, point, device, message) in the session and the live status."""
         self.status.events.append(f"{kind}: {message}")
         try:
-            self.session.log_event(kind, message, **data)
+            self.session.log_event(kind, message, code=code, point_id=point_id, device=device, **data)
         except Exception as exc:  # the session must not take the run down with it
-            log.error("could not record event %s: %s", kind, exc)
+            self._events_lost += 1
+            if self._events_lost == 1:  # a full disk fails every write: say it once
+                log.warning("could not record events in the session: %s", exc)
 
     # --- running ----------------------------------------------------------------------------------
     def run(self, tasks: Iterable[Task], done_ids: Iterable[str] = ()) -> RunResult:
@@ -220,38 +236,47 @@ class Engine:
         self.status.points_total = len(tasks)
         self.status.points_done = len(tasks) - len(todo)
         self.status.started_t = self.clock.now()
-        status, reason = FAILED, "not started"
+        status, reason, code = FAILED, "not started", Reason.SOFTWARE_ERROR
         self.log_handler = SessionLogHandler(self.session)
         magrig_log = logging.getLogger("magrig")
         magrig_log.addHandler(self.log_handler)
         with _signals_to(self):
             try:
-                self.event("run", f"{len(todo)} of {len(tasks)} points to take")
+                self.event(Kind.RUN, f"{len(todo)} of {len(tasks)} points to take", code=Reason.STARTED)
                 for task in todo:
                     self._run_point(task)
-                status, reason = COMPLETED, f"all {len(tasks)} points taken"
+                status, reason, code = COMPLETED, f"all {len(tasks)} points taken", Reason.COMPLETED
             except _Abort as exc:
-                status, reason = ABORTED, str(exc)
+                status, reason, code = ABORTED, str(exc), exc.code
             except KeyboardInterrupt:
-                status, reason = ABORTED, "interrupted"
+                status, reason, code = ABORTED, "interrupted", Reason.OPERATOR_ABORT
             except Exception as exc:
                 reason = str(exc) if isinstance(exc, ERRORS) else f"{type(exc).__name__}: {exc}"
-                status = FAILED
+                status, code = FAILED, code_of(exc)
                 log.error("run failed: %s", reason)
+                self.event(Kind.FAULT, reason, code=code, point_id=self.status.point_id or None,
+                           device=device_of(exc))
             finally:
                 self.make_safe()
-                self.event("exit", f"{status}: {reason}", status=status)
+                self.event(Kind.EXIT, f"{status}: {reason}", code=code, status=status)
                 magrig_log.removeHandler(self.log_handler)
                 self.log_handler.flush_pending()
-                self.session.finish(status, reason)
-        return RunResult(status, reason, self.status.points_done)
+                self._finish(status, reason, code)
+        return RunResult(status, reason, self.status.points_done, code)
+
+    def _finish(self, status: str, reason: str, code: Reason) -> None:
+        """Record the exit status where the disk allows; a failure here must not hide how the run ended."""
+        try:
+            self.session.finish(status, reason, code=code)
+        except Exception as exc:
+            log.warning("could not record the exit status in the session: %s", exc)
 
     def make_safe(self) -> list[str]:
         """safe_state() on every device, each on its own (one failure must not skip the others).
         Returns the names of the devices that failed to go safe."""
         failed = make_all_safe(self.devices)
-        self.event("safe_state", "all devices safe" if not failed else f"FAILED on {', '.join(failed)}",
-                   failed=failed)
+        self.event(Kind.SAFE_STATE, "all devices safe" if not failed else f"FAILED on {', '.join(failed)}",
+                   code=Reason.SAFE_STATE_FAILED if failed else Reason.ALL_SAFE, failed=failed)
         return failed
 
     def _run_point(self, task: Task) -> None:
@@ -270,10 +295,13 @@ class Engine:
             except (Hold, DeviceError) as exc:
                 retakes += 1
                 if retakes > self.max_retakes:
-                    raise _Abort(f"point {task.point_id}: {exc} (gave up after {self.max_retakes} "
-                                 f"retakes)") from exc
-                self.event("hold", f"point {task.point_id}: {exc}; retake {retakes} of "
-                           f"{self.max_retakes}", point_id=task.point_id, reason=str(exc))
+                    reason = f"point {task.point_id}: {exc} (gave up after {self.max_retakes} retakes)"
+                    self.event(Kind.FAULT, reason, code=Reason.RETAKES_EXHAUSTED, point_id=task.point_id,
+                               device=device_of(exc), hold_code=code_of(exc).value)
+                    raise _Abort(reason, Reason.RETAKES_EXHAUSTED) from exc
+                self.event(Kind.HOLD, f"point {task.point_id}: {exc}; retake {retakes} of "
+                           f"{self.max_retakes}", code=code_of(exc), point_id=task.point_id,
+                           device=device_of(exc), retake=retakes)
                 self.status.command = f"hold: {exc}"
                 self.wait(self.hold_wait_s)
                 retake = True
@@ -300,7 +328,8 @@ class Engine:
             gen.close()
 
     def _pause(self, point_id: str) -> None:
-        self.event("pause", f"paused at point {point_id} (not recorded yet)", point_id=point_id)
+        self.event(Kind.PAUSE, f"paused at point {point_id} (not recorded yet)", code=Reason.OPERATOR_PAUSE,
+                   point_id=point_id)
         self.status.command = "paused"
         self.make_safe()
         answer = "abort"
@@ -313,9 +342,11 @@ class Engine:
             finally:
                 self._prompting = False
         if answer != "resume" or self._abort_reason is not None:
-            raise _Abort(self._abort_reason or f"operator aborted while paused at {point_id}")
+            raise _Abort(self._abort_reason or f"operator aborted while paused at {point_id}",
+                         self._abort_code)
         self._pause_requested.clear()
-        self.event("resume", f"resuming at point {point_id}", point_id=point_id)
+        self.event(Kind.RESUME, f"resuming at point {point_id}", code=Reason.OPERATOR_RESUME,
+                   point_id=point_id)
 
 
 class SessionLogHandler(logging.Handler):
@@ -342,10 +373,10 @@ class SessionLogHandler(logging.Handler):
             record = self.pending.popleft()
             try:
                 self.session.log_event(
-                    record.levelname.lower(), record.getMessage(),
+                    record.levelname.lower(), record.getMessage(), code=Reason.LOGGED,
                     logger=record.name, device=getattr(record, "device", None))
-            except Exception:
-                self.handleError(record)
+            except Exception:  # e.g. a full disk: the record still reached the console's handler
+                pass
 
 
 class _signals_to:
@@ -360,7 +391,7 @@ class _signals_to:
             return self
         self.saved[signal.SIGINT] = signal.signal(signal.SIGINT, lambda *_: self.engine.request_pause())
         self.saved[signal.SIGTERM] = signal.signal(
-            signal.SIGTERM, lambda *_: self.engine.request_abort("SIGTERM"))
+            signal.SIGTERM, lambda *_: self.engine.request_abort("SIGTERM", Reason.TERMINATED))
         return self
 
     def __exit__(self, *exc):

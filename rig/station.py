@@ -13,22 +13,19 @@ spec comes from drivers/registry.py and the link from rig/links.py (real transpo
 device that fails stays failed: nothing falls back to a simulator. An all-simulated station runs on
 SimClock; anything real means RealClock (real chambers do not run on simulated time).
 
-RunLock: a small pid file next to the session. A second run on a live session is refused; a lock left by
-a dead process (kill -9, power cut) is reported and taken over (the caller makes the hardware safe first).
+The run lock of a session is rig/lock.py.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from drivers.base import Device, make_all_safe
 from drivers.clock import Clock, RealClock, SimClock
 from rig import config as cfg
-from rig.errors import ERRORS, SessionError
+from rig.errors import ERRORS
 from rig.links import open_link
 
 
@@ -188,58 +185,3 @@ def check_devices(station: cfg.Station) -> list[tuple[str, dict | None, Any, str
         built.stop_sims()
     return results
 
-
-# --- run lock -------------------------------------------------------------------------------------
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-class RunLock:
-    """`<session>.lock` holding the pid of the run that owns the session."""
-
-    def __init__(self, session_path: str | Path):
-        self.path = Path(f"{session_path}.lock")
-        self.stale_pid: int | None = None
-
-    def acquire(self) -> None:
-        """Take the lock. SessionError if a live process holds it; a dead holder's lock is taken over
-        and remembered in `stale_pid` (the caller reports it)."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(2):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                pid = self._holder()
-                if pid is not None and pid != os.getpid() and pid_alive(pid):
-                    raise SessionError(f"{self.path}: session is in use by running process {pid}; "
-                                       "stop it first (Ctrl-C) or wait for it to finish") from None
-                self.stale_pid = pid
-                self.path.unlink(missing_ok=True)
-                continue
-            with os.fdopen(fd, "w") as f:
-                f.write(f"{os.getpid()}\n")
-            return
-        raise SessionError(f"{self.path}: could not take the run lock")
-
-    def _holder(self) -> int | None:
-        try:
-            return int(self.path.read_text().strip() or "0") or None
-        except (OSError, ValueError):
-            return None
-
-    def release(self) -> None:
-        if self._holder() == os.getpid():
-            self.path.unlink(missing_ok=True)
-
-    def __enter__(self) -> RunLock:
-        self.acquire()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()

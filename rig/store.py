@@ -1,33 +1,32 @@
-"""The session store: one SQLite file per campaign (WAL journal, foreign keys on).
+"""The session store, write side: one SQLite file per campaign (WAL journal, foreign keys on).
 
-Write side (the engine):
     s = Session.create_for(path, campaign, compile_plan(plan, station), operator=..., clock=clock)
         (or Session.create(path, plan_text=..., station_text=..., plan_name=..., station_name=...,
                            points=..., simulated={"chamber": True, ...}, ...))
-    s = Session.open(path)                       # resume: checks the file and its schema version
+    s = Session.open(path)                       # resume: checks the file, migrates an older schema
     s.done_point_ids() -> set[str]
     s.record_point(point_id, rows: list[SampleRow], settle_stats: dict)   # ONE transaction per point
     s.mark_point_failed(point_id, reason)
-    s.log_event(kind, message, level=None, device=None, **data)
+    s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
     s.record_snapshot(device, describe_dict)
     s.record_fit(dut, model, calibration: dict, residual_rms_nt=None)
-    s.finish(status, reason)                     # sets ended, exit status, reason, completed flag
+    s.finish(status, reason, code=Reason.X)      # ended, exit status, reason and code, completed flag
     s.close()
-A kill -9 leaves each point either complete (all its samples) or absent. The commit of a point is
-protected from Ctrl-C: SIGINT arriving during it is held and delivered right after.
 
-Read side (offline, read-only; needs only this module and calib/):
-    read_dataset(path, dut=None) -> calib.dataset.Dataset
-    summarize(path) -> dict
-    session_tables(path) -> dict               (session record, points, events, fits, snapshots)
-    sample_rows(path, dut=None) -> list[dict]   (what `rig export` writes)
+A session file appears whole or not at all: it is built under a temporary name beside it and renamed.
+A kill -9 leaves each point either complete (all its samples) or absent. The commit of a point is
+protected from Ctrl-C: SIGINT arriving during it is held and delivered right after. A write that fails
+(full disk, read-only folder) raises SessionError naming the file; the transaction leaves nothing.
+
+The read side (report, sessions, export, refit) is rig.reader.SessionReader; the run lock rig.lock.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
+import glob
 import json
+import os
 import signal
 import sqlite3
 import threading
@@ -38,60 +37,22 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.digest import sha256_text
 from drivers.clock import Clock, RealClock
 from rig import __version__
 from rig.errors import SessionError
+from rig.events import Kind, Reason, legacy_event
+from rig.sessionfile import (
+    APPLICATION_ID,
+    MIGRATE_V1,
+    SCHEMA,
+    SCHEMA_VERSION,
+    check_file,
+    pid_alive,
+    verify,
+)
 
-SCHEMA_VERSION = 1
 _LEVELS = {"DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"}
-APPLICATION_ID = 0x4D475247  # "MGRG": marks the file as a magrig session
-
-SCHEMA = """
-CREATE TABLE session (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    plan_name TEXT NOT NULL, station_name TEXT NOT NULL,
-    plan_text TEXT NOT NULL, station_text TEXT NOT NULL,
-    plan_path TEXT, station_path TEXT,
-    software_version TEXT NOT NULL, operator TEXT,
-    simulated_json TEXT NOT NULL,          -- {device name: true if simulated}
-    started REAL NOT NULL, ended REAL,     -- on the run's clock (simulated time in a simulation)
-    wall_started REAL NOT NULL, wall_ended REAL,  -- wall-clock time, always
-    exit_status TEXT, exit_reason TEXT,    -- e.g. completed / aborted / interrupted / failed
-    completed INTEGER NOT NULL DEFAULT 0
-);
-CREATE TABLE points (
-    id TEXT PRIMARY KEY,                   -- T03-F07
-    idx INTEGER NOT NULL UNIQUE,
-    temp_index INTEGER NOT NULL, setpoint_c REAL NOT NULL,
-    field_index INTEGER NOT NULL, target_json TEXT NOT NULL,
-    state TEXT NOT NULL DEFAULT 'planned' CHECK (state IN ('planned', 'done', 'failed')),
-    settle_json TEXT, reason TEXT,
-    started REAL, finished REAL
-);
-CREATE TABLE samples (
-    id INTEGER PRIMARY KEY,
-    point_id TEXT NOT NULL REFERENCES points(id),
-    dut TEXT NOT NULL, t REAL NOT NULL,
-    hx REAL NOT NULL, hy REAL NOT NULL, hz REAL NOT NULL,      -- raw reading, nT
-    cx INTEGER, cy INTEGER, cz INTEGER,                       -- raw counts
-    ox REAL, oy REAL, oz REAL,                                -- SET/RESET bridge offset, nT
-    temp_c REAL, ref_temp_c REAL,                             -- DUT temperature, reference sensor
-    bx REAL NOT NULL, by REAL NOT NULL, bz REAL NOT NULL,     -- reference field, nT
-    flags TEXT NOT NULL DEFAULT ''                            -- comma-separated, flagged rows are not fitted
-);
-CREATE INDEX samples_by_dut ON samples(dut, point_id);
-CREATE TABLE snapshots (
-    id INTEGER PRIMARY KEY, t REAL NOT NULL, device TEXT NOT NULL, describe_json TEXT NOT NULL
-);
-CREATE TABLE events (
-    id INTEGER PRIMARY KEY, t REAL NOT NULL, level TEXT NOT NULL, device TEXT, kind TEXT NOT NULL,
-    message TEXT NOT NULL, data_json TEXT NOT NULL DEFAULT '{}'
-);
-CREATE TABLE fits (
-    id INTEGER PRIMARY KEY, t REAL NOT NULL, dut TEXT NOT NULL, model TEXT NOT NULL,
-    calibration_json TEXT NOT NULL, residual_rms_nt REAL
-);
-"""
 
 
 @dataclass(frozen=True)
@@ -159,43 +120,58 @@ def _sigint_deferred() -> Iterator[None]:
             raise KeyboardInterrupt
 
 
-SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-def is_session_file(path: str | Path) -> bool:
-    """True when the file starts as an SQLite database (what a session file is); False if unreadable."""
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(SQLITE_MAGIC)) == SQLITE_MAGIC
-    except OSError:
-        return False
-
-
-def _connect(path: Path, read_only: bool) -> sqlite3.Connection:
-    if read_only:
-        uri = f"file:{path.resolve().as_posix()}?mode=ro"
-        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
-    else:
-        conn = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
+def _connect(path: Path) -> sqlite3.Connection:
+    conn = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
     conn.row_factory = sqlite3.Row
     conn.execute("PRAGMA foreign_keys = ON")
     return conn
 
 
-def _verify(conn: sqlite3.Connection, path: Path) -> None:
-    """Raise SessionError unless `conn` is an intact magrig session of our schema version."""
+def _build_name(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}.creating")
+
+
+def _remove(path: Path) -> None:
+    for leftover in (path, *(Path(f"{path}{s}") for s in ("-wal", "-shm", "-journal"))):
+        with contextlib.suppress(OSError):
+            leftover.unlink()
+
+
+def _remove_dead_builds(path: Path) -> None:
+    """What a creation killed half-way left beside `path` (its process is gone)."""
+    pattern = os.path.join(glob.escape(str(path.parent)), f".{glob.escape(path.name)}.*.creating")
+    for build in glob.glob(pattern):
+        pid = Path(build).name.removeprefix(f".{path.name}.").removesuffix(".creating")
+        if not pid.isdigit() or not pid_alive(int(pid)):
+            _remove(Path(build))
+
+
+def _fsync_folder(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _publish(build: Path, path: Path) -> None:
+    """Give the finished file its name, never over an existing file."""
     try:
-        app_id = conn.execute("PRAGMA application_id").fetchone()[0]
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
-        if app_id != APPLICATION_ID:
-            raise SessionError(f"{path}: not a magrig session file")
-        if version != SCHEMA_VERSION:
-            raise SessionError(f"{path}: session schema version {version}, "
-                               f"this software reads version {SCHEMA_VERSION}")
-        if conn.execute("SELECT count(*) FROM session").fetchone()[0] != 1:
-            raise SessionError(f"{path}: damaged session file (no session record)")
-    except sqlite3.DatabaseError as exc:
-        raise SessionError(f"{path}: not a session file or damaged: {exc}") from None
+        os.link(build, path)
+    except FileExistsError:
+        raise SessionError(f"{path}: already exists; resume it or choose another name") from None
+    except OSError:  # a file system without hard links
+        if path.exists():
+            raise SessionError(f"{path}: already exists; resume it or choose another name") from None
+        os.rename(build, path)
+    else:
+        os.unlink(build)
+    _fsync_folder(path.parent)
+
+
+def _os_message(exc: BaseException) -> str:
+    return getattr(exc, "strerror", None) or str(exc)
 
 
 class Session:
@@ -214,45 +190,30 @@ class Session:
                plan_path: str | None = None, station_path: str | None = None, operator: str | None = None,
                software_version: str = __version__, clock: Clock | None = None) -> Session:
         """A new session file (it must not exist) holding the plan, the station and every planned point
-        (objects with id, index, temp_index, setpoint_c, field_index and target, e.g. rig.plan.Point)."""
+        (objects with id, index, temp_index, setpoint_c, field_index and target, e.g. rig.plan.Point).
+        Built under a temporary name in the same folder and renamed once complete."""
         path = Path(path)
         if path.exists():
             raise SessionError(f"{path}: already exists; resume it or choose another name")
-        path.parent.mkdir(parents=True, exist_ok=True)
         clock = clock or RealClock()
-        conn = _connect(path, read_only=False)
         try:
-            mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-            if mode.lower() != "wal":
-                raise SessionError(f"{path}: the file system does not support a WAL journal")
-            conn.execute("PRAGMA synchronous = FULL")
-            conn.execute("BEGIN IMMEDIATE")
-            for statement in SCHEMA.split(";"):
-                if statement.strip():
-                    conn.execute(statement)
-            conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
-            conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-            conn.execute(
-                "INSERT INTO session (id, plan_name, station_name, plan_text, station_text, plan_path, "
-                "station_path, software_version, operator, simulated_json, started, wall_started) "
-                "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (plan_name, station_name, plan_text, station_text, plan_path and str(plan_path),
-                 station_path and str(station_path), software_version, operator, json.dumps(simulated),
-                 clock.now(), time.time()),
-            )
-            conn.executemany(
-                "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
-                "VALUES (?, ?, ?, ?, ?, ?)",
-                [(p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target))
-                 for p in points],
-            )
-            conn.execute("COMMIT")
-        except BaseException:
-            conn.close()
-            for leftover in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
-                leftover.unlink(missing_ok=True)
-            raise
-        return cls(conn, path, clock)
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SessionError(f"{path.parent}: cannot create the session folder "
+                               f"({_os_message(exc)})") from None
+        _remove_dead_builds(path)
+        build = _build_name(path)
+        record = (plan_name, station_name, plan_text, station_text, sha256_text(plan_text),
+                  sha256_text(station_text), plan_path and str(plan_path), station_path and str(station_path),
+                  software_version, operator, json.dumps(simulated), clock.now(), time.time())
+        try:
+            _build(build, record, points)
+            _publish(build, path)
+        except (sqlite3.Error, OSError) as exc:
+            raise SessionError(f"{path}: cannot create the session ({_os_message(exc)})") from None
+        finally:
+            _remove(build)
+        return cls.open(path, clock)
 
     @classmethod
     def create_for(cls, path: str | Path, campaign, points: Iterable, *, operator: str | None = None,
@@ -267,18 +228,27 @@ class Session:
 
     @classmethod
     def open(cls, path: str | Path, clock: Clock | None = None) -> Session:
-        """Reopen an existing session to resume it."""
+        """Open an existing session to write to it (resume); a version 1 session is migrated."""
         path = Path(path)
-        if not path.is_file():
-            raise SessionError(f"{path}: no such session file")
-        conn = _connect(path, read_only=False)
+        check_file(path)
         try:
-            _verify(conn, path)
+            conn = _connect(path)
+        except sqlite3.Error as exc:
+            raise SessionError(f"{path}: cannot open ({exc})") from None
+        try:
+            version = verify(conn, path)
             conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = FULL")
+            if version == 1:
+                _migrate_v1(conn)
+            _check_recorded_texts(conn, path)
+        except sqlite3.Error as exc:
+            conn.close()
+            raise SessionError(f"{path}: cannot open for writing ({exc})") from None
         except BaseException:
             conn.close()
             raise
+        _remove_dead_builds(path)
         return cls(conn, path, clock or RealClock())
 
     def close(self) -> None:
@@ -319,15 +289,21 @@ class Session:
     # --- writes ---------------------------------------------------------------------------------------
     @contextlib.contextmanager
     def _transaction(self) -> Iterator[sqlite3.Connection]:
-        """BEGIN IMMEDIATE .. COMMIT, rolled back on any exception; Ctrl-C is held meanwhile."""
+        """BEGIN IMMEDIATE .. COMMIT, rolled back on any exception; Ctrl-C is held meanwhile. A write the
+        file system refuses (full disk, read-only) is a SessionError naming the file."""
         with self._lock, _sigint_deferred():
-            self._conn.execute("BEGIN IMMEDIATE")
             try:
-                yield self._conn
-            except BaseException:
-                self._conn.execute("ROLLBACK")
-                raise
-            self._conn.execute("COMMIT")
+                self._conn.execute("BEGIN IMMEDIATE")
+                try:
+                    yield self._conn
+                    self._conn.execute("COMMIT")
+                except BaseException:
+                    if self._conn.in_transaction:
+                        with contextlib.suppress(sqlite3.Error):
+                            self._conn.execute("ROLLBACK")
+                    raise
+            except sqlite3.OperationalError as exc:
+                raise SessionError(f"{self.path}: cannot write to the session ({exc})") from None
 
     def record_point(self, point_id: str, rows: Iterable[SampleRow], settle_stats: dict | None = None, *,
                      started: float | None = None, finished: float | None = None) -> None:
@@ -351,17 +327,23 @@ class Session:
             conn.execute("UPDATE points SET state = 'failed', reason = ?, finished = ? WHERE id = ? "
                          "AND state != 'done'", (reason, self.clock.now(), point_id))
 
-    def log_event(self, kind: str, message: str, *, level: str | None = None, device: str | None = None,
-                  t: float | None = None, **data) -> None:
-        """An event (hold, resume, retry, fault...). `level` defaults to `kind` when that is a logging
+    def log_event(self, kind: str, message: str, *, code: Reason | None = None, point_id: str | None = None,
+                  level: str | None = None, device: str | None = None, t: float | None = None,
+                  **data) -> None:
+        """An event: its kind (rig.events.Kind), its reason code (rig.events.Reason), the point and the
+        device it concerns and a message for people. `level` defaults to `kind` when that is a logging
         level name ("warning"), else INFO. Extra keyword data is stored as JSON."""
+        kind = str(kind)
         if level is None:
             level = kind.upper() if kind.upper() in _LEVELS else "INFO"
+        if code is None:
+            code = Reason.LOGGED if kind in (Kind.WARNING, Kind.ERROR) else Reason.UNKNOWN
         with self._transaction() as conn:
             conn.execute(
-                "INSERT INTO events (t, level, device, kind, message, data_json) VALUES (?, ?, ?, ?, ?, ?)",
+                "INSERT INTO events (t, level, device, kind, message, data_json, point_id, code) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (self.clock.now() if t is None else t, level.upper(), device, kind, message,
-                 json.dumps(data, default=_json_default)),
+                 json.dumps(data, default=_json_default), point_id, Reason(code).value),
             )
 
     def record_snapshot(self, device: str, describe: dict) -> None:
@@ -378,7 +360,8 @@ class Session:
                 (self.clock.now(), dut, model, calibration_json, residual_rms_nt),
             )
 
-    def finish(self, status: str, reason: str = "", completed: bool | None = None) -> None:
+    def finish(self, status: str, reason: str = "", completed: bool | None = None,
+               code: Reason | None = None) -> None:
         """Record how the run ended. `completed` defaults to: every planned point is done."""
         with self._transaction() as conn:
             if completed is None:
@@ -386,9 +369,69 @@ class Session:
                 completed = left == 0
             conn.execute(
                 "UPDATE session SET ended = ?, wall_ended = ?, exit_status = ?, exit_reason = ?, "
-                "completed = ?",
-                (self.clock.now(), time.time(), status, reason, int(completed)),
+                "exit_code = ?, completed = ?",
+                (self.clock.now(), time.time(), status, reason, code and Reason(code).value, int(completed)),
             )
+
+
+def _build(build: Path, record: tuple, points: Iterable) -> None:
+    """Write a complete new session file at `build` (a temporary name) and close it."""
+    _remove(build)
+    conn = _connect(build)
+    try:
+        mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if mode.lower() != "wal":
+            raise SessionError(f"{build.parent}: the file system does not support a WAL journal")
+        conn.execute("PRAGMA synchronous = FULL")
+        conn.execute("BEGIN IMMEDIATE")
+        for statement in SCHEMA.split(";"):
+            if statement.strip():
+                conn.execute(statement)
+        conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+        conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+        conn.execute(
+            "INSERT INTO session (id, plan_name, station_name, plan_text, station_text, plan_sha256, "
+            "station_sha256, plan_path, station_path, software_version, operator, simulated_json, started, "
+            "wall_started) VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", record)
+        conn.executemany(
+            "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
+            "VALUES (?, ?, ?, ?, ?, ?)",
+            ((p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target))
+             for p in points),
+        )
+        conn.execute("COMMIT")
+        conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # everything in the main file before it is renamed
+    finally:
+        conn.close()
+
+
+def _migrate_v1(conn: sqlite3.Connection) -> None:
+    """Version 1 to 2 in one transaction: typed event columns filled from the old wording, text hashes."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        for statement in MIGRATE_V1.split(";"):
+            conn.execute(statement)
+        plan_text, station_text = conn.execute("SELECT plan_text, station_text FROM session").fetchone()
+        conn.execute("UPDATE session SET plan_sha256 = ?, station_sha256 = ?",
+                     (sha256_text(plan_text), sha256_text(station_text)))
+        for row in conn.execute("SELECT * FROM events").fetchall():
+            event = legacy_event(dict(row), json.loads(row["data_json"] or "{}"))
+            conn.execute("UPDATE events SET code = ?, point_id = ? WHERE id = ?",
+                         (event.code.value, event.point_id, event.id))
+        conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
+def _check_recorded_texts(conn: sqlite3.Connection, path: Path) -> None:
+    """The plan and station texts must still be those recorded at the start (their sha256)."""
+    row = conn.execute("SELECT plan_text, station_text, plan_sha256, station_sha256 FROM session").fetchone()
+    for what, text, digest in (("plan", row[0], row[2]), ("station", row[1], row[3])):
+        if digest is not None and sha256_text(text) != digest:
+            raise SessionError(f"{path}: the recorded {what} text no longer matches its recorded sha256 "
+                               "(the session file was edited); refusing to continue it")
 
 
 def _json_default(value):
@@ -399,140 +442,3 @@ def _json_default(value):
     return str(value)
 
 
-# --- read side ---------------------------------------------------------------------------------------------
-@contextlib.contextmanager
-def _read_only(path: str | Path) -> Iterator[sqlite3.Connection]:
-    path = Path(path)
-    if not path.is_file():
-        raise SessionError(f"{path}: no such session file")
-    try:
-        conn = _connect(path, read_only=True)
-    except sqlite3.Error as exc:
-        raise SessionError(f"{path}: cannot open: {exc}") from None
-    try:
-        _verify(conn, path)
-        yield conn
-    except sqlite3.DatabaseError as exc:
-        raise SessionError(f"{path}: damaged session file: {exc}") from None
-    finally:
-        conn.close()
-
-
-def session_tables(path: str | Path) -> dict[str, list[dict] | dict]:
-    """The raw tables except samples, read-only: {"session": {...}, "points": [...], "events": [...],
-    "fits": [...], "snapshots": [...]}, each row a dict of the columns in SCHEMA."""
-    path = Path(path)
-    with _read_only(path) as conn:
-        out: dict[str, list[dict] | dict] = {
-            "session": dict(conn.execute("SELECT * FROM session").fetchone())
-        }
-        for table, order in (("points", "idx"), ("events", "id"), ("fits", "id"), ("snapshots", "id")):
-            out[table] = [dict(r) for r in conn.execute(f"SELECT * FROM {table} ORDER BY {order}")]
-    return out
-
-
-def _pick_dut(conn: sqlite3.Connection, path: Path, dut: str | None) -> str:
-    duts = [r[0] for r in conn.execute("SELECT DISTINCT dut FROM samples ORDER BY dut")]
-    if not duts:
-        raise SessionError(f"{path}: the session holds no samples yet")
-    if dut is None:
-        if len(duts) > 1:
-            raise SessionError(f"{path}: several DUTs ({', '.join(duts)}): choose one with --dut")
-        return duts[0]
-    if dut not in duts:
-        raise SessionError(f"{path}: no DUT named {dut!r} (DUTs: {', '.join(duts)})")
-    return dut
-
-
-# The CSV contract of calib.csvio (hx,hy,hz raw nT; temp degC; bx,by,bz reference nT; group) plus context.
-EXPORT_COLUMNS = ["point", "group", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c",
-                  "dut_temp", "ref_temp", "ox", "oy", "oz", "flags"]
-
-
-def sample_rows(path: str | Path, dut: str | None = None) -> tuple[str, list[dict]]:
-    """(dut, rows) of the done points of one DUT in collection order, keyed by EXPORT_COLUMNS.
-
-    `temp` is the DUT's own temperature, or the reference sensor's where that is missing (`dut_temp`
-    and `ref_temp` keep both); `group` labels the temperature step, e.g. "T03 25.0C"."""
-    path = Path(path)
-    with _read_only(path) as conn:
-        dut = _pick_dut(conn, path, dut)
-        cur = conn.execute(
-            "SELECT s.point_id AS point, p.temp_index, s.t, s.hx, s.hy, s.hz, "
-            "coalesce(s.temp_c, s.ref_temp_c) AS temp, s.bx, s.by, s.bz, p.setpoint_c, "
-            "s.temp_c AS dut_temp, s.ref_temp_c AS ref_temp, s.ox, s.oy, s.oz, s.flags "
-            "FROM samples s JOIN points p ON p.id = s.point_id "
-            "WHERE s.dut = ? AND p.state = 'done' ORDER BY p.idx, s.id",
-            (dut,),
-        )
-        rows = [dict(r) for r in cur]
-    for r in rows:
-        r["group"] = f"T{r['temp_index']:02d} {r['setpoint_c']:.1f}C"
-    return dut, rows
-
-
-def read_dataset(path: str | Path, dut: str | None = None):
-    """The samples of one DUT as a calib Dataset (rows as in `sample_rows`). Flagged samples are left
-    out and counted in source["rows_rejected"]."""
-    from calib.dataset import Dataset
-
-    path = Path(path)
-    dut, rows = sample_rows(path, dut)
-    good = [r for r in rows if not r["flags"]]
-    missing_temp = [r["point"] for r in good if r["temp"] is None]
-    if missing_temp:
-        raise SessionError(f"{path}: DUT {dut}: point {missing_temp[0]} has samples without a temperature")
-
-    def col(name: str, dtype=float) -> np.ndarray:
-        return np.array([r[name] for r in good], dtype=dtype)
-
-    return Dataset(
-        h_nt=np.column_stack([col("hx"), col("hy"), col("hz")]) if good else np.zeros((0, 3)),
-        temp_c=col("temp"),
-        ref_nt=np.column_stack([col("bx"), col("by"), col("bz")]) if good else np.zeros((0, 3)),
-        group=col("group", object),
-        columns={"point": col("point", object), "t": col("t"), "setpoint_c": col("setpoint_c")},
-        source={
-            "path": str(path), "sha256": _sha256(path), "kind": "session", "dut": dut,
-            "rows_total": len(rows), "rows_used": len(good), "rows_rejected": len(rows) - len(good),
-        },
-    )
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
-def summarize(path: str | Path) -> dict:
-    """One session at a glance (for `rig sessions`)."""
-    path = Path(path)
-    with _read_only(path) as conn:
-        s = conn.execute("SELECT * FROM session").fetchone()
-        counts = dict(conn.execute("SELECT state, count(*) FROM points GROUP BY state").fetchall())
-        duts = [r[0] for r in conn.execute("SELECT DISTINCT dut FROM samples ORDER BY dut")]
-        fit = conn.execute(
-            "SELECT dut, model, residual_rms_nt, t FROM fits ORDER BY id DESC LIMIT 1"
-        ).fetchone()
-    return {
-        "path": str(path),
-        "plan": s["plan_name"],
-        "station": s["station_name"],
-        "started": s["started"],
-        "ended": s["ended"],
-        "wall_started": s["wall_started"],
-        "wall_ended": s["wall_ended"],
-        "operator": s["operator"],
-        "simulated": json.loads(s["simulated_json"]),
-        "duts": duts,
-        "points_done": counts.get("done", 0),
-        "points_failed": counts.get("failed", 0),
-        "points_planned": sum(counts.values()),
-        "exit_status": s["exit_status"],
-        "exit_reason": s["exit_reason"],
-        "completed": bool(s["completed"]),
-        "last_fit": None if fit is None else dict(fit),
-    }

@@ -7,9 +7,10 @@ from pathlib import Path
 import click
 import numpy as np
 
+from calib.models import MODELS, REGISTRY
 from rig import __version__
 
-MODEL_CHOICE = click.Choice(["t24", "p12", "scalar"])
+MODEL_CHOICE = click.Choice(MODELS)
 
 
 def _unit_options(f):
@@ -33,15 +34,16 @@ def _unit_options(f):
 
 
 def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None):
-    """A Dataset from a session file (SQLite, via rig.store) or a CSV file."""
+    """A Dataset from a session file (by its name or content; via rig.reader) or a CSV file."""
     from calib import csvio
     from rig.errors import DataError
-    from rig.store import is_session_file, read_dataset
+    from rig.reader import read_dataset
+    from rig.sessionfile import looks_like_session
 
     p = Path(path)
     if not p.is_file():
         raise DataError(f"{p}: no such file")
-    if is_session_file(p):
+    if looks_like_session(p):
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
@@ -94,8 +96,12 @@ def refit(
     ds = load_dataset(
         data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit, column_map=column_map
     )
-    if model != "scalar" and (field_norm_nt is not None or balance_orientations is not None):
-        raise click.UsageError("--field-norm-nt and --balance-orientations apply to --model scalar only")
+    given = {"field_norm_nt": field_norm_nt, "balance_orientations": balance_orientations}
+    unused = [n for n, value in given.items() if value is not None and n not in REGISTRY[model].options]
+    if unused:
+        takers = [m for m, spec in REGISTRY.items() if set(unused) <= spec.options]
+        raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
+                               f"--model {' or '.join(takers)} only")
     cal = calib.fit(
         ds,
         model,

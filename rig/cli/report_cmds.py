@@ -9,8 +9,7 @@ import numpy as np
 
 from rig.errors import ERRORS, DataError, SessionError
 from rig.exports import FORMATS
-
-SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")
+from rig.sessionfile import SESSION_SUFFIXES
 
 
 @click.command("report")

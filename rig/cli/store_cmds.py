@@ -10,7 +10,7 @@ import click
 from calib.atomic import atomic_write
 from rig.config import load_campaign
 from rig.plan import check_campaign
-from rig.store import EXPORT_COLUMNS, sample_rows
+from rig.reader import EXPORT_COLUMNS, SessionReader
 
 
 @click.command("check")
@@ -47,7 +47,8 @@ def export_cmd(session_path: Path, as_csv: bool, dut: str | None, output: Path,
                include_flagged: bool) -> None:
     """Write one DUT's samples as CSV: hx,hy,hz raw nT, temp degC, bx,by,bz reference nT, plus point, t,
     setpoint, reference temperature, SET/RESET offsets and flags. `rig refit` reads it."""
-    dut, rows = sample_rows(session_path, dut)
+    with SessionReader(session_path) as reader:
+        dut, rows = reader.sample_rows(dut)
     kept = [r for r in rows if include_flagged or not r["flags"]]
     _write_csv_atomically(output, kept)
     left_out = len(rows) - len(kept)

@@ -15,6 +15,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 
+from calib.models import MODELS as CALIBRATION_MODELS
 from rig import fieldsets
 from rig.configbase import PositiveFloat, Strict, Vec3
 from rig.yamlload import KeyPathError
@@ -186,7 +187,7 @@ FieldSet = Annotated[
 
 
 class Fit(Strict):
-    models: list[Literal["t24", "p12", "scalar"]] = Field(["t24"], min_length=1)
+    models: list[Literal[CALIBRATION_MODELS]] = Field(["t24"], min_length=1)  # calib's model registry
     robust: bool = False
 
 

@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.models import REGISTRY, VECTOR_MODELS  # VECTOR_MODELS: outputs in the reference frame
 from rig.errors import FitError
 from rig.fieldsets import fibonacci_directions  # the probes: the plans' own spiral
 
-MODELS = ("t24", "p12", "scalar")
-VECTOR_MODELS = ("t24", "p12")  # outputs in the reference frame; scalar is known up to a rotation only
 STEP_LABEL = re.compile(r"^T(\d+)")  # plan step ids: T03-O07 = temperature 3 x orientation 7
 COVERAGE_PROBES = 200  # directions, evenly spread, at which coverage is checked
 COVERAGE_GAP_DEG = 40.0  # no sample this close: a gap (the full campaign's 24 directions leave <= 36 deg)
@@ -39,10 +38,11 @@ def reference_norm_nt(ds) -> np.ndarray | None:
 
 
 def models_for(ds) -> list[str]:
-    """The models this data can fit: vector models need the reference vector, T24 also temperatures."""
-    if ds.ref_nt is not None:
-        return [m for m in MODELS if m != "t24" or ds.temp_c is not None]
-    return ["scalar"] if ds.ref_norm_nt is not None else []
+    """The models this data can fit (calib's registry): vector models need the reference vector, some
+    models temperatures; the others need |B| only."""
+    has_reference = {True: ds.ref_nt is not None, False: ds.ref_nt is not None or ds.ref_norm_nt is not None}
+    return [m for m, spec in REGISTRY.items()
+            if has_reference[spec.vector] and (ds.temp_c is not None or not spec.needs_temperature)]
 
 
 @dataclass

@@ -15,7 +15,7 @@ from rig.report.evaluate import analyse_dut
 from rig.report.html import ItemList, Section, Table, images_in, render_html
 from rig.report.page import dut_sections, summary_table
 from rig.report.sources import ReportInputs, from_calibration, from_session
-from rig.store import is_session_file
+from rig.sessionfile import looks_like_session
 
 
 def build_report(
@@ -53,7 +53,7 @@ def read_inputs(
     path = Path(source)
     if not path.is_file():
         raise DataError(f"{path}: no such file (expected a session file or a calibration file)")
-    if is_session_file(path):
+    if looks_like_session(path):
         if data is not None:
             raise DataError(f"{path}: is a session file; --data is only for a calibration file")
         return from_session(path, dut)

@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 
+from calib.models import MODELS
 from rig.errors import DataError, FitError
 from rig.report import analysis
 from rig.report.sources import DutInput, StepInfo, listed
@@ -59,7 +60,7 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
         analysis.cross_validate(ds, m, fit_model, folds, fits[m], outliers)
         if m in fits
         else analysis.ModelScore(m, note=f"cannot fit: {failures[m]}")
-        for m in analysis.MODELS
+        for m in MODELS
         if m in fits or m in failures
     ]
     step_rows = analysis.step_table(ds, outliers, err)

@@ -1,9 +1,10 @@
-"""`rig sessions`: one line per session file, from rig.store.summarize."""
+"""`rig sessions`: one line per session file, from rig.reader.SessionReader.summary."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from rig.events import Reason
 from rig.report.sources import utc
 
 WIDTHS = (28, 17, 16, 16, 18, 12)  # file, started, station, DUTs, points, exit; then the last fit
@@ -23,9 +24,10 @@ def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 def session_line(path: Path) -> str:
     """The session at a glance; raises SessionError for a file that is not a session or is damaged."""
-    from rig import store
+    from rig.reader import SessionReader
 
-    s = store.summarize(path)
+    with SessionReader(path) as reader:
+        s = reader.summary()
     points = f"{s['points_done']}/{s['points_planned']}"
     if s["points_failed"]:
         points += f" ({s['points_failed']} failed)"
@@ -37,6 +39,8 @@ def session_line(path: Path) -> str:
         last = f"{fit['dut']} {fit['model']} " + ("(no residual)" if rms is None else f"{rms:.4g} nT RMS")
     started = utc(s.get("wall_started") or s["started"]).removesuffix(" UTC")[:16]
     exit_status = s["exit_status"] or "not finished"
+    if s["exit_code"] and s["exit_code"] != Reason.COMPLETED:  # why it stopped, as a code
+        exit_status += f" ({s['exit_code']})"
     return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, last)
 
 

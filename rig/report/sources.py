@@ -7,20 +7,20 @@ Both roads end in `ReportInputs`: one Dataset per DUT, what the session knows ab
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
-import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from calib.digest import sha256_file as sha256_of
+from calib.digest import sha256_text
 from rig import __version__
 from rig.errors import DataError, SessionError
+from rig.events import Event, Kind, Reason
 
 MAX_LISTED = 5  # how many point ids a warning names before "and N more"
-HOLD_POINT = re.compile(r"point (\S+?):")  # the engine's hold events start "point T03-F01: ..."
 
 
 @dataclass
@@ -55,15 +55,6 @@ class ReportInputs:
     provenance: list[tuple[str, str]] = field(default_factory=list)
 
 
-def sha256_of(path: Path) -> str:
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
-def sha256_text(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 def utc(t: float | None) -> str:
     if t is None:
         return "-"
@@ -87,20 +78,21 @@ def listed(items: list[str]) -> str:
 
 def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     """Everything the report needs from one session file (read-only)."""
-    from rig import store
+    from rig.reader import SessionReader
 
     path = Path(path)
-    summary = store.summarize(path)
-    names = [dut] if dut else summary["duts"]
-    if not names:
-        raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
-    info, points, events, snapshots = _session_tables(path)
-    duts = []
-    for name in names:
-        ds = store.read_dataset(path, name)
-        _, rows = store.sample_rows(path, name)
-        flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
-        duts.append(DutInput(name, ds, None, flagged, flagged_rows))
+    with SessionReader(path) as reader:
+        summary = reader.summary()
+        names = [dut] if dut else summary["duts"]
+        if not names:
+            raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
+        info, points, events, snapshots = reader.info(), reader.points(), reader.events(), reader.snapshots()
+        duts = []
+        for name in names:
+            ds = reader.dataset(name)
+            _, rows = reader.sample_rows(name)
+            flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
+            duts.append(DutInput(name, ds, None, flagged, flagged_rows))
     steps = _steps(points, events)
     warnings = _session_warnings(summary, points, events, steps)
     started = utc(info.get("wall_started") or info["started"])
@@ -114,7 +106,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         ("operator", info["operator"] or "-"),
         (
             "simulated devices",
-            ", ".join(k for k, v in json.loads(info["simulated_json"]).items() if v) or "none",
+            ", ".join(k for k, v in info["simulated"].items() if v) or "none",
         ),
         (
             "run",
@@ -134,14 +126,6 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     ]
     title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
     return ReportInputs(title, duts, steps, warnings, provenance)
-
-
-def _session_tables(path: Path) -> tuple[dict, list[dict], list[dict], list[dict]]:
-    """Session record, points, events and device snapshots (rig.store reads them read-only)."""
-    from rig import store
-
-    tables = store.session_tables(path)
-    return tables["session"], tables["points"], tables["events"], tables["snapshots"]
 
 
 def _devices(snapshots: list[dict]) -> list[tuple[str, str]]:
@@ -172,12 +156,18 @@ def _waited_s(settle_json: str | None) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def _timeout_holds(events: list[dict]) -> list[dict]:
+def _timeout_holds(events: list[Event]) -> list[Event]:
     """Holds raised because a DUT was not stable within max_wait_s (the engine retakes the point)."""
-    return [e for e in events if e["kind"] == "hold" and "not stable" in e["message"]]
+    return [e for e in events if e.kind == Kind.HOLD and e.code == Reason.SETTLE_TIMEOUT]
 
 
-def _steps(points: list[dict], events: list[dict]) -> dict[int, StepInfo]:
+def _hold_label(e: Event) -> str:
+    """`T03-F01 (dut1: settle timeout)`: from the event's point, device and code."""
+    what = f"{e.device}: {e.code.label}" if e.device else e.code.label
+    return f"{e.point_id or 'no point'} ({what})"
+
+
+def _steps(points: list[dict], events: list[Event]) -> dict[int, StepInfo]:
     steps: dict[int, StepInfo] = {}
     step_of_point = {p["id"]: p["temp_index"] for p in points}
     for p in points:
@@ -190,16 +180,15 @@ def _steps(points: list[dict], events: list[dict]) -> dict[int, StepInfo]:
             s.settle_s = max(s.settle_s or 0.0, waited)
             s.stable = True
     for e in _timeout_holds(events):
-        m = HOLD_POINT.search(e["message"])
-        if m and m.group(1) in step_of_point:
-            s = steps[step_of_point[m.group(1)]]
+        if e.point_id in step_of_point:
+            s = steps[step_of_point[e.point_id]]
             s.settle_timeouts += 1
             if s.stable is None:
                 s.stable = False
     return steps
 
 
-def _session_warnings(summary: dict, points: list[dict], events: list[dict], steps: dict) -> list[str]:
+def _session_warnings(summary: dict, points: list[dict], events: list[Event], steps: dict) -> list[str]:
     out = []
     if not summary["completed"]:
         out.append(
@@ -221,10 +210,10 @@ def _session_warnings(summary: dict, points: list[dict], events: list[dict], ste
             )
     timeouts = _timeout_holds(events)
     if timeouts:
-        out.append(f"{len(timeouts)} settle timeout(s): " + listed([e["message"] for e in timeouts]))
-    holds = [e for e in events if e["kind"] == "hold" and e not in timeouts]
+        out.append(f"{len(timeouts)} settle timeout(s): " + listed([_hold_label(e) for e in timeouts]))
+    holds = [e for e in events if e.kind == Kind.HOLD and e.code != Reason.SETTLE_TIMEOUT]
     if holds:
-        out.append(f"{len(holds)} hold(s) during the run: " + listed([e["message"] for e in holds]))
+        out.append(f"{len(holds)} hold(s) during the run: " + listed([_hold_label(e) for e in holds]))
     return out
 
 

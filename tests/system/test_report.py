@@ -10,7 +10,7 @@ import pytest
 
 from rig import fieldsets
 from rig.cli import main
-from rig.report.synthetic_session import SynthOptions, build_session
+from tests.helpers.synthetic_session import SynthOptions, build_session
 from tests.unit.report.ccheck import max_relative_error, run_header
 
 pytestmark = pytest.mark.system

@@ -10,7 +10,7 @@ import pytest
 
 from calib import csvio, synthetic
 from rig.cli import main
-from rig.report.synthetic_session import SynthOptions, build_session
+from tests.helpers.synthetic_session import SynthOptions, build_session
 
 
 def _text(html: str) -> str:

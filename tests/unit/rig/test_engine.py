@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -24,7 +23,13 @@ from rig.engine import (
     Task,
 )
 from rig.errors import DeviceTimeout
-from rig.store import Session, session_tables
+from rig.reader import SessionReader
+from rig.store import Session
+
+
+def session_tables(path) -> dict:
+    with SessionReader(path) as r:
+        return {"session": r.info(), "points": r.points(), "events": r.events()}
 
 
 class FakeDevice:
@@ -54,7 +59,7 @@ class RecordingSession:
 
     @property
     def events(self) -> list[tuple[str, str, dict]]:
-        return [(e["kind"], e["message"], {**json.loads(e["data_json"]), "device": e["device"]})
+        return [(e.kind, e.message, {**e.data, "device": e.device})
                 for e in session_tables(self.path)["events"]]
 
     @property
@@ -281,3 +286,34 @@ def test_a_real_sigint_pauses_at_the_next_safe_point_instead_of_raising(new_sess
     assert engine.run(rig.steps(IDS)).status == COMPLETED
     assert len(prompts) == 1 and session.points == IDS
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored
+
+
+def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_session):
+    from rig.errors import LimitError
+    from rig.events import Kind, Reason
+    from rig.report.sources import from_session
+    from rig.store import SampleRow
+
+    session = new_session()
+    rig = Rig(session, faults={
+        "T01-F02": [Hold("whatever words", code=Reason.SETTLE_TIMEOUT, device="dut7"),
+                    DeviceTimeout("coils", "read", "no reply")],
+        "T02-F02": [LimitError("coils: 3.1 A exceeds max_current_a 2.0")],
+    })
+    row = SampleRow("dut7", 0.0, (1.0, 2.0, 3.0), (1.0, 2.0, 3.0), temp_c=25.0)
+    rig.session.record_point = lambda pid, rows, *a, **k: session.store.record_point(pid, [row])
+    result = make_engine(rig, session).run(rig.steps(IDS))
+    assert (result.status, result.code) == (FAILED, Reason.LIMIT_REFUSED)
+    with SessionReader(session.path) as r:
+        typed = [(e.kind, e.code, e.point_id, e.device) for e in r.events()
+                 if e.kind in (Kind.HOLD, Kind.FAULT)]
+        assert r.info()["exit_code"] == "limit_refused"
+    assert typed == [("hold", Reason.SETTLE_TIMEOUT, "T01-F02", "dut7"),
+                     ("hold", Reason.DEVICE_TIMEOUT, "T01-F02", "coils"),
+                     ("fault", Reason.LIMIT_REFUSED, "T02-F02", None)]
+    inputs = from_session(session.path)
+    assert inputs.steps[1].settle_timeouts == 1
+    warnings = " | ".join(inputs.warnings)
+    assert "1 settle timeout(s): T01-F02 (dut7: settle timeout)" in warnings
+    assert "1 hold(s) during the run: T01-F02 (coils: device timeout)" in warnings
+    assert "whatever words" not in warnings

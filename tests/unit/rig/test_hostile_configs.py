@@ -180,6 +180,7 @@ def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsy
                               campaign.plan_text, hostile)
     session = tmp_path / "old.session"
     Session.create_for(session, campaign, compile_plan(campaign.plan, campaign.station)).close()
+    (tmp_path / "station.yaml").write_text(hostile)  # the file as it was recorded (a resume checks that)
     assert main(["run", "--resume", str(session), "--no-live"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "duts[0].name: 'a/b': character '/' is not allowed" in err

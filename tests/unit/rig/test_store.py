@@ -19,8 +19,10 @@ from drivers.base import FieldSample
 from drivers.clock import SimClock
 from rig.config import load_campaign
 from rig.errors import SessionError
+from rig.events import Kind, Reason
 from rig.plan import compile_plan
-from rig.store import SCHEMA_VERSION, SampleRow, Session, read_dataset, session_tables, summarize
+from rig.reader import SessionReader, read_dataset
+from rig.store import SCHEMA_VERSION, SampleRow, Session
 
 DEMO = Path(__file__).resolve().parents[3] / "configs" / "plans" / "demo.yaml"
 
@@ -33,6 +35,17 @@ def campaign():
 @pytest.fixture(scope="module")
 def points(campaign):
     return compile_plan(campaign.plan, campaign.station)
+
+
+def session_tables(path) -> dict:
+    with SessionReader(path) as r:
+        return {"session": r.info(), "points": r.points(), "events": r.events(), "fits": r.fits(),
+                "snapshots": r.snapshots()}
+
+
+def summarize(path) -> dict:
+    with SessionReader(path) as r:
+        return r.summary()
 
 
 def new_session(tmp_path, campaign, points, name="s.magrig") -> Session:
@@ -248,7 +261,8 @@ def test_a_newer_schema_is_refused(tmp_path, campaign, points):
 def test_events_snapshots_fits_and_finish(tmp_path, campaign, points):
     s = new_session(tmp_path, campaign, points)
     s.log_event("warning", "chamber: read PV: try 1 of 3 failed", device="chamber", logger="magrig.transport")
-    s.log_event("hold", "temperature out of band", point_id="T01-F02")
+    s.log_event(Kind.HOLD, "temperature out of band", code=Reason.TEMP_OUT_OF_BAND, point_id="T01-F02",
+                device="mmc0", retake=1)
     s.record_snapshot("mmc0", {"model": "MMC5983MA", "product_id": 0x30})
     s.record_point(points[0].id, rows_for(points[0]))
     s.record_fit("mmc0", "t24", {"params": {"b_nt": np.array([1.0, 2.0, 3.0])}}, residual_rms_nt=42.5)
@@ -257,9 +271,10 @@ def test_events_snapshots_fits_and_finish(tmp_path, campaign, points):
     assert not s.completed
     s.close()
     tables = session_tables(tmp_path / "s.magrig")
-    levels = [(e["level"], e["kind"], e["device"]) for e in tables["events"]]
-    assert levels == [("WARNING", "warning", "chamber"), ("INFO", "hold", None)]
-    assert '"point_id": "T01-F02"' in tables["events"][1]["data_json"]
+    typed = [(e.level, e.kind, e.code, e.device, e.point_id) for e in tables["events"]]
+    assert typed == [("WARNING", "warning", Reason.LOGGED, "chamber", None),
+                     ("INFO", "hold", Reason.TEMP_OUT_OF_BAND, "mmc0", "T01-F02")]
+    assert tables["events"][1].data == {"retake": 1}
     assert '"b_nt": [1.0, 2.0, 3.0]' in tables["fits"][0]["calibration_json"]
     assert tables["points"][1]["state"] == "failed" and tables["points"][1]["reason"] == "chamber alarm"
     summary = summarize(tmp_path / "s.magrig")
@@ -289,5 +304,5 @@ def test_writes_from_another_thread(tmp_path, campaign, points):
     worker.start()
     worker.join()
     s.record_point(points[0].id, rows_for(points[0]))
-    assert [e["message"] for e in session_tables(s.path)["events"]] == ["from a simulator thread"]
+    assert [e.message for e in session_tables(s.path)["events"]] == ["from a simulator thread"]
     s.close()

@@ -13,7 +13,8 @@ from drivers.sim.world import DutTruth
 from rig.cli import main
 from rig.config import load_campaign
 from rig.plan import compile_plan
-from rig.store import SampleRow, Session, read_dataset
+from rig.reader import read_dataset
+from rig.store import SampleRow, Session
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 DEMO = CONFIGS / "plans" / "demo.yaml"

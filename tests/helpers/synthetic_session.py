@@ -1,4 +1,5 @@
-"""A session file built through the store API from calib's synthetic T24 data (tests, benchmark, demos).
+"""A session file built through the store API from calib's synthetic T24 data (tests and the report
+benchmark).
 
 Temperature-major points like a coil campaign (T01-F01 ...), every DUT sampled at every point, with
 optional outliers, flagged (saturated) samples, an unstable step, a failed point and a settle timeout.
@@ -13,6 +14,7 @@ import numpy as np
 
 from calib import synthetic
 from drivers.clock import SimClock
+from rig.events import Kind, Reason
 from rig.plan import point_id
 from rig.store import SampleRow, Session
 
@@ -97,11 +99,12 @@ def build_session(path: Path, opts: SynthOptions | None = None) -> dict:
                 if p.temp_index in (o.timeout_step, o.abort_at_step):
                     _log_timeouts(session, p, 3 if p.temp_index == o.abort_at_step else 1)
                 if p.temp_index == o.abort_at_step:
-                    session.finish("aborted", f"point {p.id}: not stable (gave up after 3 retakes)")
+                    session.finish("aborted", f"point {p.id}: gave up after 3 retakes",
+                                   code=Reason.RETAKES_EXHAUSTED)
                     return truths
                 waited_s = 1800.0 + 60 * p.temp_index
                 clock.sleep(waited_s)
-                session.log_event("stable", f"stable at {p.setpoint_c:g} degC after {waited_s:.0f} s")
+                session.log_event(Kind.STABLE, f"stable after {waited_s:.0f} s", code=Reason.STABLE)
                 settle = {"target_c": p.setpoint_c, "waited_s": waited_s, "duts": {d: {} for d in o.duts}}
             if p.id == o.failed_point:
                 session.mark_point_failed(p.id, "coil compliance fault")
@@ -123,17 +126,15 @@ def build_session(path: Path, opts: SynthOptions | None = None) -> dict:
                     )
             session.record_point(p.id, rows, settle)
         if o.finish:
-            session.finish(o.finish, "all points taken" if o.finish == "completed" else "stopped")
+            completed = o.finish == "completed"
+            session.finish(o.finish, "all points taken" if completed else "stopped",
+                           code=Reason.COMPLETED if completed else Reason.OPERATOR_ABORT)
     return truths
 
 
 def _log_timeouts(session: Session, p: SynthPoint, n: int) -> None:
-    """Holds worded as the engine words them when a DUT does not settle within max_wait_s."""
+    """Settle-timeout holds of dut1, typed as the engine records them (the wording is free text)."""
     for retake in range(1, n + 1):
         session.clock.sleep(10800.0)
-        session.log_event(
-            "hold",
-            f"point {p.id}: dut1 not stable at {p.setpoint_c:g} degC within max_wait_s "
-            f"10800 s; retake {retake} of 3",
-            level="WARNING",
-        )
+        session.log_event(Kind.HOLD, f"synthetic settle timeout, retake {retake}", code=Reason.SETTLE_TIMEOUT,
+                          point_id=p.id, device="dut1", level="WARNING", retake=retake)

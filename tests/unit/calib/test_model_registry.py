@@ -1,0 +1,47 @@
+"""One list of calibration models: calib's registry. The CLI, the plan, the fit and the report read it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib
+from calib import models, synthetic
+from calib.errors import DataError
+from rig.cli.calib_cmds import MODEL_CHOICE
+from rig.config import Fit
+from rig.errors import ConfigError
+from rig.report.analysis import models_for
+
+
+def test_every_reader_of_the_model_list_agrees_with_the_registry():
+    assert tuple(MODEL_CHOICE.choices) == models.MODELS == tuple(models.REGISTRY)
+    assert Fit.model_validate({"models": list(models.MODELS)}).models == list(models.MODELS)
+    with pytest.raises((ConfigError, ValueError)):
+        Fit.model_validate({"models": ["t25"]})
+    assert set(models.PARAM_SHAPES) == set(models.REGISTRY)
+
+
+def test_the_report_offers_what_the_data_allows_by_the_registry():
+    ds, _ = synthetic.t24_dataset(np.random.default_rng(3), samples_per_point=1)
+    assert models_for(ds) == list(models.MODELS)
+    without_temp = ds.subset(np.ones(len(ds), bool))
+    without_temp.temp_c = None
+    assert models_for(without_temp) == [m for m, s in models.REGISTRY.items() if not s.needs_temperature]
+
+
+def test_calib_fit_dispatches_through_the_registry(monkeypatch):
+    ds, _ = synthetic.t24_dataset(np.random.default_rng(4), samples_per_point=1)
+    calls = []
+    p12 = models.REGISTRY["p12"]
+
+    def counting(d, w, o):
+        calls.append(o)
+        return p12.fit_weighted(d, w, o)
+
+    monkeypatch.setitem(models.REGISTRY, "p12", models.ModelSpec(
+        "p12", p12.params, counting, vector=True, needs_temperature=False, options=frozenset()))
+    cal = calib.fit(ds, "p12", temp_ref_c=5.0)
+    assert cal.model == "p12" and calls[0].temp_ref_c == 5.0
+    with pytest.raises(DataError, match="unknown calibration model 'nope' \\(known: t24, p12, scalar\\)"):
+        calib.fit(ds, "nope")
