@@ -108,4 +108,5 @@ def record_points(path: Path, spec: Spec = Spec(), *, upto: int | None = None, f
 def write_sessions(folder: Path, n: int, **spec) -> list[Path]:
     """`n` sessions seeded 1..n in `folder`."""
     folder.mkdir(parents=True, exist_ok=True)
-    return [write_session(folder / f"s{seed:04d}.session", Spec(seed=seed, **spec)) for seed in range(1, n + 1)]
+    return [write_session(folder / f"s{seed:04d}.session", Spec(seed=seed, **spec))
+            for seed in range(1, n + 1)]

@@ -43,7 +43,7 @@ def _run_as() -> tuple[list[str], int | None, int | None]:
     try:
         user = pwd.getpwnam("postgres")
     except KeyError:
-        raise PgUnavailable("running as root and there is no `postgres` system user to run the server")
+        raise PgUnavailable("running as root and no `postgres` system user to run the server") from None
     runuser = shutil.which("runuser")
     if runuser is None:
         raise PgUnavailable("running as root and `runuser` is missing (needed to run as `postgres`)")
@@ -112,3 +112,13 @@ def create_database(server: PgServer, name: str) -> str:
         conn.execute(f'DROP DATABASE IF EXISTS "{name}"')
         conn.execute(f'CREATE DATABASE "{name}"')
     return server.url(name)
+
+
+def create_database_like(url: str, name: str) -> str:
+    """A fresh database beside the one at `url` (same server); returns its URL."""
+    import psycopg
+
+    with psycopg.connect(url, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}"')
+        conn.execute(f'CREATE DATABASE "{name}"')
+    return url.rsplit("/", 1)[0] + "/" + name
