@@ -44,14 +44,23 @@ def refit_file(path: str, model: str, software_version: str) -> list[dict]:
                            software_version=software_version, reason=_reason(exc))]
 
 
+_CONNECTIONS: dict[str, object] = {}  # per worker process: one connection per database, kept between tasks
+
+
 def refit_db(url: str, uid: str, model: str, software_version: str) -> list[dict]:
     """Worker task: every DUT of one session in the fleet database."""
     from rig.fleet.query import session_rows
     from rig.fleet.schema import connect
 
     try:
-        with connect(url) as conn:
+        conn = _CONNECTIONS.get(url)
+        if conn is None or conn.closed:
+            conn = _CONNECTIONS[url] = connect(url, create=False)
+        try:
             meta, points, samples = session_rows(conn, uid)
+        except Exception:
+            _CONNECTIONS.pop(url, None).close()  # a broken connection is not reused
+            raise
         return fit_session(uid, meta["source_path"], meta["station_name"], points, samples, model,
                            software_version)
     except Exception as exc:  # noqa: BLE001 - as in refit_file

@@ -62,13 +62,16 @@ def redact(url: str) -> str:
     return re.sub(r"(://[^:/@]+):[^@]*@", r"\1:***@", re.sub(r"password=\S+", "password=***", url))
 
 
-def connect(url: str) -> psycopg.Connection:
-    """An autocommit connection (each session push opens its own transaction) with our tables in place."""
+def connect(url: str, *, create: bool = True) -> psycopg.Connection:
+    """An autocommit connection (each session push opens its own transaction) with our tables in place
+    (create=False: a reader that expects them there)."""
     try:
         conn = psycopg.connect(url, autocommit=True, connect_timeout=10)
     except psycopg.Error as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise FleetError(f"{redact(url)}: cannot connect to the fleet database: {first}") from None
+    if not create:
+        return conn
     try:
         with conn.transaction():
             conn.execute("SELECT pg_advisory_xact_lock(%s)", (_SCHEMA_LOCK,))

@@ -117,3 +117,21 @@ def test_refit_all_needs_a_source(capsys, tmp_path):
     code = main(["refit-all", str(tmp_path), "--out", str(tmp_path / "r.parquet")])
     assert code == 2 and "no sessions in" in capsys.readouterr().err
     assert not (tmp_path / "r.parquet").exists()
+
+
+def test_refit_all_on_an_existing_cluster(sessions, tmp_path, capsys):
+    from distributed import LocalCluster
+
+    folder = tmp_path / "two"
+    folder.mkdir()
+    for key in ("g2", "notes"):
+        shutil.copy(sessions[key], folder / sessions[key].name)
+    out = tmp_path / "r.parquet"
+    cluster = LocalCluster(n_workers=1, processes=False, protocol="tcp://", host="127.0.0.1",
+                           dashboard_address="127.0.0.1:0")
+    with cluster:
+        code = main(["refit-all", str(folder), "--scheduler", cluster.scheduler_address, "--out", str(out),
+                     "--no-progress"])
+    assert code == 0 and "re-fitted 1 DUT(s) of 2 session(s) with t24; 1 failed" in capsys.readouterr().out
+    rows = rows_by_key(out)
+    assert_same_fit(rows[("g2", "dut1")], one_by_one(sessions["g2"], "dut1", "t24", tmp_path))
