@@ -53,7 +53,7 @@ def push_cmd(sessions: tuple[Path, ...], db_url: str | None) -> None:
                 result = push_snapshot(conn, session_snapshot(path))
             except ERRORS as exc:
                 counts["failed"] += 1
-                click.echo(f"failed     {path}: {exc}".replace(f": {path}: ", ": "))
+                click.echo(f"failed     {path}: {str(exc).removeprefix(f'{path}: ')}")
                 continue
             counts[result.outcome] += 1
             click.echo(f"{result.outcome:<10} {path} (session {result.uid[:12]}, {result.samples} samples)")

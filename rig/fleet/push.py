@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import weakref
 from dataclasses import dataclass
 from typing import Literal
 
@@ -21,6 +22,8 @@ from rig.fleet.schema import OWN_TABLES, SCHEMA, copied_tables, ensure_copy_tabl
 from rig.fleet.source import SessionSnapshot, Table
 
 Outcome = Literal["added", "replaced", "unchanged"]
+# {connection: {copied table: columns}}: the catalogue read once per connection, not once per session
+_KNOWN: weakref.WeakKeyDictionary[psycopg.Connection, dict[str, set[str]]] = weakref.WeakKeyDictionary()
 VERDICT_COLUMNS = ("verdict", "result", "status", "outcome")  # in a table named acceptance*
 
 
@@ -49,12 +52,17 @@ def push_snapshot(conn: psycopg.Connection, snap: SessionSnapshot) -> PushResult
                 conn.execute(sql.SQL("DELETE FROM {} WHERE uid = %s").format(
                     sql.Identifier(SCHEMA, "fleet_sessions")), (uid,))
             _insert_session_row(conn, snap, uid, digest)
-            known = copied_tables(conn)
+            known = _KNOWN.get(conn)
+            if known is None:
+                known = _KNOWN[conn] = copied_tables(conn)
             for table in snap.tables.values():
                 ensure_copy_table(conn, table, known)
                 copy_rows(conn, uid, table)
             _insert_duts(conn, snap, uid)
-    except psycopg.Error as exc:
+    except BaseException as exc:
+        _KNOWN.pop(conn, None)  # tables made in the rolled-back transaction are gone again
+        if not isinstance(exc, psycopg.Error):
+            raise
         raise FleetError(f"{snap.path}: the fleet database refused the session: "
                          f"{str(exc).strip().splitlines()[0]}") from None
     return PushResult(uid, "added" if row is None else "replaced", len(snap.tables["samples"].rows))
@@ -75,8 +83,7 @@ def copy_rows(conn: psycopg.Connection, uid: str, table: Table) -> None:
 
 def _insert_session_row(conn: psycopg.Connection, snap: SessionSnapshot, uid: str, digest: str) -> None:
     s = snap.session
-    states = [p["state"] for p in snap.tables["points"].dicts()] if "state" in snap.tables[
-        "points"].column_names else []
+    states = [p.get("state") for p in snap.tables["points"].dicts()]
     conn.execute(
         sql.SQL(
             "INSERT INTO {} (uid, content_hash, source_path, plan_name, station_name, started_utc, "
