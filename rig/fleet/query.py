@@ -1,0 +1,70 @@
+"""Reads from the fleet database: the session listing with its filters, and one session's rows for a
+re-fit (the same rows a session file gives, so both go through one dataset builder)."""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+
+import psycopg
+from psycopg import sql
+from psycopg.rows import dict_row
+
+from rig.fleet import FleetError
+from rig.fleet.schema import SCHEMA
+
+
+@dataclass(frozen=True)
+class Filters:
+    station: str | None = None
+    dut: str | None = None  # a DUT name or a serial number
+    since: dt.datetime | None = None  # started at or after (UTC)
+    until: dt.datetime | None = None  # started before (UTC)
+    verdict: str | None = None  # PASS or FAIL (sessions without an acceptance result never match)
+
+
+def list_sessions(conn: psycopg.Connection, filters: Filters = Filters()) -> list[dict]:
+    """Sessions across rigs, oldest first, each with its DUTs ("dut1,dut2") and serials."""
+    where, params = [], []
+    if filters.station:
+        where.append("s.station_name = %s")
+        params.append(filters.station)
+    if filters.dut:
+        where.append("EXISTS (SELECT 1 FROM magrig.fleet_duts d WHERE d.session_uid = s.uid "
+                     "AND (d.dut = %s OR d.serial = %s))")
+        params += [filters.dut, filters.dut]
+    if filters.since:
+        where.append("s.started_utc >= %s")
+        params.append(filters.since)
+    if filters.until:
+        where.append("s.started_utc < %s")
+        params.append(filters.until)
+    if filters.verdict:
+        where.append("s.verdict = %s")
+        params.append(filters.verdict.upper())
+    query = (
+        "SELECT s.*, coalesce(string_agg(d.dut, ',' ORDER BY d.dut), '') AS duts, "
+        "coalesce(string_agg(d.serial, ',' ORDER BY d.dut), '') AS serials "
+        "FROM magrig.fleet_sessions s LEFT JOIN magrig.fleet_duts d ON d.session_uid = s.uid"
+        + (" WHERE " + " AND ".join(where) if where else "")
+        + " GROUP BY s.uid ORDER BY s.started_utc, s.uid"
+    )
+    with conn.cursor(row_factory=dict_row) as cur:
+        return cur.execute(query, params).fetchall()
+
+
+def session_rows(conn: psycopg.Connection, uid: str) -> tuple[dict, list[dict], list[dict]]:
+    """(session summary, points, samples) of one pushed session; FleetError if it is not there."""
+    with conn.cursor(row_factory=dict_row) as cur:
+        meta = cur.execute("SELECT * FROM magrig.fleet_sessions WHERE uid = %s", (uid,)).fetchone()
+        if meta is None:
+            raise FleetError(f"session {uid}: not in the fleet database")
+        points = cur.execute(sql.SQL("SELECT * FROM {} WHERE session_uid = %s").format(
+            sql.Identifier(SCHEMA, "points")), (uid,)).fetchall()
+        samples = cur.execute(sql.SQL("SELECT * FROM {} WHERE session_uid = %s ORDER BY id").format(
+            sql.Identifier(SCHEMA, "samples")), (uid,)).fetchall()
+    return meta, points, samples
+
+
+def session_uids(conn: psycopg.Connection, filters: Filters = Filters()) -> list[str]:
+    return [row["uid"] for row in list_sessions(conn, filters)]
