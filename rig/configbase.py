@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from drivers import registry
+from rig.yamlload import KeyPathError
 
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
@@ -50,10 +51,50 @@ class Serial(Strict):
     timeout_s: PositiveFloat = 0.5
 
 
+class FaultWindow(Strict):
+    """A fault that starts `after_s` seconds of campaign time after the bench starts and lasts `for_s`
+    (left out: to the end of the run)."""
+
+    after_s: float = Field(0.0, ge=0)
+    for_s: PositiveFloat | None = None
+
+
+OneIn = Annotated[int, Field(ge=2, description="one operation in this many fails")]
+
+
+class SimFaults(Strict):
+    """Faults a simulated device plays for a rehearsal (drivers/sim/faults.py), seeded by `sim.seed`."""
+
+    no_reply: OneIn | None = None
+    exception: OneIn | None = None
+    garbled: OneIn | None = None
+    nack: OneIn | None = None
+    unplug: FaultWindow | None = None
+    stuck_temperature: FaultWindow | Literal[True] | None = None
+    alarm: FaultWindow | None = None
+
+    def given(self) -> list[str]:
+        return [k for k in type(self).model_fields if getattr(self, k) is not None]
+
+
+# What each protocol can do wrong (one in N operations); `unplug` every device can.
+PROTOCOL_FAULTS = {
+    "modbus": ("no_reply", "exception", "garbled"),  # a lost reply, an exception reply, a bad-CRC frame
+    "serial": ("no_reply", "garbled"),  # a lost reply, a corrupted line
+    "i2c": ("nack",),  # no ACK: OSError errno 121
+}
+
+
+def protocol_of(transports: tuple[str, ...]) -> str:
+    return "modbus" if set(transports) & {"modbus_tcp", "modbus_rtu"} else transports[0]
+
+
 class Sim(Strict):
-    """Simulated device: the same driver talks its protocol to a simulator of `sim:`'s world."""
+    """Simulated device: the same driver talks its protocol to a simulator of `sim:`'s world.
+    `faults:` makes it misbehave as its protocol allows (a rehearsal of a bad day in the lab)."""
 
     kind: Literal["sim"]
+    faults: SimFaults | None = None
 
 
 TRANSPORTS: dict[str, type[Strict]] = {
@@ -76,6 +117,14 @@ class DeviceConfig(Strict):
 
     role: ClassVar[str]
 
+    @model_validator(mode="after")
+    def _faults_it_can_have(self):
+        faults = getattr(self.transport, "faults", None)  # type: ignore[attr-defined]
+        if faults is not None:
+            for key, problem in fault_problems(self, faults):
+                raise KeyPathError(("transport", "faults", key), problem)
+        return self
+
     @property
     def simulated(self) -> bool:
         return self.transport.kind == "sim"  # type: ignore[attr-defined]
@@ -94,3 +143,22 @@ class DeviceConfig(Strict):
 
     def sim_request(self, world) -> registry.SimRequest:
         return registry.SimRequest(world, self.name, self.device_type, self.device_options)  # type: ignore[attr-defined]
+
+
+def fault_problems(dev: DeviceConfig, faults: SimFaults) -> list[tuple[str, str]]:
+    """[(fault key, why this device cannot have it)]: a kind its protocol cannot produce, a stuck
+    temperature on a device that measures none, an alarm on a chamber without an alarm register."""
+    spec = dev.spec
+    protocol = protocol_of(spec.transports)
+    allowed = PROTOCOL_FAULTS[protocol]
+    out = []
+    for key in faults.given():
+        if key in ("no_reply", "exception", "garbled", "nack") and key not in allowed:
+            out.append((key, f"a {spec.type} ({protocol}) cannot have {key} faults "
+                             f"(its protocol allows: {', '.join(allowed)}, unplug)"))
+        elif key == "stuck_temperature" and not (dev.role == "temperature" or spec.has_temperature):
+            out.append((key, f"a {spec.type} measures no temperature"))
+        elif key == "alarm" and (dev.role != "chamber" or getattr(dev, "alarm", None) is None):
+            out.append((key, f"a {spec.type} has no alarm register to show it (name one in `alarm:`)"
+                             if dev.role == "chamber" else f"only a chamber has an alarm, not a {spec.type}"))
+    return out

@@ -350,7 +350,8 @@ class Engine:
 
 
 class SessionLogHandler(logging.Handler):
-    """Copies WARNING+ records of the "magrig" loggers (retries, faults) into the session's events.
+    """Copies WARNING+ records of the "magrig" loggers (retries, faults) into the session's events; a
+    retry's record is coded by its failure (Reason.DEVICE_TIMEOUT...), any other as Reason.LOGGED.
 
     SQLite connections belong to one thread: records from other threads (simulators, transports' helper
     threads) wait in a queue until the engine's thread flushes them at its next check."""
@@ -373,10 +374,16 @@ class SessionLogHandler(logging.Handler):
             record = self.pending.popleft()
             try:
                 self.session.log_event(
-                    record.levelname.lower(), record.getMessage(), code=Reason.LOGGED,
+                    record.levelname.lower(), record.getMessage(), code=_record_code(record),
                     logger=record.name, device=getattr(record, "device", None))
             except Exception:  # e.g. a full disk: the record still reached the console's handler
                 pass
+
+
+def _record_code(record: logging.LogRecord) -> Reason:
+    """A transport's retry record carries the failure (`fault`): coded like a hold (device_timeout...)."""
+    fault = getattr(record, "fault", None)
+    return code_of(fault) if isinstance(fault, BaseException) else Reason.LOGGED
 
 
 class _signals_to:

@@ -10,6 +10,9 @@ field source (`world_field`), the DUT truths and the simulator's defaults from d
 A station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share
 the world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads
 a mount that follows the simulated air.
+
+A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
+(drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Any
 
 from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
+from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.truths import AIR_C, dut_truth, mount_truth
 from drivers.sim.world import DutTruth, World
@@ -26,6 +30,7 @@ from rig.configbase import ModbusTcp
 from rig.links import open_link
 
 LOOPBACK = "127.0.0.1"
+FAULTY_MODBUS_TIMEOUT_S = 0.5  # a loopback simulator answers in ms: a lost reply need not cost a full second
 
 
 def dut_truths(station) -> dict[str, DutTruth]:
@@ -54,26 +59,55 @@ def make_world(station, clock: Clock) -> World:
     return world
 
 
+def _window(spec) -> Window | None:
+    return None if spec is None else Window(spec.after_s, spec.for_s)
+
+
 class SimBench:
     def __init__(self, station, clock: Clock):
         self.clock = clock
+        self.seed = station.sim.seed
         self.world = make_world(station, clock)
         self.running: list[Any] = []
 
     def link(self, dev_cfg):
         """Start the device's simulator and return the link its driver is built on."""
         endpoint = dev_cfg.spec.load_simulator()(dev_cfg.sim_request(self.world))
+        faults = self.faults_of(dev_cfg)
         match endpoint:
             case SimModbus(server=server):
+                server.faults = faults
                 loopback = ModbusTcp(kind="modbus_tcp", host=LOOPBACK, port=self._start(server))
+                if faults is not None:
+                    loopback.timeout_s = FAULTY_MODBUS_TIMEOUT_S
                 return open_link(dev_cfg, loopback, self.clock)
             case SimSerial(firmware=firmware, baudrate=baudrate, timeout_s=timeout_s):
+                firmware.faults = faults
                 return SerialLink(self._start(firmware), baudrate, timeout_s)
             case SimI2c(chip=chip, address=address):
                 bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
                 bus.attach(address, chip)
+                if faults is not None:
+                    chip.faults = faults
+                    bus.set_faults(address, faults)
                 return I2cLink(bus, address)
         raise TypeError(f"{dev_cfg.name}: simulator returned {endpoint!r}")
+
+    def faults_of(self, dev_cfg) -> DeviceFaults | None:
+        """The device's fault schedule from its `transport: {kind: sim, faults: ...}` (None: no faults),
+        seeded by the station's `sim.seed`; also kept in world.faults under the device's name."""
+        spec = getattr(dev_cfg.transport, "faults", None)
+        if spec is None:
+            return None
+        stuck = spec.stuck_temperature
+        faults = DeviceFaults(
+            dev_cfg.name, self.clock, seed=self.seed,
+            one_in={k: getattr(spec, k) for k in ("no_reply", "exception", "garbled", "nack")
+                    if getattr(spec, k) is not None},
+            unplug=_window(spec.unplug), alarm=_window(spec.alarm),
+            stuck=Window() if stuck is True else _window(stuck))
+        self.world.faults[dev_cfg.name] = faults
+        return faults
 
     def _start(self, sim) -> Any:
         self.running.append(sim)

@@ -11,7 +11,8 @@ A setpoint write moves world.set_chamber_setpoint (out-of-range values get excep
 controller refuses them); F4T ramp writes set world.set_chamber_ramp (ramp off = the chamber's natural
 rate, the world's ramp at construction). Reads refresh the temperature, setpoint and alarm registers
 from the world lazily, so a SimClock may jump. Fault hooks: the server's (silence, fail_next, unplug,
-replug), world.chamber_alarm -> the configured alarm register (the first of its bits, or 1), and
+replug, `faults`), world.chamber_alarm or an alarm window of `faults` -> the configured alarm register
+(the first of its bits, or 1), and
 `input_error = True` -> the F4's input error register 101 (the F4T documents none).
 """
 
@@ -69,7 +70,7 @@ class ChamberSim(SimulatedModbusDevice):
         return math.isfinite(setpoint_c) and self.range_c[0] <= setpoint_c <= self.range_c[1]
 
     def _alarm_word(self) -> int:
-        if not self.world.chamber_alarm:
+        if not (self.world.chamber_alarm or (self.faults is not None and self.faults.alarm())):
             return 0
         return 1 << min(self.alarm.bits) if self.alarm.kind == "bits" else 1
 

@@ -49,6 +49,7 @@ class HMC5883LSim(RegisterChip):
         self.dut = dut
         self.variant = variant
         self.never_ready = False
+        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the temperature
         self.registers[hmc.REG_CONFIG_A] = POWER_ON_CONFIG_A
         self.registers[hmc.REG_CONFIG_B] = POWER_ON_CONFIG_B
         self.registers[hmc.REG_MODE] = POWER_ON_MODE
@@ -78,6 +79,8 @@ class HMC5883LSim(RegisterChip):
         self.active_gain = self.registers[hmc.REG_CONFIG_B] >> hmc.CONFIG_B_GAIN_SHIFT  # from the next one on
         if self.variant == "HMC5983" and self.registers[hmc.REG_CONFIG_A] & hmc.CONFIG_A_TS:
             temp_c = self.world.dut_temp_c(self.dut)
+            if self.faults is not None:
+                temp_c = self.faults.shown_temperature(temp_c)
             raw = round((temp_c - hmc.TEMP_ZERO_C) * hmc.TEMP_COUNTS_PER_C)
             raw = max(-32768, min(32767, raw))
             self.registers[hmc.REG_TEMP:hmc.REG_TEMP + 2] = raw.to_bytes(2, "big", signed=True)

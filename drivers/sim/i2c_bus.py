@@ -4,6 +4,7 @@
     bus.attach(0x30, MMC5983MASim(world, "dut1"))
     bus.nack(0x30, count=2)    # NACK the next 2 transfers to 0x30 (count=None: all, until nack(addr, 0))
     bus.detach(0x30)           # unplug: every transfer raises OSError(121, "Remote I/O error")
+    bus.set_faults(0x30, faults)  # a drivers.sim.faults.DeviceFaults: "nack" or "unplug" draws NACK
     mux = bus.add_switch(0x70) # a TCA9548A; mux.attach(3, 0x30, chip) puts a chip behind channel 3
 
 A chip behind a switch answers only while its channel is enabled. When several chips answer at one
@@ -22,7 +23,7 @@ from __future__ import annotations
 import errno
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 BLOCK_MAX_BYTES = 32
 
@@ -173,6 +174,7 @@ class FakeSMBus:
         self.force = force
         self.chips: dict[int, I2CChip] = {}
         self._nacks: dict[int, int | None] = {}  # address -> transfers left to NACK (None: all)
+        self._faults: dict[int, Any] = {}  # address -> fault schedule, drawn once per transfer
 
     # --- wiring and fault hooks -------------------------------------------------------------------
     def attach(self, address: int, chip: I2CChip) -> None:
@@ -189,7 +191,14 @@ class FakeSMBus:
         else:
             self._nacks[address] = count
 
+    def set_faults(self, address: int, faults) -> None:
+        """Draw a fault of `faults` (drivers.sim.faults.DeviceFaults) for every transfer to `address`."""
+        self._faults[address] = faults
+
     def _chip(self, address: int):
+        faults = self._faults.get(address)
+        if faults is not None and faults.draw() in ("nack", "unplug"):
+            raise _nack()
         if address in self._nacks:
             left = self._nacks[address]
             if left is not None:

@@ -43,6 +43,7 @@ class MMC5983MASim(RegisterChip):
         self.world = world
         self.dut = dut
         self.never_done = False
+        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the temperature
         self._power_on()
 
     def _power_on(self) -> None:
@@ -84,6 +85,8 @@ class MMC5983MASim(RegisterChip):
 
     def _latch_temperature(self) -> None:
         temp_c = self.world.dut_temp_c(self.dut)
+        if self.faults is not None:
+            temp_c = self.faults.shown_temperature(temp_c)
         raw = round((temp_c - mmc.TEMP_ZERO_C) / mmc.TEMP_C_PER_COUNT)
         self.registers[mmc.REG_TOUT] = min(255, max(0, raw))
         self.registers[mmc.REG_STATUS] |= mmc.STATUS_MEAS_T_DONE

@@ -10,6 +10,10 @@ Device logic lives in each SimDevice's `action` hook; this harness adds the faul
 shares: `silence(n)` (the next n replies are lost), `fail_next(n, code)` (the next n requests get a Modbus
 exception reply), `unplug()` / `replug()` (the server goes away and comes back on the same port), and
 `get_values` / `set_values` for tests that look at or poke the registers from outside the protocol path.
+`faults` (a drivers.sim.faults.DeviceFaults) draws a fault for every request: "no_reply" loses the reply
+(the request takes effect), "unplug" loses it without effect, "exception" answers exception 6 (server
+device busy: a transient refusal), "garbled" corrupts one byte of the reply frame (with RTU framing its
+CRC no longer matches; with TCP framing it is the MBAP length, so the client waits for bytes that never come).
 
 With framing="rtu" the server listens on `socket://127.0.0.1:0`: pymodbus serves the RTU framer over a
 TCP socket, and a client opens it through pyserial's `socket://` URL handler, so frames carry the
@@ -54,7 +58,7 @@ def value_after_write(
 class ModbusSimServer:
     """A threaded pymodbus server with fault hooks; start() -> port, stop()."""
 
-    def __init__(self, devices: SimDevice | Sequence[SimDevice], *, framing: str = "tcp"):
+    def __init__(self, devices: SimDevice | Sequence[SimDevice], *, framing: str = "tcp", faults=None):
         if framing not in ("tcp", "rtu"):
             raise ValueError(f"framing must be 'tcp' or 'rtu', not {framing!r}")
         self.framing = framing
@@ -68,6 +72,8 @@ class ModbusSimServer:
         self._lock = threading.Lock()
         self._silent_replies = 0
         self._exceptions: list[ExcCodes] = []
+        self._garbled_replies = 0
+        self.faults = faults
         self.requests_seen = 0
 
     # --- fault hooks ------------------------------------------------------------------------------
@@ -125,6 +131,9 @@ class ModbusSimServer:
                 self.requests_seen += 1
                 if self._exceptions:
                     return self._exceptions.pop()
+                injected = self._injected_fault()
+            if injected is not None:
+                return injected
             if inner is None:
                 return None
             return await inner(function_code, start_address, address, count, registers, set_values)
@@ -132,13 +141,38 @@ class ModbusSimServer:
         device.action = action
         return device
 
+    def _injected_fault(self) -> ExcCodes | None:
+        """Draw this request's fault (lock held); an exception code to answer, else None (go on)."""
+        kind = self.faults.draw() if self.faults is not None else None
+        if kind == "unplug":  # nobody there: no effect, no reply
+            self._silent_replies += 1
+            return ExcCodes.DEVICE_FAILURE
+        if kind == "no_reply":
+            self._silent_replies += 1
+        elif kind == "garbled":
+            self._garbled_replies += 1
+        elif kind == "exception":
+            return ExcCodes.DEVICE_BUSY
+        return None
+
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         if sending:
             with self._lock:
                 if self._silent_replies > 0:
                     self._silent_replies -= 1
                     return b""
+                if self._garbled_replies > 0 and data:
+                    self._garbled_replies -= 1
+                    return self._garbled(data)
         return data
+
+    def _garbled(self, frame: bytes) -> bytes:
+        out = bytearray(frame)
+        if self.framing == "rtu":
+            out[len(out) // 2] ^= 0x5A  # any flipped byte breaks the CRC
+        else:  # TCP carries no checksum of its own: a too-long MBAP length is what the client can notice
+            out[5] = min(0xFF, out[5] + 4)
+        return bytes(out)
 
     def _make_server(self, port: int):
         if self.framing == "tcp":
@@ -198,6 +232,7 @@ class SimulatedModbusDevice:
         self.unit = unit
         self.framing = framing
         self.server: ModbusSimServer | None = None
+        self.faults = None  # a drivers.sim.faults.DeviceFaults, set before start()
 
     def sim_device(self) -> SimDevice:
         raise NotImplementedError
@@ -205,7 +240,7 @@ class SimulatedModbusDevice:
     def start(self) -> int:
         """Serve on 127.0.0.1; returns the TCP port."""
         if self.server is None:
-            self.server = ModbusSimServer(self.sim_device(), framing=self.framing)
+            self.server = ModbusSimServer(self.sim_device(), framing=self.framing, faults=self.faults)
         return self.server.start()
 
     def stop(self) -> None:

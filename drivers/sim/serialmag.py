@@ -45,6 +45,10 @@ Fault hooks (thread-safe, each counts down per command or per line):
                               "noise" puts junk bytes before the line, "truncate" sends the first half
                               without its CR (the rest of the line is lost)
     wrong_entry_next(n)       answer the next n commands with "Re-enter"
+    faults                    a drivers.sim.faults.DeviceFaults drawn once per command addressed to this
+                              device: "no_reply" (the command acts, its reply is lost), "unplug" (nothing
+                              acts, nothing answers), "garbled" (a sample line gets a digit turned into a
+                              letter; any other reply is cut short, without its CR)
     unplug() / replug()       close the pty (the driver's port errors) / plug a new one in. replug()
                               serves the SAME path as before (the stable symlink moves to the new
                               /dev/pts/N, like a udev by-id link), and the firmware restarts at its
@@ -209,6 +213,7 @@ class SerialMagSim:
         self.received: list[bytes] = []  # every command line this device understood the bytes of
         self._drop = self._wrong = self._garble = 0
         self._garble_mode = "flip"
+        self.faults = None
         self.power_on()
 
     def power_on(self) -> None:
@@ -322,9 +327,18 @@ class SerialMagSim:
             device_id = int(m.group(1))
             if device_id not in (self.device_id, BROADCAST_ID):
                 return  # another device on the bus
+            fault = self.faults.draw() if self.faults is not None else None
+            if fault == "unplug":
+                return
             reply = self._execute(m.group(2).decode("ascii", errors="replace"))
-            if reply is not None and device_id != BROADCAST_ID:
+            if reply is None or device_id == BROADCAST_ID or fault == "no_reply":
+                return
+            if fault != "garbled":
                 self._reply(reply)
+            elif len(reply) + 1 == SAMPLE_LINE_BYTES:
+                self._reply(self._garbled(reply + b"\r")[:-1])  # a digit turned into a letter
+            else:  # a text reply cut short by noise: its CR never arrives
+                self._send(reply[: len(reply) // 2])
 
     def _execute(self, body: str) -> bytes | None:
         """Firmware state machine; returns the reply line without CR (None: no reply)."""

@@ -8,7 +8,8 @@ continuous mode converts every cycle; TEMP_OFFSET is added to every result; SOFT
 power-on state.
 
 Fault hooks: `stuck_c = value` (every result reads that temperature), `never_ready = True`
-(Data_Ready never sets; the driver must time out).
+(Data_Ready never sets; the driver must time out), `faults` (a stuck window of
+drivers.sim.faults.DeviceFaults: conversions go on, the result stays what it was).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class TMP117Sim:
         self.offset_c = offset_c
         self.stuck_c: float | None = None
         self.never_ready = False
+        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the result
         self._power_on()
 
     def _power_on(self) -> None:
@@ -87,6 +89,8 @@ class TMP117Sim:
 
     def _latch(self) -> None:
         temp_c = self.stuck_c if self.stuck_c is not None else self.world.dut_temp_c(self.dut) + self.offset_c
+        if self.faults is not None:
+            temp_c = self.faults.shown_temperature(temp_c)
         temp_c += _int16(self.words[tmp.REG_TEMP_OFFSET]) * tmp.C_PER_LSB
         code = max(-32768, min(32767, round(temp_c / tmp.C_PER_LSB)))
         self.words[tmp.REG_TEMP_RESULT] = code & 0xFFFF

@@ -118,6 +118,8 @@ class World:
         self.table_fault = False
         # DUTs and fixed temperature probes
         self.duts: dict[str, _Dut] = {}
+        # the fault schedules of the simulated devices, by device name (drivers/sim/faults.py)
+        self.faults: dict[str, object] = {}
 
     # --- time -------------------------------------------------------------------------------------
     def _advance(self) -> None:

@@ -24,8 +24,9 @@ def with_retries(
     retry_on: tuple[type[BaseException], ...] = (DeviceError, OSError, TimeoutError),
     recover: Callable[[], None] | None = None,
 ) -> T:
-    """Call `op` up to `tries` times. Between tries: log a warning, call `recover` (e.g. reconnect),
-    back off (doubling). The last failure is raised as a DeviceError naming device and operation."""
+    """Call `op` up to `tries` times. Between tries: log a warning (its record carries `device` and the
+    exception as `fault`, so a session can code it), call `recover` (e.g. reconnect), back off (doubling).
+    The last failure is raised as a DeviceError naming device and operation."""
     clock = clock or RealClock()
     delay = backoff_s
     last: BaseException | None = None
@@ -38,7 +39,7 @@ def with_retries(
                 break
             log.warning(
                 "%s: %s: try %d of %d failed: %s", device, operation, attempt, tries, exc,
-                extra={"device": device, "operation": operation, "event": "retry"},
+                extra={"device": device, "operation": operation, "event": "retry", "fault": exc},
             )
             if recover is not None:
                 try:
