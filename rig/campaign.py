@@ -50,6 +50,7 @@ from rig.engine import (
 from rig.errors import ERRORS, ConfigError, SessionError
 from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
+from rig.frozen import FrozenReadings
 from rig.lock import SessionLock
 from rig.plan import Point, compile_plan
 from rig.reference import reference_for
@@ -116,6 +117,7 @@ class CampaignRunner:
         self.live_summaries = {name: "no data yet" for name in rig.duts}
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
         self._settle_stats: dict = {}
+        self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
 
     # --- the plan as generators -------------------------------------------------------------------
     def tasks(self) -> list[Task]:
@@ -178,6 +180,7 @@ class CampaignRunner:
                     raise Hold(f"{dut}: its temperature source gives no temperature",
                                code=Reason.NO_TEMPERATURE, device=dut)
                 detectors[dut].add(t, temp_c)
+            self._check_frozen(t, temps)
             self.status.dut_temps_c = dict(temps)
             states = {dut: d.state for dut, d in detectors.items()}
             self.status.settling = ", ".join(
@@ -196,6 +199,13 @@ class CampaignRunner:
                            f"max_wait_s {cmd.criteria.max_wait_s:g} s", code=Reason.SETTLE_TIMEOUT,
                            device=", ".join(late))
             self.engine.wait(poll_s, poll_s)
+
+    def _check_frozen(self, t: float, temps: dict[str, float | None]) -> None:
+        """Hold when a DUT's temperature source shows the very same value while the air moves."""
+        for dut, temp_c in temps.items():
+            source = self.rig.temp_sources[dut].name
+            if temp_c is not None and (problem := self.frozen.add(source, t, temp_c, self.status.chamber_c)):
+                raise Hold(problem, code=Reason.DEVICE_FAULT, device=source)
 
     def move_field(self, cmd: MoveField) -> None:
         self.rig.field_source.set(self.reference.command(cmd.target))

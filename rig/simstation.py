@@ -30,7 +30,7 @@ from rig.configbase import ModbusTcp
 from rig.links import open_link
 
 LOOPBACK = "127.0.0.1"
-FAULTY_MODBUS_TIMEOUT_S = 0.5  # a loopback simulator answers in ms: a lost reply need not cost a full second
+FAULTY_TIMEOUT_S = 0.3  # a simulator answers within ms: a lost reply need not cost the usual second
 
 
 def dut_truths(station) -> dict[str, DutTruth]:
@@ -79,10 +79,11 @@ class SimBench:
                 server.faults = faults
                 loopback = ModbusTcp(kind="modbus_tcp", host=LOOPBACK, port=self._start(server))
                 if faults is not None:
-                    loopback.timeout_s = FAULTY_MODBUS_TIMEOUT_S
+                    loopback.timeout_s = FAULTY_TIMEOUT_S
                 return open_link(dev_cfg, loopback, self.clock)
             case SimSerial(firmware=firmware, baudrate=baudrate, timeout_s=timeout_s):
                 firmware.faults = faults
+                timeout_s = timeout_s if faults is None else min(timeout_s, FAULTY_TIMEOUT_S)
                 return SerialLink(self._start(firmware), baudrate, timeout_s)
             case SimI2c(chip=chip, address=address):
                 bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips

@@ -14,7 +14,8 @@ the device's name, so the same station and plan inject the same faults in the sa
 serial firmware answers in real time on a pty, so which of its lines a draw lands on may vary.)
 
 Windows are campaign time (the injected clock), counted from when the schedule is made (the bench start).
-`fired` counts what was injected, by kind, so a test can hold the rig's event log against it.
+`fired` counts what was injected, by kind, and `history` says when, so a test can hold the rig's event
+log against it.
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ class DeviceFaults:
         self.start_t = clock.now()
         self.rng = np.random.default_rng([seed, zlib.crc32(device.encode())])
         self.fired: Counter[str] = Counter()
+        self.history: list[tuple[float, str]] = []  # (clock time, kind) of every injected operation fault
         self.operations = 0
         self._shown_c: float | None = None
         self._lock = threading.Lock()  # simulators answer from their own threads
@@ -80,14 +82,20 @@ class DeviceFaults:
         with its probability 1/N, else None."""
         with self._lock:
             self.operations += 1
-            if self.unplug is not None and self.unplug.contains(self.elapsed_s()):
-                self.fired["unplug"] += 1
-                return "unplug"
+            if self.unplugged():
+                return self._fire("unplug")
             for kind, n in self.one_in.items():
                 if self.rng.random() < 1.0 / n:
-                    self.fired[kind] += 1
-                    return kind
+                    return self._fire(kind)
             return None
+
+    def _fire(self, kind: str) -> str:
+        self.fired[kind] += 1
+        self.history.append((self.clock.now(), kind))
+        return kind
+
+    def unplugged(self) -> bool:
+        return self.unplug is not None and self.unplug.contains(self.elapsed_s())
 
     def stuck(self) -> bool:
         return self.stuck_window is not None and self.stuck_window.contains(self.elapsed_s())

@@ -46,7 +46,8 @@ Fault hooks (thread-safe, each counts down per command or per line):
                               without its CR (the rest of the line is lost)
     wrong_entry_next(n)       answer the next n commands with "Re-enter"
     faults                    a drivers.sim.faults.DeviceFaults drawn once per command addressed to this
-                              device: "no_reply" (the command acts, its reply is lost), "unplug" (nothing
+                              device that has a reply: "no_reply" (the command acts, its reply is
+                              lost), "unplug" (nothing
                               acts, nothing answers), "garbled" (a sample line gets a digit turned into a
                               letter; any other reply is cut short, without its CR)
     unplug() / replug()       close the pty (the driver's port errors) / plug a new one in. replug()
@@ -327,11 +328,14 @@ class SerialMagSim:
             device_id = int(m.group(1))
             if device_id not in (self.device_id, BROADCAST_ID):
                 return  # another device on the bus
-            fault = self.faults.draw() if self.faults is not None else None
-            if fault == "unplug":
+            if self.faults is not None and self.faults.unplugged():
+                self.faults.draw()  # counted as an unplugged operation
                 return
             reply = self._execute(m.group(2).decode("ascii", errors="replace"))
-            if reply is None or device_id == BROADCAST_ID or fault == "no_reply":
+            if reply is None or device_id == BROADCAST_ID:
+                return
+            fault = self.faults.draw() if self.faults is not None else None  # drawn only where it shows
+            if fault == "no_reply":
                 return
             if fault != "garbled":
                 self._reply(reply)
