@@ -99,7 +99,7 @@ def test_one_fault_in_100_operations_everywhere_still_takes_every_point_once(tmp
         mine = [r for r in recorded if r[2] == name]
         assert injected and len(mine) >= len(injected), (name, len(mine), injected)
     assert_safe_at_the_end(session)
-    assert wall_s < 60
+    assert wall_s < 120  # about 45 s on a quiet machine; lost replies cost their (shortened) timeouts
 
 
 def test_an_unplugged_chamber_and_its_alarm_hold_the_run_which_then_completes(tmp_path):
