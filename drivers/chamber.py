@@ -36,6 +36,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from numbers import Real
 from typing import Literal
 
 from pydantic import (
@@ -238,18 +239,21 @@ class _WatlowChamber(Device):
         }
 
     def _check_setpoint(self, setpoint_c: float) -> None:
-        if not math.isfinite(setpoint_c):
+        if isinstance(setpoint_c, bool) or not isinstance(setpoint_c, Real) or not math.isfinite(
+                setpoint_c):
             raise LimitError(f"{self.name}: setpoint {setpoint_c} degC is not a number")
         where = f"{self.name}: setpoint {setpoint_c:.1f} degC"
-        if setpoint_c > self.max_setpoint_c:
+        # written as "refuse unless provably inside": a NaN limit refuses every setpoint
+        if not setpoint_c <= self.max_setpoint_c:
             raise LimitError(f"{where} is above max_setpoint_c {self.max_setpoint_c} degC")
-        if setpoint_c < self.min_setpoint_c:
+        if not setpoint_c >= self.min_setpoint_c:
             raise LimitError(f"{where} is below min_setpoint_c {self.min_setpoint_c} degC")
 
     def _check_ramp(self, c_per_min: float) -> None:
-        if not (math.isfinite(c_per_min) and c_per_min > 0):
+        if isinstance(c_per_min, bool) or not isinstance(c_per_min, Real) or not (
+                math.isfinite(c_per_min) and c_per_min > 0):
             raise LimitError(f"{self.name}: ramp rate {c_per_min} degC/min must be a positive number")
-        if c_per_min > self.max_ramp_c_per_min:
+        if not c_per_min <= self.max_ramp_c_per_min:
             raise LimitError(
                 f"{self.name}: ramp rate {c_per_min:g} degC/min is above max_ramp_c_per_min "
                 f"{self.max_ramp_c_per_min:g} degC/min"

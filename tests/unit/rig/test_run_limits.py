@@ -115,3 +115,44 @@ def test_resume_refuses_a_recorded_plan_beyond_the_limits(case, tmp_path, capsys
     assert opened == []
     with SessionReader(session) as reader:
         assert reader.summary()["points_done"] == 0
+
+
+TURNTABLE = """\
+field_source:
+  kind: turntable
+  transport: {kind: sim}
+  unit: 2
+  az_limits_deg: [-170, 175]
+  el_limits_deg: [-85, 95]
+  site_field: {vector_nt: [19136, 891, 45594]}
+
+duts:"""
+
+
+def _turntable_station(tmp_path: Path) -> Path:
+    text = STATION.read_text()
+    start, end = text.index("\nfield_source:"), text.index("\nduts:")
+    path = tmp_path / "table.yaml"
+    path.write_text(text[:start + 1] + TURNTABLE + text[end + len("\nduts:"):])
+    return path
+
+
+@pytest.mark.parametrize("which", ["coils", "turntable"])
+def test_the_drivers_are_built_with_the_station_limits(which, tmp_path):
+    from rig.config import load_station
+    from rig.station import build_devices
+
+    station = load_station(STATION if which == "coils" else _turntable_station(tmp_path))
+    built = build_devices(station)
+    try:
+        chamber, source = built.devices[station.chamber.name], built.devices[station.field_source.name]
+        limits = station.chamber.limits
+        assert (chamber.min_setpoint_c, chamber.max_setpoint_c, chamber.max_ramp_c_per_min,
+                chamber.safe_setpoint_c) == (limits.min_setpoint_c, limits.max_setpoint_c,
+                                             limits.max_ramp_c_per_min, limits.safe_setpoint_c)
+        if which == "coils":
+            assert source.max_current_a == station.field_source.max_current_a == 2.0
+        else:
+            assert source.limits_deg == {"az": (-170.0, 175.0), "el": (-85.0, 95.0)}
+    finally:
+        built.stop_sims()
