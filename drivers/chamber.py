@@ -74,6 +74,8 @@ F4_PRECISION = 606  # RW 0..3 decimals: the int16 values carry that many implied
 F4_UNITS = 901  # RW: 1 degC, 0 degF
 F4_UNITS_C = 1
 
+ABSOLUTE_ZERO_C, MAX_SETPOINT_C = -273.15, 1000.0  # bounds on any limit a station may state
+
 # --- the rig's own watch (not the controller's) ---------------------------------------------------
 DEFAULT_MAX_DEVIATION_C = 5.0  # ours: air this far from a set point it had reached = lost control
 RATE_WINDOW_S = 60.0  # the air's rate is measured over at least this long (a single read is too noisy)
@@ -90,10 +92,10 @@ class ChamberAlarm:
     A pydantic dataclass, so a station model can hold it as a field (`alarm: ChamberAlarm | None`).
     """
 
-    register: int = Field(ge=0, le=65535)
+    register: int = Field(ge=0, le=65535, strict=True)  # strict: `true` is no register number
     kind: Literal["nonzero", "bits"] = "nonzero"
     meaning: str = "alarm active"
-    bits: dict[int, str] = Field(default_factory=dict)
+    bits: dict[int, str] = Field(default_factory=dict, strict=True)
 
     @model_validator(mode="after")
     def _bits_match_kind(self):
@@ -148,11 +150,12 @@ class ChamberReading:
 class ChamberLimits(registry.Options):
     """A chamber's options in the station file (`limits:`): what the driver refuses to command."""
 
-    min_setpoint_c: float
-    max_setpoint_c: float
-    max_ramp_c_per_min: float = Field(gt=0)
-    safe_setpoint_c: float = 25.0
-    max_deviation_c: float | None = Field(DEFAULT_MAX_DEVIATION_C, gt=0, description="None: not watched")
+    min_setpoint_c: float = Field(ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_setpoint_c: float = Field(ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_ramp_c_per_min: float = Field(gt=0, le=100.0)
+    safe_setpoint_c: float = Field(25.0, ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_deviation_c: float | None = Field(DEFAULT_MAX_DEVIATION_C, gt=0, le=1_000.0,
+                                          description="None: not watched")
 
     @field_validator("max_setpoint_c")
     @classmethod

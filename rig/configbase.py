@@ -11,10 +11,9 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field
 
 from drivers import registry
+from rig.numbers import BAUDRATE, TIMEOUT_S, Count, PositiveFloat, Vec3  # noqa: F401 - the config models'
 
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
-PositiveFloat = Annotated[float, Field(gt=0)]
+Mat3 = tuple[Vec3, Vec3, Vec3]  # finite numbers (rig/numbers.py)
 
 
 class Strict(BaseModel):
@@ -25,29 +24,29 @@ class Strict(BaseModel):
 class ModbusTcp(Strict):
     kind: Literal["modbus_tcp"]
     host: str
-    port: int = Field(502, ge=1, le=65535)
-    timeout_s: PositiveFloat = 1.0
+    port: Count(65535) = 502
+    timeout_s: TIMEOUT_S = 1.0
 
 
 class ModbusRtu(Strict):
     kind: Literal["modbus_rtu"]
     port: str
-    baudrate: int = Field(9600, gt=0)
+    baudrate: BAUDRATE = 9600
     parity: Literal["N", "E", "O"] = "N"
-    timeout_s: PositiveFloat = 1.0
+    timeout_s: TIMEOUT_S = 1.0
 
 
 class I2c(Strict):
     kind: Literal["i2c"]
-    bus: int = Field(ge=0)
-    address: int = Field(ge=0x03, le=0x77)
+    bus: Count(1_000, lower=0)
+    address: Count(0x77, lower=0x03)
 
 
 class Serial(Strict):
     kind: Literal["serial"]
     port: str
-    baudrate: int = Field(115200, gt=0)
-    timeout_s: PositiveFloat = 0.5
+    baudrate: BAUDRATE = 115200
+    timeout_s: TIMEOUT_S = 0.5
 
 
 class Sim(Strict):

@@ -87,7 +87,7 @@ STATIONS = {
     "nan coil constant": (_station("- [50000, 0, 0]", "- ['nan', 0, 0]"),
                           "field_source.coil_constants_nt_per_a[0][0]", 29),
     "huge coil constant": (_station("- [50000, 0, 0]", "- [1.0e+300, 0, 0]"),
-                           "field_source.coil_constants_nt_per_a", 28),
+                           "field_source.coil_constants_nt_per_a[0]", 29),
 }
 
 ERROR_LINE = re.compile(r"error: (?P<file>\S+): (?P<path>\S+): (?P<what>.+) \(line (?P<line>\d+)\)\n")
