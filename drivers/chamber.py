@@ -36,6 +36,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from numbers import Real
 from typing import Literal
 
 from pydantic import (
@@ -73,6 +74,8 @@ F4_PRECISION = 606  # RW 0..3 decimals: the int16 values carry that many implied
 F4_UNITS = 901  # RW: 1 degC, 0 degF
 F4_UNITS_C = 1
 
+ABSOLUTE_ZERO_C, MAX_SETPOINT_C = -273.15, 1000.0  # bounds on any limit a station may state
+
 # --- the rig's own watch (not the controller's) ---------------------------------------------------
 DEFAULT_MAX_DEVIATION_C = 5.0  # ours: air this far from a set point it had reached = lost control
 RATE_WINDOW_S = 60.0  # the air's rate is measured over at least this long (a single read is too noisy)
@@ -89,10 +92,10 @@ class ChamberAlarm:
     A pydantic dataclass, so a station model can hold it as a field (`alarm: ChamberAlarm | None`).
     """
 
-    register: int = Field(ge=0, le=65535)
+    register: int = Field(ge=0, le=65535, strict=True)  # strict: `true` is no register number
     kind: Literal["nonzero", "bits"] = "nonzero"
     meaning: str = "alarm active"
-    bits: dict[int, str] = Field(default_factory=dict)
+    bits: dict[int, str] = Field(default_factory=dict, strict=True)
 
     @model_validator(mode="after")
     def _bits_match_kind(self):
@@ -147,11 +150,12 @@ class ChamberReading:
 class ChamberLimits(registry.Options):
     """A chamber's options in the station file (`limits:`): what the driver refuses to command."""
 
-    min_setpoint_c: float
-    max_setpoint_c: float
-    max_ramp_c_per_min: float = Field(gt=0)
-    safe_setpoint_c: float = 25.0
-    max_deviation_c: float | None = Field(DEFAULT_MAX_DEVIATION_C, gt=0, description="None: not watched")
+    min_setpoint_c: float = Field(ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_setpoint_c: float = Field(ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_ramp_c_per_min: float = Field(gt=0, le=100.0)
+    safe_setpoint_c: float = Field(25.0, ge=ABSOLUTE_ZERO_C, le=MAX_SETPOINT_C)
+    max_deviation_c: float | None = Field(DEFAULT_MAX_DEVIATION_C, gt=0, le=1_000.0,
+                                          description="None: not watched")
 
     @field_validator("max_setpoint_c")
     @classmethod
@@ -238,18 +242,21 @@ class _WatlowChamber(Device):
         }
 
     def _check_setpoint(self, setpoint_c: float) -> None:
-        if not math.isfinite(setpoint_c):
+        if isinstance(setpoint_c, bool) or not isinstance(setpoint_c, Real) or not math.isfinite(
+                setpoint_c):
             raise LimitError(f"{self.name}: setpoint {setpoint_c} degC is not a number")
         where = f"{self.name}: setpoint {setpoint_c:.1f} degC"
-        if setpoint_c > self.max_setpoint_c:
+        # written as "refuse unless provably inside": a NaN limit refuses every setpoint
+        if not setpoint_c <= self.max_setpoint_c:
             raise LimitError(f"{where} is above max_setpoint_c {self.max_setpoint_c} degC")
-        if setpoint_c < self.min_setpoint_c:
+        if not setpoint_c >= self.min_setpoint_c:
             raise LimitError(f"{where} is below min_setpoint_c {self.min_setpoint_c} degC")
 
     def _check_ramp(self, c_per_min: float) -> None:
-        if not (math.isfinite(c_per_min) and c_per_min > 0):
+        if isinstance(c_per_min, bool) or not isinstance(c_per_min, Real) or not (
+                math.isfinite(c_per_min) and c_per_min > 0):
             raise LimitError(f"{self.name}: ramp rate {c_per_min} degC/min must be a positive number")
-        if c_per_min > self.max_ramp_c_per_min:
+        if not c_per_min <= self.max_ramp_c_per_min:
             raise LimitError(
                 f"{self.name}: ramp rate {c_per_min:g} degC/min is above max_ramp_c_per_min "
                 f"{self.max_ramp_c_per_min:g} degC/min"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Real
 
 from pydantic import Field
 
@@ -192,13 +193,15 @@ class CoilController(Device):
         }
 
     def _checked(self, currents_a) -> tuple[float, float, float]:
+        if any(isinstance(c, bool) or not isinstance(c, Real) for c in currents_a):
+            raise LimitError(f"{self.name}: currents must be numbers, got {list(currents_a)!r}")
         values = tuple(float(c) for c in currents_a)
         if len(values) != 3:
             raise LimitError(f"{self.name}: expected 3 currents (x, y, z), got {len(values)}")
         for axis, current_a in zip(AXES, values, strict=True):
             if not math.isfinite(current_a):
                 raise LimitError(f"{self.name}: current on axis {axis} is {current_a}, not a number")
-            if abs(current_a) > self.max_current_a:
+            if not abs(current_a) <= self.max_current_a:  # a NaN limit refuses every current
                 raise LimitError(
                     f"{self.name}: current {current_a:+.4f} A on axis {axis} exceeds max_current_a "
                     f"{self.max_current_a} A"

@@ -22,11 +22,12 @@ name goes into DRIVER_MODULES below (the one registration line).
 from __future__ import annotations
 
 import importlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, get_args
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, BeforeValidator, ConfigDict, model_validator
 
 from drivers.base import Device
 
@@ -43,10 +44,70 @@ DRIVER_MODULES = (
 MODBUS_KINDS = ("modbus_tcp", "modbus_rtu")
 
 
+class KeyPathError(ValueError):
+    """Raised inside a model validator to blame a key below the model, e.g. ("duts", 1, "temp_source");
+    rig/yamlload.py turns it into `FILE: key.path: message (line N)`."""
+
+    def __init__(self, path: tuple[str | int, ...], message: str):
+        super().__init__(message)
+        self.path = tuple(path)
+        self.message = message
+
+
+def _mentions(annotation: Any, types: tuple[type, ...]) -> bool:
+    """Whether one of `types` appears anywhere in a field's type (float in `tuple[float, float]`)."""
+    return annotation in types or any(_mentions(a, types) for a in get_args(annotation))
+
+
+def _checks_itself(annotation: Any, metadata: list) -> bool:
+    """Whether a field's type carries its own before-validator (a subclass's stricter number type, e.g.
+    rig's bounded floats): that one then judges the value."""
+    return any(isinstance(m, BeforeValidator) for m in metadata) or any(
+        isinstance(a, BeforeValidator) or _checks_itself(a, []) for a in get_args(annotation))
+
+
+def _bad_number(value: Any, allow_bool: bool, path: tuple = ()) -> tuple[tuple, str] | None:
+    """(index path, what is wrong) for a number, or a list of them, an option is given: a boolean where a
+    number belongs, or inf/NaN (also spelt as text, which pydantic would read as a float)."""
+    if isinstance(value, bool):
+        return None if allow_bool else (path, f"expected a number, got {str(value).lower()}")
+    if isinstance(value, float) and not math.isfinite(value):
+        return path, f"must be a finite number, got {value}"
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            return None
+        return None if math.isfinite(number) else (path, f"must be a finite number, got {value.strip()!r}")
+    if isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            problem = _bad_number(item, allow_bool, (*path, i))
+            if problem:
+                return problem
+    return None
+
+
 class Options(BaseModel):
-    """Base of every options model: unknown keys are refused."""
+    """Base of every options model: unknown keys are refused, and so are booleans where a number belongs
+    and inf/NaN in any number field (a NaN limit would compare false and let everything through)."""
 
     model_config = ConfigDict(extra="forbid")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _finite_numbers(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        for name, field in cls.model_fields.items():
+            key = field.alias or name
+            if key not in data or not _mentions(field.annotation, (int, float)):
+                continue
+            if _checks_itself(field.annotation, field.metadata):
+                continue  # a stricter number type of its own names the item itself
+            problem = _bad_number(data[key], _mentions(field.annotation, (bool,)))
+            if problem:
+                raise KeyPathError((key, *problem[0]), problem[1])
+        return data
 
 
 class NoOptions(Options):

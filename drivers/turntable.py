@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -206,6 +207,8 @@ class Turntable(Device):
         )
 
     def _checked(self, angles_deg) -> tuple[float, float]:
+        if any(isinstance(a, bool) or not isinstance(a, Real) for a in angles_deg):
+            raise LimitError(f"{self.name}: angles must be numbers, got {list(angles_deg)!r}")
         values = tuple(float(a) for a in angles_deg)
         if len(values) != 2:
             raise LimitError(f"{self.name}: expected (az_deg, el_deg), got {len(values)} values")

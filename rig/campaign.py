@@ -52,7 +52,7 @@ from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.frozen import FrozenReadings
 from rig.lock import SessionLock
-from rig.plan import Point, compile_plan
+from rig.plan import Point, check_campaign
 from rig.reference import reference_for
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
 from rig.station import Rig, open_rig
@@ -309,6 +309,20 @@ def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.P
     return plan, station
 
 
+def recorded_campaign(path: str | Path, info: dict) -> cfg.Campaign:
+    """The session's recorded plan and station as a Campaign, its errors naming `SESSION (recorded plan)`."""
+    plan, station = load_from_session(path, info)
+    return cfg.Campaign(plan, station, Path(f"{path} (recorded plan)"), Path(f"{path} (recorded station)"),
+                        info["plan_text"], info["station_text"])
+
+
+def checked_points(campaign: cfg.Campaign) -> list[Point]:
+    """The campaign's points after every limit `rig check` applies (chamber setpoints and ramps, coil
+    currents, table angles, sizes, duration); a refusal names the file, key and line. A run calls it
+    before any device is opened."""
+    return check_campaign(campaign).points
+
+
 def run_campaign(
     *,
     campaign: cfg.Campaign | None = None,
@@ -338,11 +352,10 @@ def run_campaign(
             done = RunResult(COMPLETED, "the session is already complete; nothing to do",
                              summary["points_done"], Reason.COMPLETED)
             return RunOutcome(session_path, done, wall_s=time.perf_counter() - wall0)
-        plan, station = load_from_session(session_path, info)
-    else:
-        assert campaign is not None
-        plan, station = campaign.plan, campaign.station
-    points = compile_plan(plan, station)
+        campaign = recorded_campaign(session_path, info)
+    assert campaign is not None
+    plan, station = campaign.plan, campaign.station
+    points = checked_points(campaign)  # before open_rig: nothing has moved yet
     reference_for(station)  # a reference the rig cannot know yet (ambient "measure") stops us here
     lock = SessionLock(session_path)
     lock.acquire()

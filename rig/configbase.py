@@ -11,11 +11,10 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from drivers import registry
+from rig.numbers import BAUDRATE, TIMEOUT_S, Count, NonNegativeFloat, PositiveFloat, Vec3  # noqa: F401 - the config models'
 from rig.yamlload import KeyPathError
 
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
-PositiveFloat = Annotated[float, Field(gt=0)]
+Mat3 = tuple[Vec3, Vec3, Vec3]  # finite numbers (rig/numbers.py)
 
 
 class Strict(BaseModel):
@@ -26,40 +25,40 @@ class Strict(BaseModel):
 class ModbusTcp(Strict):
     kind: Literal["modbus_tcp"]
     host: str
-    port: int = Field(502, ge=1, le=65535)
-    timeout_s: PositiveFloat = 1.0
+    port: Count(65535) = 502
+    timeout_s: TIMEOUT_S = 1.0
 
 
 class ModbusRtu(Strict):
     kind: Literal["modbus_rtu"]
     port: str
-    baudrate: int = Field(9600, gt=0)
+    baudrate: BAUDRATE = 9600
     parity: Literal["N", "E", "O"] = "N"
-    timeout_s: PositiveFloat = 1.0
+    timeout_s: TIMEOUT_S = 1.0
 
 
 class I2c(Strict):
     kind: Literal["i2c"]
-    bus: int = Field(ge=0)
-    address: int = Field(ge=0x03, le=0x77)
+    bus: Count(1_000, lower=0)
+    address: Count(0x77, lower=0x03)
 
 
 class Serial(Strict):
     kind: Literal["serial"]
     port: str
-    baudrate: int = Field(115200, gt=0)
-    timeout_s: PositiveFloat = 0.5
+    baudrate: BAUDRATE = 115200
+    timeout_s: TIMEOUT_S = 0.5
 
 
 class FaultWindow(Strict):
     """A fault that starts `after_s` seconds of campaign time after the bench starts and lasts `for_s`
     (left out: to the end of the run)."""
 
-    after_s: float = Field(0.0, ge=0)
+    after_s: NonNegativeFloat = 0.0
     for_s: PositiveFloat | None = None
 
 
-OneIn = Annotated[int, Field(ge=2, description="one operation in this many fails")]
+OneIn = Count(10**9, lower=2)  # one operation in this many fails
 
 
 class SimFaults(Strict):

@@ -10,8 +10,10 @@ NaN, and carry explicit bounds:
     Count(100_000)                   # an integer 1..100000 (an integral float like 5.0 is taken)
     Vec3, bounded_vec3(1e6)          # three finite numbers (each |x| <= 1e6)
 
-`FIELD_TYPES` proposes the type of each number field of the station and plan models; until those
-models use the types themselves, rig/yamlload.py applies the table after validation.
+The station and plan models (rig/config/, rig/configbase.py, rig/fieldsources/) state these types on
+their fields, so validation itself refuses a boolean, inf/NaN or a number out of bounds and names the
+key (and the item of a vector). Driver options models (drivers/, which cannot import rig) get the same
+finite-number rule from drivers/registry.py's Options base.
 """
 
 from __future__ import annotations
@@ -92,80 +94,14 @@ def bounded_vec3(limit: float) -> Any:
     return Annotated[Vec3, _max_abs(limit)]
 
 
-# The proposed type of each number field of the config models, by (model class, field). Where a list
-# or tuple is given, the type is its items'. Bounds: physically generous, small enough that nothing
+# The types of the config models' number fields. Bounds: physically generous, small enough that nothing
 # derived from them (durations, currents, numbers of points) overflows or explodes.
-NT_VEC = bounded_vec3(NT_MAX)
+NT = bounded(gt=0, hi=NT_MAX)  # a field magnitude
+NT_VEC = bounded_vec3(NT_MAX)  # a field vector
 TEMP_C = bounded(lo=TEMP_C_MIN, hi=TEMP_C_MAX)
+RAMP_C_PER_MIN = bounded(gt=0, hi=100.0)
 ANGLE_DEG = bounded(lo=-720.0, hi=720.0)
-FIELD_TYPES: dict[tuple[str, str], Any] = {
-    # transports
-    ("ModbusTcp", "timeout_s"): bounded(gt=0, hi=60.0),
-    ("ModbusRtu", "timeout_s"): bounded(gt=0, hi=60.0),
-    ("Serial", "timeout_s"): bounded(gt=0, hi=60.0),
-    ("ModbusRtu", "baudrate"): Count(4_000_000),
-    ("Serial", "baudrate"): Count(4_000_000),
-    ("I2c", "bus"): Count(1_000, lower=0),
-    # chamber
-    ("ChamberLimits", "min_setpoint_c"): TEMP_C,
-    ("ChamberLimits", "max_setpoint_c"): TEMP_C,
-    ("ChamberLimits", "safe_setpoint_c"): TEMP_C,
-    ("ChamberLimits", "max_ramp_c_per_min"): bounded(gt=0, hi=100.0),
-    ("ChamberLimits", "max_deviation_c"): bounded(gt=0, hi=1_000.0),
-    # field sources
-    ("Coils", "max_current_a"): bounded(gt=0, hi=A_MAX),
-    ("Coils", "coil_constants_nt_per_a"): NT_VEC,  # each row
-    ("Coils", "ambient_nt"): NT_VEC,
-    ("Coils", "ambient_max_nt"): bounded(gt=0, hi=NT_MAX),
-    ("Turntable", "az_limits_deg"): ANGLE_DEG,
-    ("Turntable", "el_limits_deg"): ANGLE_DEG,
-    ("Turntable", "rate_deg_s"): bounded(gt=0, hi=1_000.0),
-    ("SiteFromModel", "alt_km"): bounded(lo=-10.0, hi=1_000.0),
-    ("SiteFromVector", "vector_nt"): NT_VEC,
-    # simulated world
-    ("TruthSpec", "S"): bounded_vec3(100.0),
-    ("TruthSpec", "K"): bounded_vec3(1.0),
-    ("TruthSpec", "b_nt"): NT_VEC,
-    ("TruthSpec", "kb_nt_per_c"): NT_VEC,
-    ("TruthSpec", "bridge_offset_nt"): NT_VEC,
-    ("TruthSpec", "bridge_offset_tc_nt_per_c"): NT_VEC,
-    ("SimDut", "noise_nt"): bounded(lo=0, hi=NT_MAX),
-    ("SimDut", "thermal_lag_s"): bounded(gt=0, hi=DAY_S),
-    ("SimWorld", "seed"): Count(2**63 - 1, lower=0),
-    ("SimWorld", "ambient_nt"): NT_VEC,
-    ("SimWorld", "site_field_nt"): NT_VEC,
-    ("SimWorld", "air_c"): TEMP_C,
-    # plan
-    ("Stability", "band_c"): bounded(gt=0, hi=100.0),
-    ("Stability", "rate_c_per_min"): bounded(gt=0, hi=100.0),
-    ("Stability", "dwell_s"): bounded(lo=0, hi=DAY_S),
-    ("Stability", "max_wait_s"): bounded(gt=0, hi=7 * DAY_S),
-    ("TempStep", "setpoint_c"): TEMP_C,
-    ("TempStep", "ramp_c_per_min"): bounded(gt=0, hi=100.0),
-    ("TempRange", "start_c"): TEMP_C,
-    ("TempRange", "stop_c"): TEMP_C,
-    ("TempRange", "step_c"): bounded(lo=-1_000.0, hi=1_000.0),
-    ("Temperatures", "ramp_c_per_min"): bounded(gt=0, hi=100.0),
-    ("Cube24Fields", "magnitude_nt"): bounded(gt=0, hi=NT_MAX),
-    ("Cube24Fields", "magnitudes_nt"): bounded(gt=0, hi=NT_MAX),
-    ("FibonacciFields", "magnitude_nt"): bounded(gt=0, hi=NT_MAX),
-    ("FibonacciFields", "magnitudes_nt"): bounded(gt=0, hi=NT_MAX),
-    ("DirectionFields", "magnitude_nt"): bounded(gt=0, hi=NT_MAX),
-    ("DirectionFields", "magnitudes_nt"): bounded(gt=0, hi=NT_MAX),
-    ("DirectionFields", "directions"): bounded_vec3(NT_MAX),
-    ("VectorFields", "vectors_nt"): NT_VEC,
-    ("GridOrientations", "az_deg"): ANGLE_DEG,
-    ("GridOrientations", "el_deg"): ANGLE_DEG,
-    ("ListOrientations", "angles_deg"): ANGLE_DEG,  # each of az, el
-    ("Plan", "samples_per_point"): Count(MAX_SAMPLES_PER_POINT),
-    ("Plan", "settle_s"): bounded(lo=0, hi=DAY_S),
-}
-
-
-def is_vector(tp: Any) -> bool:
-    """Whether a FIELD_TYPES entry is a 3-vector type (applied to a whole list) or a scalar type."""
-    from typing import get_args, get_origin
-
-    while get_origin(tp) is Annotated:
-        tp = get_args(tp)[0]
-    return get_origin(tp) is tuple
+SECONDS = bounded(lo=0, hi=DAY_S)  # a wait of at most a day
+TIMEOUT_S = bounded(gt=0, hi=60.0)  # a transport's reply timeout
+BAUDRATE = Count(4_000_000)
+MODBUS_UNIT = Count(247, lower=0)

@@ -8,10 +8,9 @@ the same composed nodes. Unknown keys are rejected by the models (extra="forbid"
 
 Hostile files are refused before they cost anything: files over MAX_CONFIG_BYTES, YAML aliases (a
 config never needs them, and they make "billion laughs" bombs), nesting deeper than MAX_DEPTH, and
-inf/NaN anywhere (written `.inf` or as text "nan"). After validation `audit` applies the rules the
-models do not state themselves yet: the name rule (rig/names.py) on every `name` key, device names
-distinct after transformation, and the number types of rig/numbers.py FIELD_TYPES (no booleans for
-numbers, bounds).
+inf/NaN anywhere (written `.inf` or as text "nan"). The models state the name rule (rig/names.py
+SafeName) and the number types (rig/numbers.py) on their fields; after validation `check_document` adds
+what no single field can say: device names distinct after transformation.
 """
 
 from __future__ import annotations
@@ -23,22 +22,14 @@ from typing import Any, TypeVar
 import pydantic
 import yaml
 
-from rig import names, numbers
+from drivers.registry import KeyPathError  # noqa: F401 - the models raise it, from here or drivers
+from rig import names
 from rig.errors import ConfigError
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 KeyPath = tuple[str | int, ...]
 MAX_CONFIG_BYTES = 1 << 20  # the largest shipped config is a few kB
 MAX_DEPTH = 32
-
-
-class KeyPathError(ValueError):
-    """Raised inside a model validator to blame a key below the model, e.g. ("duts", 1, "temp_source")."""
-
-    def __init__(self, path: KeyPath, message: str):
-        super().__init__(message)
-        self.path = tuple(path)
-        self.message = message
 
 
 def read_text(path: str | Path, max_bytes: int = MAX_CONFIG_BYTES) -> str:
@@ -288,86 +279,30 @@ def find_non_finite(data: Any, path: KeyPath = ()) -> tuple[KeyPath, Any] | None
     return None
 
 
-_ADAPTERS: dict[int, pydantic.TypeAdapter] = {}
-
-
-def _adapter(tp: Any) -> pydantic.TypeAdapter:
-    if id(tp) not in _ADAPTERS:
-        _ADAPTERS[id(tp)] = pydantic.TypeAdapter(tp)
-    return _ADAPTERS[id(tp)]
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool)
-
-
-def _check_numbers(tp: Any, value: Any, raw: Any, path: KeyPath) -> tuple[KeyPath, str] | None:
-    """Validate the raw value of a number field (or each item of a list of them) as `tp`."""
-    is_vec = numbers.is_vector(tp)
-    if isinstance(value, list | tuple) and isinstance(raw, list) and len(raw) == len(value) and not (
-            is_vec and all(_is_number(v) for v in value)):
-        for i, (v, r) in enumerate(zip(value, raw, strict=True)):
-            found = _check_numbers(tp, v, r, (*path, i))
-            if found:
-                return found
-        return None
-    if not (_is_number(value) or is_vec and isinstance(value, list | tuple)):
-        return None  # not a number here: a None, a keyword such as "measure"
-    try:
-        _adapter(tp).validate_python(raw)
-    except pydantic.ValidationError as exc:
-        err = exc.errors()[0]
-        return (*path, *[p for p in err["loc"] if isinstance(p, int)]), _message(err)
-    return None
-
-
-def audit(value: Any, raw: Any, path: KeyPath = (),
-          named: list[tuple[KeyPath, str]] | None = None) -> tuple[KeyPath, str] | None:
-    """The first (key path, problem) the models let through: a bad name, a boolean for a number, a
-    number outside FIELD_TYPES' bounds. Collects every nested device name into `named`."""
+def device_names(value: Any, path: KeyPath = ()) -> list[tuple[KeyPath, str]]:
+    """(key path, name) of every `name` below the top level (the devices of a station)."""
+    found: list[tuple[KeyPath, str]] = []
     if isinstance(value, pydantic.BaseModel):
-        if not isinstance(raw, dict):  # a shorthand such as a bare setpoint: judge the parsed values
-            raw = {k: getattr(value, k) for k in value.model_fields_set}
-        cls = type(value).__name__
         for field, info in type(value).model_fields.items():
-            key = info.alias or field
-            if key not in raw:
-                continue  # a default
-            sub, sub_raw, sub_path = getattr(value, field), raw[key], (*path, key)
-            if field == "name" and isinstance(sub, str):
-                try:
-                    names.check_name(sub)
-                except ValueError as exc:
-                    return sub_path, str(exc)
-                if path and named is not None:
-                    named.append((sub_path, sub))
-            tp = numbers.FIELD_TYPES.get((cls, field))
-            found = (_check_numbers(tp, sub, sub_raw, sub_path) if tp is not None else None) or audit(
-                sub, sub_raw, sub_path, named)
-            if found:
-                return found
-    elif isinstance(value, list | tuple) and isinstance(raw, list) and len(raw) == len(value):
-        for i, (v, r) in enumerate(zip(value, raw, strict=True)):
-            found = audit(v, r, (*path, i), named)
-            if found:
-                return found
-    elif isinstance(value, dict) and isinstance(raw, dict):
-        for k, v in value.items():
-            if k in raw:
-                found = audit(v, raw[k], (*path, str(k)), named)
-                if found:
-                    return found
-    elif _is_number(value) and isinstance(raw, bool):
-        return path, f"expected a number, got {str(raw).lower()}"
-    return None
+            sub, sub_path = getattr(value, field), (*path, info.alias or field)
+            if field == "name" and path and isinstance(sub, str):
+                found.append((sub_path, sub))
+            else:
+                found += device_names(sub, sub_path)
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            found += device_names(item, (*path, i))
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            found += device_names(item, (*path, str(key)))
+    return found
 
 
-def check_document(model: pydantic.BaseModel, data: Any) -> tuple[KeyPath, str] | None:
-    """`audit`, then device names that collide after transformation (file names, C symbols)."""
-    named: list[tuple[KeyPath, str]] = []
-    found = audit(model, data, (), named)
-    if found:
-        return found
+def check_document(model: pydantic.BaseModel) -> tuple[KeyPath, str] | None:
+    """What a single field's type cannot say: device names that collide after transformation (file
+    names, C symbols). Each name's own rule and every number's type are the models' (rig/names.py
+    SafeName, rig/numbers.py)."""
+    named = device_names(model)
     clash = names.collision(name for _, name in named)
     if clash:
         return named[clash[0]][0], f"device name {clash[1]}"
@@ -392,7 +327,7 @@ def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
         raise error_from_validation(exc, data, lines, source) from None
     except (ArithmeticError, ValueError, TypeError) as exc:  # a model check that met numbers it cannot use
         raise ConfigError(located(source, lines, (), f"cannot use these values: {exc}")) from None
-    found = check_document(result, data)
+    found = check_document(result)
     if found:
         raise ConfigError(located(source, lines, *found))
     return result

@@ -17,7 +17,22 @@ from pydantic import BeforeValidator, Field, model_validator
 
 from calib.models import MODELS as CALIBRATION_MODELS
 from rig import fieldsets
-from rig.configbase import PositiveFloat, Strict, Vec3
+from rig.configbase import Strict
+from rig.names import SafeName
+from rig.numbers import (
+    ANGLE_DEG,
+    DAY_S,
+    MAX_SAMPLES_PER_POINT,
+    NT,
+    NT_MAX,
+    NT_VEC,
+    RAMP_C_PER_MIN,
+    SECONDS,
+    TEMP_C,
+    Count,
+    bounded,
+    bounded_vec3,
+)
 from rig.yamlload import KeyPathError
 
 
@@ -25,14 +40,16 @@ class Stability(Strict):
     """When a temperature step counts as stable, judged on each DUT's own temperature: within band_c of
     the setpoint, changing slower than rate_c_per_min, both for dwell_s; give up after max_wait_s."""
 
-    band_c: PositiveFloat = 0.5
-    rate_c_per_min: PositiveFloat = 0.1
-    dwell_s: float = Field(300.0, ge=0)
-    max_wait_s: PositiveFloat = 3 * 3600.0
+    band_c: bounded(gt=0, hi=100.0) = 0.5
+    rate_c_per_min: RAMP_C_PER_MIN = 0.1
+    dwell_s: SECONDS = 300.0
+    max_wait_s: bounded(gt=0, hi=7 * DAY_S) = 3 * 3600.0
 
 
 def _number_to_step(value: Any) -> Any:
-    return {"setpoint_c": value} if isinstance(value, int | float) and not isinstance(value, bool) else value
+    """A bare setpoint (or anything else that is not a mapping) is the step's setpoint_c: its own type
+    then says what is wrong with it."""
+    return value if isinstance(value, dict | TempStep) else {"setpoint_c": value}
 
 
 def _yaml_off(value: Any) -> Any:
@@ -41,15 +58,15 @@ def _yaml_off(value: Any) -> Any:
 
 
 class TempStep(Strict):
-    setpoint_c: float
-    ramp_c_per_min: PositiveFloat | None = None
+    setpoint_c: TEMP_C
+    ramp_c_per_min: RAMP_C_PER_MIN | None = None
     stability: Stability | None = Field(None, description="keys given here override the plan's stability")
 
 
 class TempRange(Strict):
-    start_c: float
-    stop_c: float
-    step_c: float
+    start_c: TEMP_C
+    stop_c: TEMP_C
+    step_c: bounded(lo=-1_000.0, hi=1_000.0)
 
     @model_validator(mode="after")
     def _direction(self):
@@ -65,7 +82,7 @@ class TempRange(Strict):
 class Temperatures(Strict):
     steps: list[Annotated[TempStep, BeforeValidator(_number_to_step)]] | None = None
     range: TempRange | None = None
-    ramp_c_per_min: PositiveFloat = 2.0
+    ramp_c_per_min: RAMP_C_PER_MIN = 2.0
     stability: Stability = Stability()
 
     @model_validator(mode="after")
@@ -95,8 +112,8 @@ class _Magnitudes(Strict):
     """A field set's `targets()` are field vectors (nT) or (az, el) pairs, deterministic, in order;
     `count()` says how many without making them (bounds are checked before anything is built)."""
 
-    magnitude_nt: PositiveFloat | None = None
-    magnitudes_nt: list[PositiveFloat] | None = None
+    magnitude_nt: NT | None = None
+    magnitudes_nt: list[NT] | None = None
 
     def magnitude_list(self) -> list[float]:
         if self.magnitudes_nt:
@@ -118,7 +135,7 @@ class Cube24Fields(_Magnitudes):
 
 class FibonacciFields(_Magnitudes):
     kind: Literal["fibonacci"]
-    n: int = Field(ge=4, le=10_000)
+    n: Count(10_000, lower=4)
 
     def targets(self) -> list[tuple[float, ...]]:
         return _vectors(fieldsets.fibonacci_directions(self.n), self.magnitude_list())
@@ -129,7 +146,7 @@ class FibonacciFields(_Magnitudes):
 
 class DirectionFields(_Magnitudes):
     kind: Literal["directions"]
-    directions: list[Vec3] = Field(min_length=1)
+    directions: list[bounded_vec3(NT_MAX)] = Field(min_length=1)
 
     def targets(self) -> list[tuple[float, ...]]:
         """ValueError for a zero direction."""
@@ -145,7 +162,7 @@ class DirectionFields(_Magnitudes):
 
 class VectorFields(Strict):
     kind: Literal["vectors"]
-    vectors_nt: list[Vec3] = Field(min_length=1)
+    vectors_nt: list[NT_VEC] = Field(min_length=1)
 
     def targets(self) -> list[tuple[float, ...]]:
         return [tuple(float(x) for x in v) for v in self.vectors_nt]
@@ -159,8 +176,8 @@ class GridOrientations(Strict):
     that a two-axis table can reach)."""
 
     kind: Literal["grid"]
-    az_deg: list[float] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
-    el_deg: list[float] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
+    az_deg: list[ANGLE_DEG] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
+    el_deg: list[ANGLE_DEG] = Field([-90.0, 0.0, 90.0, 180.0], min_length=1)
 
     def targets(self) -> list[tuple[float, ...]]:
         return fieldsets.grid_orientations(self.az_deg, self.el_deg)
@@ -171,7 +188,7 @@ class GridOrientations(Strict):
 
 class ListOrientations(Strict):
     kind: Literal["orientations"]
-    angles_deg: list[tuple[float, float]] = Field(min_length=1, description="[az, el] pairs")
+    angles_deg: list[tuple[ANGLE_DEG, ANGLE_DEG]] = Field(min_length=1, description="[az, el] pairs")
 
     def targets(self) -> list[tuple[float, ...]]:
         return [tuple(map(float, a)) for a in self.angles_deg]
@@ -196,13 +213,13 @@ class Outputs(Strict):
 
 
 class Plan(Strict):
-    name: str
+    name: SafeName
     station: str | None = Field(None, description="station file, relative to the plan file")
     mode: Literal["step_and_dwell"] = "step_and_dwell"
     temperatures: Temperatures
     fields: FieldSet
-    samples_per_point: int = Field(ge=1)
-    settle_s: float = Field(1.0, ge=0, description="wait after a field change before sampling")
+    samples_per_point: Count(MAX_SAMPLES_PER_POINT)
+    settle_s: SECONDS = Field(1.0, description="wait after a field change before sampling")
     set_reset: Annotated[Literal["pair", "off"], BeforeValidator(_yaml_off)] = Field(
         "pair", description="pair: SET and RESET reading per sample (offset removed); off: plain reading"
     )

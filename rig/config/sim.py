@@ -10,29 +10,33 @@ from typing import Literal
 
 from pydantic import Field
 
-from rig.configbase import Mat3, PositiveFloat, Strict, Vec3
+from rig.configbase import Strict
+from rig.numbers import DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
+
+Row = bounded_vec3(100.0)  # a row of S (scale: 1 is nominal)
+KRow = bounded_vec3(1.0)  # a row of K (per degC)
 
 
 class TruthSpec(Strict):
     """Explicit calibration errors of a simulated DUT (absolute-tau T24 convention, see MODELS.md)."""
 
-    S: Mat3
-    K: Mat3 = ((0, 0, 0), (0, 0, 0), (0, 0, 0))
-    b_nt: Vec3 = (0, 0, 0)
-    kb_nt_per_c: Vec3 = (0, 0, 0)
-    bridge_offset_nt: Vec3 = (0, 0, 0)
-    bridge_offset_tc_nt_per_c: Vec3 = (0, 0, 0)
+    S: tuple[Row, Row, Row]
+    K: tuple[KRow, KRow, KRow] = ((0, 0, 0), (0, 0, 0), (0, 0, 0))
+    b_nt: NT_VEC = (0, 0, 0)
+    kb_nt_per_c: NT_VEC = (0, 0, 0)
+    bridge_offset_nt: NT_VEC = (0, 0, 0)
+    bridge_offset_tc_nt_per_c: NT_VEC = (0, 0, 0)
 
 
 class SimDut(Strict):
     truth: Literal["random"] | TruthSpec = "random"
-    noise_nt: float | None = Field(None, ge=0, description="default: the simulator's")
-    thermal_lag_s: PositiveFloat | None = Field(None, description="default: the simulator's")
+    noise_nt: bounded(lo=0, hi=NT_MAX) | None = Field(None, description="default: the simulator's")
+    thermal_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="default: the simulator's")
 
 
 class SimWorld(Strict):
-    seed: int = 0
-    ambient_nt: Vec3 | None = Field(None, description="default: the coils' ambient_nt, when given")
-    site_field_nt: Vec3 | None = Field(None, description="default: the turntable's site field")
-    air_c: float | None = Field(None, description="chamber air at the start; default: the simulator's")
+    seed: Count(2**63 - 1, lower=0) = 0
+    ambient_nt: NT_VEC | None = Field(None, description="default: the coils' ambient_nt, when given")
+    site_field_nt: NT_VEC | None = Field(None, description="default: the turntable's site field")
+    air_c: TEMP_C | None = Field(None, description="chamber air at the start; default: the simulator's")
     duts: dict[str, SimDut] = {}

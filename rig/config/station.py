@@ -24,14 +24,16 @@ from rig.config.sim import SimWorld
 from rig.configbase import DeviceConfig, Strict, transport_type
 from rig.errors import ConfigError
 from rig.fieldsources import FieldSource
+from rig.names import SafeName
+from rig.numbers import MODBUS_UNIT
 from rig.yamlload import KeyPathError
 
 
 class ChamberConfig(DeviceConfig):
     role: ClassVar[str] = "chamber"
 
-    name: str = "chamber"
-    unit: int = Field(1, ge=0, le=247, description="Modbus device id")
+    name: SafeName = "chamber"
+    unit: MODBUS_UNIT = Field(1, description="Modbus device id")
 
     alarm: ChamberAlarm | None = Field(
         None, description="the controller's alarm register, where the lab has one (Watlow maps give none)")
@@ -47,7 +49,7 @@ class ChamberConfig(DeviceConfig):
 class DutConfig(DeviceConfig):
     role: ClassVar[str] = "magnetometer"
 
-    name: str
+    name: SafeName
     temp_source: str = Field(description='a temperature sensor\'s name, or "self" (the chip\'s own sensor)')
 
     @model_validator(mode="before")
@@ -74,7 +76,7 @@ class DutConfig(DeviceConfig):
 class TemperatureSensorConfig(DeviceConfig):
     role: ClassVar[str] = "temperature"
 
-    name: str
+    name: SafeName
     beside: str = Field(description="the DUT this sensor is mounted next to")
 
     def sim_request(self, world) -> registry.SimRequest:
@@ -102,7 +104,7 @@ TemperatureSensor = _by_type(TemperatureSensorConfig, "options")
 
 
 class Station(Strict):
-    name: str
+    name: SafeName
     sim: SimWorld = SimWorld()
     chamber: Chamber
     field_source: FieldSource

@@ -24,6 +24,8 @@ from pydantic import Field
 from drivers import registry
 from rig.configbase import DeviceConfig, ModbusTransport
 from rig.errors import ConfigError, LimitError
+from rig.names import SafeName
+from rig.numbers import MODBUS_UNIT
 from rig.yamlload import blamed
 
 if TYPE_CHECKING:
@@ -47,9 +49,9 @@ class FieldSourceConfig(DeviceConfig):
     described: ClassVar[str] = "a field source"  # for messages: "needs coils", "needs a turntable"
 
     kind: str
-    name: str
+    name: SafeName
     transport: ModbusTransport
-    unit: int = Field(1, ge=0, le=247, description="Modbus device id")
+    unit: MODBUS_UNIT = Field(1, description="Modbus device id")
 
     @property
     def device_type(self) -> str:

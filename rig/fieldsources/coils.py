@@ -7,20 +7,27 @@ for any ambient up to `ambient_max_nt`.
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Discriminator, Field, Tag, model_validator
 
 from drivers.coils import CoilOptions
 from rig import fieldsets
-from rig.configbase import Mat3, PositiveFloat, Vec3
 from rig.errors import ConfigError
 from rig.fieldsources.base import FieldSourceConfig, point_limit_error
+from rig.names import SafeName
+from rig.numbers import A_MAX, NT, NT_VEC, bounded
 from rig.reference import TYPICAL_FIELD_NT, CoilReference, currents_for_field
 from rig.yamlload import KeyPathError
 
 VECTOR_FIELD_KINDS = frozenset({"cube24", "fibonacci", "directions", "vectors"})
+
+# "measure" or a field vector: chosen by the value, so a bad vector is named by its item alone
+AmbientNt = Annotated[
+    Annotated[NT_VEC, Tag("vector")] | Annotated[Literal["measure"], Tag("measure")],
+    Discriminator(lambda v: "measure" if isinstance(v, str) else "vector"),
+]
 
 
 class Coils(FieldSourceConfig, CoilOptions):
@@ -29,11 +36,11 @@ class Coils(FieldSourceConfig, CoilOptions):
     described: ClassVar[str] = "coils"
 
     kind: Literal["coils"]
-    name: str = "coils"
-    max_current_a: PositiveFloat
-    coil_constants_nt_per_a: Mat3
-    ambient_nt: Vec3 | Literal["measure"]
-    ambient_max_nt: PositiveFloat = Field(
+    name: SafeName = "coils"
+    max_current_a: bounded(gt=0, hi=A_MAX)
+    coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC]
+    ambient_nt: AmbientNt
+    ambient_max_nt: NT = Field(
         70_000.0, description="bound on |ambient| used to check currents while ambient is 'measure'"
     )
 

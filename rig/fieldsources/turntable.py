@@ -15,9 +15,11 @@ import numpy as np
 from pydantic import BaseModel, Discriminator, Field, Tag
 
 from drivers.turntable import TurntableOptions
-from rig.configbase import Strict, Vec3
+from rig.configbase import Strict
 from rig.errors import ConfigError
 from rig.fieldsources.base import SETTLE_TIMEOUT_S, FieldSourceConfig, point_limit_error
+from rig.names import SafeName
+from rig.numbers import ANGLE_DEG, NT_VEC, bounded
 from rig.reference import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
 
 ORIENTATION_KINDS = frozenset({"grid", "orientations"})
@@ -34,9 +36,9 @@ class SiteFromReference(Strict):
 
 class SiteFromModel(Strict):
     model: Literal["wmm", "igrf"] = "wmm"
-    lat_deg: float = Field(ge=-90, le=90)
-    lon_deg: float = Field(ge=-180, le=360)
-    alt_km: float = 0.0
+    lat_deg: bounded(lo=-90, hi=90)
+    lon_deg: bounded(lo=-180, hi=360)
+    alt_km: bounded(lo=-10.0, hi=1_000.0) = 0.0
     date: dt.date
 
     def stated_nt(self) -> np.ndarray | None:
@@ -44,7 +46,7 @@ class SiteFromModel(Strict):
 
 
 class SiteFromVector(Strict):
-    vector_nt: Vec3 = Field(description="north, east, down")
+    vector_nt: NT_VEC = Field(description="north, east, down")
 
     def stated_nt(self) -> np.ndarray | None:
         return np.asarray(self.vector_nt, float)
@@ -82,7 +84,10 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     described: ClassVar[str] = "a turntable"
 
     kind: Literal["turntable"]
-    name: str = "turntable"
+    name: SafeName = "turntable"
+    az_limits_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (-360.0, 360.0)  # the driver's, within +-720
+    el_limits_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (-180.0, 180.0)
+    rate_deg_s: bounded(gt=0, hi=1_000.0) = Field(10.0, description="slew rate, for move-time estimates")
     site_field: SiteField
 
     def stated_site_field_nt(self) -> np.ndarray | None:

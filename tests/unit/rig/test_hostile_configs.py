@@ -72,6 +72,26 @@ PLANS = {
                        "fields.directions", 5),
     "missing key in a list item": (_plan("steps: [0, 25]", "steps:\n    - {ramp_c_per_min: 1}"),
                                    "temperatures.steps[0].setpoint_c", 4),
+    # numbers: booleans, inf/NaN (also as text too long to look like a number at first sight), words
+    "boolean settle": (_plan("settle_s: 0.5", "settle_s: true"), "settle_s", 7),
+    "boolean dwell": (_plan("ramp_c_per_min: 3", "ramp_c_per_min: 3\n  stability: {dwell_s: true}"),
+                      "temperatures.stability.dwell_s", 5),
+    "nan max wait as long text": (_plan("ramp_c_per_min: 3",
+                                        "ramp_c_per_min: 3\n  stability: {max_wait_s: '          nan'}"),
+                                  "temperatures.stability.max_wait_s", 5),
+    "boolean setpoint": (_plan("[0, 25]", "[0, true]"), "temperatures.steps[1]", 3),
+    "word setpoint": (_plan("[0, 25]", "[0, warm]"), "temperatures.steps[1]", 3),
+    "boolean step ramp": (_plan("[0, 25]", "[0, {setpoint_c: 25, ramp_c_per_min: true}]"),
+                          "temperatures.steps[1].ramp_c_per_min", 3),
+    "boolean in magnitudes": (_plan("magnitude_nt: 50000", "magnitudes_nt: [50000, true]"),
+                              "fields.magnitudes_nt[1]", 5),
+    "boolean vector component": (_plan(CUBE, "kind: vectors, vectors_nt: [[1, 0, 0], [0, true, 0]]"),
+                                 "fields.vectors_nt[1][1]", 5),
+    "inf vector component as long text": (
+        _plan(CUBE, "kind: vectors, vectors_nt: [['          -inf', 0, 0]]"), "fields.vectors_nt[0][0]", 5),
+    "huge direction": (_plan(CUBE, "kind: directions, directions: [[1.0e+300, 0, 1]]"),
+                       "fields.directions[0]", 5),
+    "boolean fibonacci n": (_plan(CUBE, "kind: fibonacci, n: true"), "fields.n", 5),
 }
 
 STATIONS = {
@@ -87,7 +107,27 @@ STATIONS = {
     "nan coil constant": (_station("- [50000, 0, 0]", "- ['nan', 0, 0]"),
                           "field_source.coil_constants_nt_per_a[0][0]", 29),
     "huge coil constant": (_station("- [50000, 0, 0]", "- [1.0e+300, 0, 0]"),
-                           "field_source.coil_constants_nt_per_a", 28),
+                           "field_source.coil_constants_nt_per_a[0]", 29),
+    "boolean chamber limit": (_station("max_ramp_c_per_min: 5", "max_ramp_c_per_min: true"),
+                              "chamber.limits.max_ramp_c_per_min", 17),
+    "nan chamber limit as long text": (_station("max_setpoint_c: 85", "max_setpoint_c: '         nan'"),
+                                       "chamber.limits.max_setpoint_c", 17),
+    "chamber limit beyond physics": (_station("max_setpoint_c: 85", "max_setpoint_c: 1.0e+300"),
+                                     "chamber.limits.max_setpoint_c", 17),
+    "boolean chamber unit": (_station("unit: 1", "unit: true"), "chamber.unit", 16),
+    "boolean alarm register": (_station("register: 60000", "register: true"), "chamber.alarm.register", 21),
+    "boolean max current": (_station("max_current_a: 2.0", "max_current_a: true"),
+                            "field_source.max_current_a", 27),
+    "nan max current as long text": (_station("max_current_a: 2.0", "max_current_a: '          NaN'"),
+                                     "field_source.max_current_a", 27),
+    "boolean DUT option": (_station("bandwidth_hz: 100", "bandwidth_hz: true"),
+                           "duts[0].options.bandwidth_hz", 38),
+    "boolean seed": (_station("seed: 2026", "seed: true"), "sim.seed", 6),
+    "boolean sim air": (_station("air_c: 22.0", "air_c: true"), "sim.air_c", 8),
+    "boolean sim noise": (_station("noise_nt: 40", "noise_nt: true"), "sim.duts.mmc0.noise_nt", 10),
+    "inf sim ambient as long text": (_station("ambient_nt: [15000, 500, 42000] # true",
+                                              "ambient_nt: ['         inf', 500, 42000] # true"),
+                                     "sim.ambient_nt[0]", 7),
 }
 
 ERROR_LINE = re.compile(r"error: (?P<file>\S+): (?P<path>\S+): (?P<what>.+) \(line (?P<line>\d+)\)\n")
@@ -185,3 +225,22 @@ def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsy
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "duts[0].name: 'a/b': character '/' is not allowed" in err
     assert "(line 35)" in err
+
+
+@pytest.mark.parametrize("case", [("plan", c) for c in PLANS] + [("station", c) for c in STATIONS])
+def test_run_refuses_every_hostile_config_in_the_line_check_gives(case, tmp_path, capsys, monkeypatch):
+    """`rig run` says what `rig check` says, and never reaches the point of opening a device."""
+    import rig.campaign
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("open_rig was reached")
+
+    monkeypatch.setattr(rig.campaign, "open_rig", refuse)
+    document, name = case
+    plan, station = tmp_path / "plan.yaml", tmp_path / "station.yaml"
+    plan.write_text(PLANS[name][0] if document == "plan" else PLAN)
+    station.write_text(STATIONS[name][0] if document == "station" else STATION)
+    checked = _one_line_error(capsys, ["check", plan, "--station", station])
+    ran = _one_line_error(capsys, ["run", plan, "--station", station, "--out", tmp_path / "out", "--no-live"])
+    assert ran.group(0) == checked.group(0)
+    assert not (tmp_path / "out").exists()
