@@ -2,25 +2,19 @@
 
 Times are medians of 5 runs (the machine is shared). The main figure is one thread; a second line
 splits the rows over two threads with one accumulator each, merged (see README: little gain here).
-Also the end-to-end time per row of `rig refit` on a 1e6-row CSV (read, fit, statistics, write).
+The end-to-end `rig refit` of a CSV is bench/csv_refit.py.
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
-import sys
-import tempfile
 import time
 import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
-from calib import csvio, synthetic
+from calib import synthetic
 from calib.gram import GramAccumulator
-from rig.cli import main as rig_main
 
 
 def _median_time(fn, repeat: int = 5) -> float:
@@ -76,38 +70,6 @@ def streaming(n: int) -> None:
     print(f"  two threads, merged halves: {n / t_two:.3g} samples/s, {t_two / t_sum:.2f} x np.sum")
 
 
-def end_to_end(rows: int = 1_000_000) -> None:
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "big.csv"
-        h, tau, ref = _inputs(rows, np.random.default_rng(1))
-        csvio.write_csv(
-            path,
-            {
-                "hx": h[:, 0],
-                "hy": h[:, 1],
-                "hz": h[:, 2],
-                "temp": tau,
-                "bx": ref[:, 0],
-                "by": ref[:, 1],
-                "bz": ref[:, 2],
-            },
-        )
-        t0 = time.perf_counter()
-        csvio.read_csv(path)
-        t_read = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        with contextlib.redirect_stdout(io.StringIO()):  # the fit summary is not the point here
-            code = rig_main(["refit", str(path), "--model", "t24", "-o", str(Path(tmp) / "cal.yaml")])
-        t_total = time.perf_counter() - t0
-    if code:
-        sys.exit(code)
-    print(
-        f"rig refit on {rows:.0e} CSV rows: {t_total / rows * 1e6:.2f} us/row end to end "
-        f"(CSV read alone {t_read / rows * 1e6:.2f} us/row)"
-    )
-
-
 if __name__ == "__main__":
     streaming(1_000_000)
     streaming(10_000_000)
-    end_to_end()
