@@ -4,6 +4,9 @@ bnorm (known |B|, nT) and group (temperature step / point id). Other columns are
 Real recordings can be read as they are: `columns` maps our names to theirs
 (e.g. {"hx": "mx_gauss", ...}) and `raw_unit` / `counts_per_unit` convert the raw readings to nT.
 Any problem raises DataError naming the file, the line and the column.
+
+Parsing is columnar (pyarrow), block by block; only when it refuses a file does a line-by-line scan
+run, to name the line and column of the problem.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
 
 from calib.atomic import atomic_write
 from calib.dataset import Dataset
@@ -25,6 +30,8 @@ NT_PER_UNIT = {"nt": 1.0, "ut": 1e3, "mt": 1e6, "gauss": 1e5, "mgauss": 1e2}
 RAW_COLUMNS = ("hx", "hy", "hz")
 REF_COLUMNS = ("bx", "by", "bz")
 NUMERIC_COLUMNS = (*RAW_COLUMNS, "temp", *REF_COLUMNS, "bnorm")
+# bytes parsed per block: memory stays bounded by the result, not by the file (which may exceed memory)
+BLOCK_BYTES = 1 << 24
 
 
 def nt_per_raw_unit(raw_unit: str = "nT", counts_per_unit: str | float | None = None) -> float:
@@ -75,23 +82,79 @@ def read_csv(
     raw_unit: str = "nT",
     counts_per_unit: str | float | None = None,
     columns: dict[str, str] | None = None,
+    extra_columns: bool = True,
 ) -> Dataset:
-    """Read a CSV into a Dataset. `Dataset.columns` holds every input column by its header name."""
+    """Read a CSV into a Dataset. `Dataset.columns` holds every input column by its header name
+    (only the contract's columns with extra_columns=False, which a fit does not need and skips)."""
     p = Path(path)
     scale = nt_per_raw_unit(raw_unit, counts_per_unit)
+    header = _read_header(p)
+    mapping = _column_mapping(header, columns, p)
+    numeric = [mapping[k] for k in NUMERIC_COLUMNS if k in mapping]
+    wanted = header if extra_columns else [h for h in header if h in mapping.values()]
+    digest = hashlib.sha256()
     try:
-        raw = p.read_bytes()
+        cols = _read_columnar(p, header, numeric, wanted, digest)
+    except (pa.ArrowInvalid, UnicodeDecodeError):
+        _locate_problem(p, header, numeric)  # raises the DataError naming line and column
+        cols = _parse_slow(p, header, wanted)  # cells Python reads as numbers, the columnar parser not
+        digest = hashlib.sha256(p.read_bytes())
     except OSError as err:
         raise DataError(f"{p}: cannot read ({err.strerror or err})") from None
-    text = _decode(raw, p)
-    header_end = text.find("\n")
-    header_line = text if header_end < 0 else text[:header_end]
-    header = [h.strip().strip('"') for h in header_line.rstrip("\r").split(",")]
-    if not header_line.strip():
+    n = len(cols[wanted[0]])
+    if n == 0:
+        raise DataError(f"{p}: no data rows after the header")
+    for ours in NUMERIC_COLUMNS:
+        if ours in mapping:
+            _check_finite(cols[mapping[ours]], mapping[ours], p)
+
+    def block(names):
+        if not all(k in mapping for k in names):
+            return None
+        return np.column_stack([cols[mapping[k]] for k in names])
+
+    h = block(RAW_COLUMNS)
+    return Dataset(
+        h_nt=h * scale if scale != 1.0 else h,
+        temp_c=cols[mapping["temp"]] if "temp" in mapping else None,
+        ref_nt=block(REF_COLUMNS),
+        ref_norm_nt=cols[mapping["bnorm"]] if "bnorm" in mapping else None,
+        group=cols[mapping["group"]] if "group" in mapping else None,
+        columns=cols,
+        source={
+            "kind": "csv",
+            "path": str(p),
+            "sha256": digest.hexdigest(),
+            "rows_total": n,
+            "rows_used": n,
+            "rows_rejected": 0,
+            "raw_unit": raw_unit,
+            "nt_per_raw_unit": scale,
+        },
+    )
+
+
+def _read_header(p: Path) -> list[str]:
+    try:
+        with open(p, "rb") as f:
+            first = f.readline()
+    except OSError as err:
+        raise DataError(f"{p}: cannot read ({err.strerror or err})") from None
+    try:
+        line = first.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise DataError(f"{p} line 1: not UTF-8 text") from None
+    if not line.strip():
         raise DataError(f"{p}: empty file (expected a header line with hx,hy,hz)")
+    header = [h.strip().strip('"') for h in line.rstrip("\r\n").split(",")]
     dup = {h for h in header if header.count(h) > 1}
     if dup:
         raise DataError(f"{p} line 1: column {sorted(dup)[0]!r} appears twice")
+    return header
+
+
+def _column_mapping(header: list[str], columns: dict[str, str] | None, p: Path) -> dict[str, str]:
+    """Our column name -> the file's, for the contract's columns present (or mapped)."""
     mapping = {name: name for name in (*NUMERIC_COLUMNS, "group") if name in header}
     for ours, theirs in (columns or {}).items():
         if theirs not in header:
@@ -105,89 +168,88 @@ def read_csv(
                 f"{p} line 1: missing column {name!r} (header: {','.join(header)}); "
                 "map yours with --columns hx=NAME,hy=NAME,hz=NAME"
             )
-    body = text[header_end + 1 :] if header_end >= 0 else ""
-    if not body.strip():
-        raise DataError(f"{p}: no data rows after the header")
-    numeric_needed = [mapping[k] for k in NUMERIC_COLUMNS if k in mapping]
-    table = _parse_fast(raw, len(header))
-    if table is None:
-        cols = _parse_slow(body, header, numeric_needed, p)
-    else:
-        cols = {h: table[:, i] for i, h in enumerate(header)}
-    n = len(cols[header[0]])
-    for ours in NUMERIC_COLUMNS:
-        if ours in mapping:
-            _check_finite(cols[mapping[ours]], mapping[ours], p)
+    return mapping
 
-    def block(names):
-        if not all(k in mapping for k in names):
-            return None
-        return np.column_stack([cols[mapping[k]] for k in names]).astype(float)
 
-    ds = Dataset(
-        h_nt=block(RAW_COLUMNS) * scale,
-        temp_c=cols[mapping["temp"]].astype(float) if "temp" in mapping else None,
-        ref_nt=block(REF_COLUMNS),
-        ref_norm_nt=cols[mapping["bnorm"]].astype(float) if "bnorm" in mapping else None,
-        group=cols[mapping["group"]] if "group" in mapping else None,
-        columns=cols,
-        source={
-            "kind": "csv",
-            "path": str(p),
-            "sha256": hashlib.sha256(raw).hexdigest(),
-            "rows_total": n,
-            "rows_used": n,
-            "rows_rejected": 0,
-            "raw_unit": raw_unit,
-            "nt_per_raw_unit": scale,
-        },
+class _HashingReader(io.RawIOBase):
+    """A binary file that feeds every byte read into a hash: the file is read once for both."""
+
+    def __init__(self, f, digest):
+        self._f, self._digest = f, digest
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = self._f.readinto(buffer)
+        self._digest.update(memoryview(buffer)[:n])
+        return n
+
+
+def _read_columnar(p: Path, header: list[str], numeric: list[str], wanted: list[str], digest):
+    """The wanted columns as numpy arrays, parsed by pyarrow block by block (BLOCK_BYTES at a time):
+    the contract's numeric columns as float64, other numeric columns as float64, text as objects."""
+    read = pacsv.ReadOptions(column_names=header, skip_rows=1, block_size=BLOCK_BYTES)
+    convert = pacsv.ConvertOptions(
+        include_columns=wanted,
+        column_types={name: pa.float64() for name in numeric},
+        null_values=[],  # an empty or 'NA' cell in a numeric column is an error, not a silent NaN
+        strings_can_be_null=False,
+        quoted_strings_can_be_null=False,
     )
-    return ds
+    parts: dict[str, list] = {name: [] for name in wanted}
+    with open(p, "rb", buffering=0) as raw, _HashingReader(raw, digest) as f:
+        reader = pacsv.open_csv(io.BufferedReader(f, BLOCK_BYTES), read_options=read, convert_options=convert)
+        for batch in reader:
+            for name, column in zip(batch.schema.names, batch.columns, strict=True):
+                parts[name].append(column)
+    return {name: _to_numpy(pa.chunked_array(chunks) if chunks else None) for name, chunks in parts.items()}
 
 
-def _decode(raw: bytes, p: Path) -> str:
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        line = raw[: err.start].count(b"\n") + 1
-        raise DataError(f"{p} line {line}: not UTF-8 text") from None
+def _to_numpy(column) -> np.ndarray:
+    if column is None:
+        return np.zeros(0)
+    if pa.types.is_floating(column.type) or pa.types.is_integer(column.type):
+        return column.to_numpy().astype(float, copy=False)
+    if pa.types.is_binary(column.type) or pa.types.is_large_binary(column.type):
+        raise pa.ArrowInvalid("text column is not UTF-8")  # the line scan names the line
+    return np.array(column.to_pylist(), dtype=object)
 
 
-def _parse_fast(raw: bytes, n_cols: int) -> np.ndarray | None:
-    """All-numeric, rectangular body through numpy's C parser; None when anything is unusual."""
-    try:
-        table = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None)
-    except ValueError:
-        return None
-    return table if table.shape[1] == n_cols else None
+def _locate_problem(p: Path, header: list[str], numeric: list[str]) -> None:
+    """Scan the file line by line and raise a DataError at the first line the columnar parser refused."""
+    index = {name: header.index(name) for name in numeric}
+    with open(p, "rb") as f:
+        for line_no, line in enumerate(f, start=1):
+            try:
+                text = line.decode("utf-8-sig" if line_no == 1 else "utf-8")
+            except UnicodeDecodeError:
+                raise DataError(f"{p} line {line_no}: not UTF-8 text") from None
+            if line_no == 1 or not text.strip():
+                continue
+            cells = next(csv.reader([text]))
+            if len(cells) != len(header):
+                raise DataError(f"{p} line {line_no}: {len(cells)} cells, the header has {len(header)}")
+            for name, j in index.items():
+                try:
+                    float(cells[j])
+                except ValueError:
+                    raise DataError(
+                        f"{p} line {line_no}, column {name!r}: {cells[j]!r} is not a number"
+                    ) from None
 
 
-def _parse_slow(body: str, header: list[str], numeric: list[str], p: Path) -> dict[str, np.ndarray]:
-    """Row by row, to name the line and column of a problem; non-numeric extra columns kept as text."""
-    rows = [r for r in csv.reader(io.StringIO(body))]
-    line_of = []
-    kept = []
-    for i, r in enumerate(rows):
-        if not r or all(not c.strip() for c in r):
-            continue  # blank line
-        if len(r) != len(header):
-            raise DataError(f"{p} line {i + 2}: {len(r)} cells, the header has {len(header)}")
-        kept.append(r)
-        line_of.append(i + 2)
+def _parse_slow(p: Path, header: list[str], wanted: list[str]) -> dict[str, np.ndarray]:
+    """Row by row through Python: cells that Python reads as numbers but the columnar parser did not."""
+    with open(p, encoding="utf-8-sig", newline="") as f:
+        rows = [r for r in csv.reader(f)][1:]
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
     cols = {}
-    for j, name in enumerate(header):
-        cells = [r[j] for r in kept]
+    for name in wanted:
+        cells = [r[header.index(name)] for r in rows]
         try:
             cols[name] = np.array(cells, dtype=float)
         except ValueError:
-            if name in numeric:
-                for k, cell in enumerate(cells):
-                    try:
-                        float(cell)
-                    except ValueError:
-                        raise DataError(
-                            f"{p} line {line_of[k]}, column {name!r}: {cell!r} is not a number"
-                        ) from None
             cols[name] = np.array(cells, dtype=object)
     return cols
 

@@ -4,7 +4,7 @@ t = T - temp_ref_c (the temperature centred at a reference fixed before any data
 accumulator is exact under merging and never holds samples: memory does not grow with N. The 8x8 block
 of the regressors x = [1, t, h1, h2, h3, t h1, t h2, t h3] is the paper's Gram matrix G (with centred
 tau), the x-B block holds the three right-hand sides and the B-B block gives the residual sum of squares
-without a second pass.
+without a second pass. The sums come from one fused pass over the raw columns (calib.gram_kernel).
 """
 
 from __future__ import annotations
@@ -13,12 +13,9 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.errors import DataError, FitError
+from calib.gram_kernel import gram_sums
 
 N_PARAMS = 8  # per output axis: b, kb, S_i1..3, K_i1..3
-# Rows per BLAS product: the 8192 x 12 buffer (0.8 MB) stays in L2; fewer rows pay more per-call costs.
-CHUNK_ROWS = 8192
-# The 11 Gram columns plus one of zeros: OpenBLAS's syrk runs ~1.5x faster on 12 columns than on 11.
-BUF_COLS = 12
 MIN_TEMP_SPAN_C = 0.5  # below this the temperature terms are not identifiable
 RCOND_SINGULAR = 1e-13  # of the column-scaled Gram: below it the design is treated as singular
 RCOND_WARN = 1e-9
@@ -36,45 +33,25 @@ class GramAccumulator:
         self.n = 0
         self.temp_min_c = np.inf
         self.temp_max_c = -np.inf
-        self._buf = np.zeros((CHUNK_ROWS, BUF_COLS), order="F")  # column fills are contiguous writes
-        self._buf[:, 0] = 1.0
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
         """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""
         h = np.asarray(h_nt, dtype=float).reshape(-1, 3)
         ref = np.asarray(ref_nt, dtype=float).reshape(-1, 3)
-        t = np.broadcast_to(np.asarray(temp_c, dtype=float), (h.shape[0],))
         if ref.shape != h.shape:
             raise DataError(f"reference field has {ref.shape[0]} rows, readings have {h.shape[0]}")
         if h.shape[0] == 0:
             return
-        sw = None
-        used = t
-        if weights is not None:
-            w = np.broadcast_to(np.asarray(weights, dtype=float), t.shape)
-            sw = np.sqrt(w)
-            used = t[w > 0]
-            if used.size == 0:
-                return
-        buf = self._buf
-        gram = np.zeros((BUF_COLS, BUF_COLS))
-        for lo in range(0, h.shape[0], CHUNK_ROWS):
-            hi = min(lo + CHUNK_ROWS, h.shape[0])
-            z = buf[: hi - lo]
-            np.subtract(t[lo:hi], self.temp_ref_c, out=z[:, 1])
-            z[:, 2:5] = h[lo:hi]
-            np.multiply(z[:, 1:2], z[:, 2:5], out=z[:, 5:8])
-            z[:, 8:11] = ref[lo:hi]
-            if sw is not None:
-                z[:, 1:] *= sw[lo:hi, None]
-                z[:, 0] = sw[lo:hi]
-            gram += z.T @ z  # numpy hands z.T @ z to BLAS syrk
-        self.gram += gram[:11, :11]
-        if sw is not None:
-            buf[:, 0] = 1.0
-        self.n += used.size  # rows with zero weight (flagged outliers) do not count
-        self.temp_min_c = min(self.temp_min_c, float(used.min()))
-        self.temp_max_c = max(self.temp_max_c, float(used.max()))
+        t = np.asarray(temp_c, dtype=float)
+        t = t.reshape(1) if t.size == 1 else np.broadcast_to(t, (h.shape[0],))  # (1,): one temperature
+        w = None if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), (h.shape[0],))
+        gram, n_used, t_min, t_max = gram_sums(h, t, ref, w, self.temp_ref_c)
+        if n_used == 0:
+            return
+        self.gram += gram
+        self.n += n_used  # rows with zero weight (flagged outliers) do not count
+        self.temp_min_c = min(self.temp_min_c, t_min)
+        self.temp_max_c = max(self.temp_max_c, t_max)
 
     def merge(self, other: GramAccumulator) -> GramAccumulator:
         """Add another accumulator's sums into this one (same reference temperature required)."""

@@ -33,8 +33,10 @@ def _unit_options(f):
     )(f)
 
 
-def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None):
-    """A Dataset from a session file (by its name or content; via rig.reader) or a CSV file."""
+def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None,
+                 extra_columns: bool = True):
+    """A Dataset from a session file (by its name or content; via rig.reader) or a CSV file
+    (extra_columns: keep the columns outside the CSV contract; a fit does not need them)."""
     from calib import csvio
     from rig.errors import DataError
     from rig.reader import read_dataset
@@ -48,7 +50,11 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
     ds = csvio.read_csv(
-        p, raw_unit=raw_unit, counts_per_unit=counts_per_unit, columns=csvio.parse_column_map(column_map)
+        p,
+        raw_unit=raw_unit,
+        counts_per_unit=counts_per_unit,
+        columns=csvio.parse_column_map(column_map),
+        extra_columns=extra_columns,
     )
     ds.source["column_map"] = column_map or ""
     ds.source["counts_per_unit"] = "" if counts_per_unit is None else str(counts_per_unit)
@@ -94,7 +100,12 @@ def refit(
     from calib import calfile
 
     ds = load_dataset(
-        data, dut=dut, raw_unit=raw_unit or "nT", counts_per_unit=counts_per_unit, column_map=column_map
+        data,
+        dut=dut,
+        raw_unit=raw_unit or "nT",
+        counts_per_unit=counts_per_unit,
+        column_map=column_map,
+        extra_columns=False,
     )
     given = {"field_norm_nt": field_norm_nt, "balance_orientations": balance_orientations}
     unused = [n for n, value in given.items() if value is not None and n not in REGISTRY[model].options]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib import gram, synthetic
+from calib import gram_kernel, synthetic
 from calib.errors import FitError
 from calib.gram import GramAccumulator
 
@@ -143,16 +143,82 @@ def test_solve_after_each_point_is_cheap_and_grows_into_a_fit():
     assert acc.solve().stats["n"] == len(ds)
 
 
-def test_gram_over_several_buffer_chunks_equals_the_direct_product():
-    rng = np.random.default_rng(12)
-    n = int(2.5 * gram.CHUNK_ROWS)  # two full chunks and a partial one
+def _random_columns(n, seed=12):
+    rng = np.random.default_rng(seed)
     h, ref = rng.normal(0, 3e4, (n, 3)), rng.normal(0, 3e4, (n, 3))
     temp, weights = rng.uniform(-30, 70, n), rng.uniform(0, 2, n)
+    weights[::5] = 0.0  # flagged outliers: no weight, not counted
+    return h, temp, ref, weights
+
+
+def _assert_same_gram(actual, expected, rtol=1e-12):
+    """Entry by entry, relative to the scale of its row and column (an entry may cancel to ~0)."""
+    d = np.sqrt(np.diag(expected))
+    np.testing.assert_array_less(np.abs(actual - expected) / np.outer(d, d), rtol)
+
+
+@pytest.fixture(params=["numba", "numpy"])
+def gram_path(request, monkeypatch):
+    """Run a test through the compiled kernel and through the numpy fallback."""
+    if request.param == "numba":
+        pytest.importorskip("numba")
+        if gram_kernel._compiled() is None:
+            pytest.skip("numba kernel did not compile here")
+    else:
+        monkeypatch.setattr(gram_kernel, "_KERNEL", [None])
+    return request.param
+
+
+def test_gram_over_several_blocks_equals_the_direct_product(gram_path):
+    n = int(2.5 * gram_kernel.KERNEL_ROWS)  # two full kernel calls and a partial one
+    h, temp, ref, weights = _random_columns(n)
     t = temp - 20.0
     z = np.column_stack([np.ones(n), t, h, t[:, None] * h, ref])
     acc = GramAccumulator(20.0)
-    acc.add(h, temp, ref, weights=weights)  # weighted first: the ones column must come back afterwards
+    acc.add(h, temp, ref, weights=weights)  # weighted first: nothing of the weights may stay behind
     acc.add(h, temp, ref)
     expected = (z * weights[:, None]).T @ z + z.T @ z
-    np.testing.assert_allclose(acc.gram, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
-    assert acc.n == 2 * n
+    _assert_same_gram(acc.gram, expected)
+    assert acc.n == n + np.count_nonzero(weights)
+    assert (acc.temp_min_c, acc.temp_max_c) == (temp.min(), temp.max())
+
+
+def test_compiled_kernel_and_numpy_fallback_give_the_same_sums():
+    pytest.importorskip("numba")
+    if gram_kernel._compiled() is None:
+        pytest.skip("numba kernel did not compile here")
+    h, temp, ref, weights = _random_columns(20_000, seed=13)
+    cases = {
+        "plain": (h, temp, ref, None),
+        "weighted": (h, temp, ref, weights),
+        "one temperature": (h, np.array([31.5]), ref, None),
+        "strided columns": (np.asfortranarray(h)[::2], temp[::2], ref[::2], weights[::2]),
+    }
+    for name, (hh, tt, rr, ww) in cases.items():
+        compiled = gram_kernel.gram_numba(hh, tt, rr, ww, 20.0)
+        fallback = gram_kernel.gram_numpy(hh, tt, rr, ww, 20.0)
+        _assert_same_gram(compiled[0], fallback[0])
+        assert compiled[1:] == fallback[1:], name
+
+
+def test_without_numba_the_numpy_path_is_used(monkeypatch):
+    monkeypatch.setattr(gram_kernel, "_KERNEL", [])
+    monkeypatch.setenv("MAGRIG_NO_NUMBA", "1")
+    assert gram_kernel._compiled() is None
+    ds, _ = _dataset(14)
+    acc = GramAccumulator(20.0)
+    acc.add(ds.h_nt, ds.temp_c, ds.ref_nt)
+    assert acc.solve().stats["n"] == len(ds)
+
+
+def test_a_kernel_that_fails_to_compile_falls_back_with_a_warning(monkeypatch):
+    numba = pytest.importorskip("numba")
+    monkeypatch.setattr(gram_kernel, "_KERNEL", [])
+    monkeypatch.delenv("MAGRIG_NO_NUMBA", raising=False)
+
+    def broken_njit(*args, **kwargs):
+        raise numba.core.errors.TypingError("no typing for this kernel")
+
+    monkeypatch.setattr(numba, "njit", broken_njit)
+    with pytest.warns(UserWarning, match="using numpy"):
+        assert gram_kernel._compiled() is None
