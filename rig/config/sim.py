@@ -34,5 +34,7 @@ class SimWorld(Strict):
     seed: int = 0
     ambient_nt: Vec3 | None = Field(None, description="default: the coils' ambient_nt, when given")
     site_field_nt: Vec3 | None = Field(None, description="default: the turntable's site field")
+    ambient_drift_nt_per_h: Vec3 | None = Field(
+        None, description="slow drift of the ambient (coils) or the site field (turntable); default none")
     air_c: float | None = Field(None, description="chamber air at the start; default: the simulator's")
     duts: dict[str, SimDut] = {}
