@@ -6,6 +6,7 @@ makes a point exceed the current limit stops the run before any field is set."""
 from __future__ import annotations
 
 import json
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,15 @@ from rig.campaign import run_campaign
 from rig.config import load_campaign, load_station
 from rig.events import Reason
 from rig.simstation import dut_truths
-from tests.system.campaign_helpers import DEMO_PLAN, REPO, query, run_rig, session_counts, small_plan
+from tests.system.campaign_helpers import (
+    DEMO_PLAN,
+    REPO,
+    popen_rig,
+    query,
+    run_rig,
+    session_counts,
+    small_plan,
+)
 
 pytestmark = pytest.mark.system
 
@@ -143,3 +152,19 @@ def test_a_turntable_with_a_reference_magnetometer_measures_the_site_field(tmp_p
     refs = np.array(query(session, "SELECT bx, by, bz FROM samples"))
     assert np.allclose(np.linalg.norm(refs, axis=1), np.linalg.norm(first["vector_nt"]), atol=1e-6)
     assert all(f.get("error") is None for f in outcome.fits)
+
+
+def test_a_resumed_run_measures_again_with_the_calibration_beside_the_recorded_station(tmp_path):
+    session = tmp_path / "resume.session"
+    proc = popen_rig("run", str(small_plan(tmp_path, samples=5)), "--station", str(STATION),
+                     "--session", str(session), "--no-live")
+    first = proc.stdout.readline()
+    assert "done" in first, proc.stderr.read()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    resumed = run_rig("run", "--resume", str(session), "--no-live")  # calibration path relative to STATION
+    assert resumed.returncode == 0, resumed.stderr
+    assert session_counts(session)["completed"]
+    measured = [code for code, _, _ in site_events(session) if code == Reason.SITE_FIELD_MEASURED]
+    assert len(measured) == 2  # at the start, and at the start of the resumed run
