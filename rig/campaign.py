@@ -110,7 +110,9 @@ class CampaignRunner:
         self.status = status or RunStatus()
         self.engine: Engine | None = None
         self.source = rig.station.field_source  # the field source's config: how to drive and read it
-        self.reference = reference_for(rig.station)
+        # a measured ambient / site field: the reference is made once it is measured (measure_site_field)
+        self.reference = None if self.source.needs_measurement() else reference_for(rig.station)
+        self.site = None  # rig.sitefield.SiteFieldMonitor when the field source needs a measurement
         self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
@@ -190,6 +192,8 @@ class CampaignRunner:
                 waited = t - start
                 self.engine.event(Kind.STABLE, f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
                                   code=Reason.STABLE, temps=temps)
+                if self.site is not None:  # the step's first point: ambient re-checked, Hold on drift
+                    self.site.recheck(self.engine.event, cmd.target_c)
                 return {"target_c": cmd.target_c, "waited_s": waited,
                         "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
                                        "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
@@ -356,7 +360,10 @@ def run_campaign(
     assert campaign is not None
     plan, station = campaign.plan, campaign.station
     points = checked_points(campaign)  # before open_rig: nothing has moved yet
-    reference_for(station)  # a reference the rig cannot know yet (ambient "measure") stops us here
+    if not station.field_source.needs_measurement():
+        reference_for(station)  # a stated site field that cannot be evaluated stops us here
+    # a resume finds the reference calibration files beside the station file the session recorded
+    calibrations = _reference_calibrations(station, None if resume else campaign, info if resume else None)
     lock = SessionLock(session_path)
     lock.acquire()
     try:
@@ -374,7 +381,7 @@ def run_campaign(
                                              operator=os.environ.get("USER"))
             with session:
                 outcome = _run_in_session(rig, plan, points, session, lock, prompt, display_factory,
-                                          hold_wait_s, max_retakes, resume)
+                                          hold_wait_s, max_retakes, resume, calibrations)
         finally:
             rig.close()
     finally:
@@ -414,8 +421,38 @@ def _check_resumable(session, points: list[Point]) -> None:
                            "cannot resume")
 
 
+def _reference_calibrations(station: cfg.Station, campaign: cfg.Campaign | None, info: dict | None) -> dict:
+    """The reference magnetometers' calibrations, their files relative to the (recorded) station file."""
+    from rig.sitefield import load_reference_calibrations
+
+    if not station.reference_magnetometers:
+        return {}
+    if campaign is not None:
+        return load_reference_calibrations(station, campaign.station_path, campaign.station_text)
+    assert info is not None
+    return load_reference_calibrations(station, info.get("station_path") or ".", info["station_text"])
+
+
+def measure_site_field(runner: CampaignRunner, session, calibrations: dict) -> None:
+    """Before the first field is set: the reference magnetometer measures the ambient / site field that
+    every reference of the run uses, and the plan's limits are checked with it. A failure here is
+    recorded in the session as how the run ended, then raised."""
+    from rig.engine import FAILED
+    from rig.events import code_of, device_of
+    from rig.sitefield import SiteFieldMonitor
+
+    try:
+        runner.site = SiteFieldMonitor(runner.rig, calibrations, settle_s=runner.plan.settle_s)
+        measured = runner.site.measure_at_start(session.log_event, runner.plan.name, runner.points)
+        runner.reference = reference_for(runner.rig.station, measured.vector_nt)
+    except ERRORS as exc:
+        session.log_event(Kind.FAULT, str(exc), code=code_of(exc), level="ERROR", device=device_of(exc))
+        session.finish(FAILED, str(exc), code=code_of(exc))
+        raise
+
+
 def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, hold_wait_s, max_retakes,
-                    resume) -> RunOutcome:
+                    resume, calibrations=None) -> RunOutcome:
     if lock.stale_pid is not None:
         session.log_event(Kind.STALE_LOCK, f"previous run (pid {lock.stale_pid}) died without finishing; "
                           "hardware made safe, lock taken over", code=Reason.STALE_LOCK, level="WARNING",
@@ -427,6 +464,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
         session.record_snapshot(dev.name, dev.describe())
     status = RunStatus()
     runner = CampaignRunner(rig, plan, points, session, status)
+    if runner.source.needs_measurement():
+        measure_site_field(runner, session, calibrations or {})
     done = session.done_point_ids()
     if done:
         runner.preload_live(session.path)

@@ -43,6 +43,7 @@ class Kind(StrEnum):
     FIT_FAILED = "fit_failed"
     WARNING = "warning"  # a WARNING log record of the rig (transport retries...)
     ERROR = "error"  # an ERROR log record of the rig
+    SITE_FIELD = "site_field"  # the ambient / site field measured by a reference magnetometer
 
 
 class Reason(StrEnum):
@@ -59,6 +60,7 @@ class Reason(StrEnum):
     PROTOCOL_ERROR = "protocol_error"
     DEVICE_NOT_FOUND = "device_not_found"
     DEVICE_FAULT = "device_fault"
+    SITE_FIELD_DRIFT = "site_field_drift"  # the measured ambient moved beyond the station's limit
     # a run ends
     COMPLETED = "completed"
     RETAKES_EXHAUSTED = "retakes_exhausted"
@@ -74,6 +76,8 @@ class Reason(StrEnum):
     OPERATOR_PAUSE = "operator_pause"
     OPERATOR_RESUME = "operator_resume"
     STABLE = "stable"
+    SITE_FIELD_MEASURED = "site_field_measured"  # at the start: the value every reference uses
+    SITE_FIELD_CHECKED = "site_field_checked"  # re-checked at a temperature step, within its limit
     ALL_SAFE = "all_safe"
     SAFE_STATE_FAILED = "safe_state_failed"
     STALE_LOCK = "stale_lock"
@@ -90,7 +94,7 @@ HOLD_REASONS = frozenset({
     Reason.CHAMBER_ALARM, Reason.CHAMBER_SENSOR, Reason.CHAMBER_OFF_COURSE, Reason.NO_TEMPERATURE,
     Reason.SETTLE_TIMEOUT,
     Reason.TEMP_OUT_OF_BAND, Reason.DEVICE_TIMEOUT, Reason.PROTOCOL_ERROR, Reason.DEVICE_NOT_FOUND,
-    Reason.DEVICE_FAULT,
+    Reason.DEVICE_FAULT, Reason.SITE_FIELD_DRIFT,
 })
 
 # Exceptions to reasons, most specific first (looked up along the exception's class hierarchy).

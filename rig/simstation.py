@@ -20,6 +20,8 @@ from __future__ import annotations
 import contextlib
 from typing import Any
 
+import numpy as np
+
 from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.faults import DeviceFaults, Window
@@ -48,10 +50,29 @@ def dut_truths(station) -> dict[str, DutTruth]:
     return out
 
 
+def reference_truths(station) -> dict[str, DutTruth]:
+    """{name: truth} of the simulated reference magnetometers. A reference's calibration file is its
+    truth, so it is never drawn at random: `sim.duts` states it (S, b_nt...) to match the shipped file,
+    or it is an ideal sensor (what an identity calibration file describes)."""
+    out = {}
+    for ref in station.reference_magnetometers:
+        if not ref.simulated:
+            continue
+        spec = station.sim.duts.get(ref.name)
+        if spec is None or spec.truth == "random":
+            out[ref.name] = dut_truth(station.sim.seed, 0, {"S": np.eye(3)},
+                                      None if spec is None else spec.noise_nt,
+                                      None if spec is None else spec.thermal_lag_s)
+        else:
+            out[ref.name] = dut_truth(station.sim.seed, 0, spec.truth.model_dump(), spec.noise_nt,
+                                      spec.thermal_lag_s)
+    return out
+
+
 def make_world(station, clock: Clock) -> World:
     air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
     world = World(clock, air_c=air_c, seed=station.sim.seed, **station.field_source.world_field(station.sim))
-    for name, truth in dut_truths(station).items():
+    for name, truth in (dut_truths(station) | reference_truths(station)).items():
         world.add_dut(name, truth)
     for sensor in station.temperature_sensors:
         if sensor.simulated and sensor.beside not in world.duts:

@@ -1,7 +1,8 @@
 """The simulated physical truth that every simulator reads and every Modbus write drives.
 
 - Field in the lab frame: coil constants (3x3, nT/A) x coil currents + ambient field, when the coils are
-  the field source; or the site field rotated into the table frame by the turntable angles.
+  the field source; or the site field rotated into the table frame by the turntable angles. Either may
+  drift slowly and steadily (`ambient_drift_nt_per_s`), as a lab's field does when something nearby moves.
 - Chamber air follows its setpoint at a limited ramp rate; each DUT's temperature lags the air with its
   own time constant (first order).
 - Each DUT has known calibration errors of the T24 form, B = (S + tau K) h + b + tau kb, plus a bridge
@@ -89,6 +90,7 @@ class World:
         ramp_c_per_min: float = 3.0,
         turntable_rate_deg_s: float = 20.0,
         seed: int = 0,
+        ambient_drift_nt_per_s=(0.0, 0.0, 0.0),
     ):
         self.clock = clock
         self.field_source = field_source
@@ -99,6 +101,8 @@ class World:
             else np.asarray(coil_constants_nt_per_a, float)
         )
         self.site_field_nt = np.asarray(site_field_nt, float)
+        self.ambient_drift_nt_per_s = np.asarray(ambient_drift_nt_per_s, float)
+        self._t0 = clock.now()  # the drift counts from here
         self.rng = np.random.default_rng(seed)
         self._lock = threading.RLock()
         self._t = clock.now()
@@ -197,13 +201,18 @@ class World:
             return out
 
     # --- field source -----------------------------------------------------------------------------
+    def drift_nt(self) -> np.ndarray:
+        """How far the ambient (coils) or the site field (turntable) has drifted since the start."""
+        with self._lock:
+            return self.ambient_drift_nt_per_s * (self.clock.now() - self._t0)
+
     def lab_field_nt(self) -> np.ndarray:
         with self._lock:
             self._advance()
             if self.field_source == "coils":
                 currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
-                return self.coil_constants @ currents + self.ambient_nt
-            return rotation_deg(*self.table_deg).T @ self.site_field_nt
+                return self.coil_constants @ currents + self.ambient_nt + self.drift_nt()
+            return rotation_deg(*self.table_deg).T @ (self.site_field_nt + self.drift_nt())
 
     def set_coil_currents(self, currents_a, enabled: bool = True) -> None:
         with self._lock:

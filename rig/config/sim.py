@@ -38,5 +38,7 @@ class SimWorld(Strict):
     seed: Count(2**63 - 1, lower=0) = 0
     ambient_nt: NT_VEC | None = Field(None, description="default: the coils' ambient_nt, when given")
     site_field_nt: NT_VEC | None = Field(None, description="default: the turntable's site field")
+    ambient_drift_nt_per_h: NT_VEC | None = Field(
+        None, description="slow drift of the ambient (coils) or the site field (turntable); default none")
     air_c: TEMP_C | None = Field(None, description="chamber air at the start; default: the simulator's")
     duts: dict[str, SimDut] = {}

@@ -3,7 +3,8 @@
     name; sim (the simulated world, rig/config/sim.py);
     chamber {type, transport, unit, limits}; field_source {kind: coils | turntable, ...};
     duts [{name, type, transport, options, temp_source}];
-    temperature_sensors [{name, type, transport, beside}].
+    temperature_sensors [{name, type, transport, beside}];
+    reference_magnetometers [{name, type, transport, options, calibration, temp_source?, samples}].
 
 The `type:` values, each type's options (`limits:` of a chamber, `options:` of a magnetometer) and the
 transport kinds it takes come from its driver's spec (drivers/registry.py); field sources come from
@@ -25,7 +26,7 @@ from rig.configbase import DeviceConfig, Strict, transport_type
 from rig.errors import ConfigError
 from rig.fieldsources import FieldSource
 from rig.names import SafeName
-from rig.numbers import MODBUS_UNIT
+from rig.numbers import MODBUS_UNIT, Count
 from rig.yamlload import KeyPathError
 
 
@@ -73,6 +74,24 @@ class DutConfig(DeviceConfig):
         return self
 
 
+class ReferenceMagnetometerConfig(DutConfig):
+    """A calibrated magnetometer at the DUT position that measures the ambient (coils off) or the site
+    field (table at home): any magnetometer type, never a DUT (not fitted, not in the outputs). Its
+    calibration file (relative to the station file) is applied to every reading (rig/sitefield.py)."""
+
+    calibration: str = Field(description="its calibration file, relative to the station file")
+    temp_source: str | None = Field(  # type: ignore[assignment]
+        None, description='a temperature sensor or "self"; needed when the calibration has temperature terms')
+    samples: Count(100_000, lower=2) = Field(100, description="readings averaged per measurement")
+
+    @model_validator(mode="after")
+    def _own_temperature(self):
+        if self.temp_source == "self" and not self.spec.has_temperature:
+            raise KeyPathError(("temp_source",),
+                               f"{self.device_type} has no temperature sensor; name a TMP117")
+        return self
+
+
 class TemperatureSensorConfig(DeviceConfig):
     role: ClassVar[str] = "temperature"
 
@@ -101,6 +120,7 @@ def _by_type(base: type[DeviceConfig], options_key: str) -> Any:
 Chamber = _by_type(ChamberConfig, "limits")
 Dut = _by_type(DutConfig, "options")
 TemperatureSensor = _by_type(TemperatureSensorConfig, "options")
+ReferenceMagnetometer = _by_type(ReferenceMagnetometerConfig, "options")
 
 
 class Station(Strict):
@@ -110,6 +130,7 @@ class Station(Strict):
     field_source: FieldSource
     duts: list[Dut] = Field(min_length=1)
     temperature_sensors: list[TemperatureSensor] = []
+    reference_magnetometers: list[ReferenceMagnetometer] = []
 
     @model_validator(mode="after")
     def _references(self):
@@ -125,13 +146,22 @@ class Station(Strict):
                 known = ", ".join(sorted(sensors)) or "none defined"
                 raise KeyPathError(("duts", i, "temp_source"),
                                    f"no temperature sensor {d.temp_source!r} (sensors: {known}; or 'self')")
+        references = [r.name for r in self.reference_magnetometers]
+        for i, r in enumerate(self.reference_magnetometers):
+            if r.temp_source not in (None, "self") and r.temp_source not in sensors:
+                raise KeyPathError(("reference_magnetometers", i, "temp_source"),
+                                   f"no temperature sensor {r.temp_source!r} (or 'self', or leave it out)")
         for i, s in enumerate(self.temperature_sensors):
-            if s.beside not in duts:
+            if s.beside not in duts and s.beside not in references:
                 raise KeyPathError(("temperature_sensors", i, "beside"), f"no DUT named {s.beside!r}")
         for name in self.sim.duts:
-            if name not in duts:
+            if name not in duts and name not in references:
                 raise KeyPathError(("sim", "duts", name), f"no DUT named {name!r} in duts")
-        for path, message in self.field_source.station_problems(duts):
+            if name in references and "truth" in self.sim.duts[name].model_fields_set and \
+                    self.sim.duts[name].truth == "random":
+                raise KeyPathError(("sim", "duts", name, "truth"), "a reference magnetometer's truth is its "
+                                   "calibration file: state S, b_nt... to match it, or leave truth out")
+        for path, message in self.field_source.station_problems(duts, references):
             raise KeyPathError(("field_source", *path), message)
         return self
 
@@ -142,6 +172,8 @@ class Station(Strict):
             yield ("duts", i), d
         for i, s in enumerate(self.temperature_sensors):
             yield ("temperature_sensors", i), s
+        for i, r in enumerate(self.reference_magnetometers):
+            yield ("reference_magnetometers", i), r
 
     def devices(self) -> list[DeviceConfig]:
         return [dev for _, dev in self._named_devices()]

@@ -1,6 +1,6 @@
 """Field sources: the station's `field_source:`, one module per kind, behind rig/fieldsources/base.py.
 
-Adding one (a reference magnetometer, a measured ambient): a module here with a FieldSourceConfig
+Adding one: a module here with a FieldSourceConfig
 subclass (its `kind`, the field sets it makes, its reference), its driver in drivers/ with a registry
 spec of role "field_source" and the same type, and one line in KINDS below.
 """

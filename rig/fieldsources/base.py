@@ -10,12 +10,19 @@ A field source is the station's `field_source:` (a pydantic model with `kind:`) 
   `settle_timeout_s()`; `check_targets(...)`: limit checks for `rig check`;
 - `prepare(device)`: what to do before the first move (home a table); `world_field(sim)`: the simulated
   world's field keywords (drivers/sim/world.py);
-- `station_problems(dut_names)`: cross-references into the rest of the station.
+- `station_problems(dut_names, reference_names)`: cross-references into the rest of the station.
+A field source whose reference needs a measured quantity (ambient "measure", a site field from a
+reference magnetometer; rig/sitefield.py does the measuring) says so:
+- `needs_measurement()`; `measured_name` ("ambient field", "site field"); `measuring_magnetometer(refs)`:
+  which reference magnetometer measures it; `measurement_setting()`: the device setting to measure at
+  (coils at 0 A, table at home); `drift_max_nt()`: how far it may move between temperature steps;
+  `check_measured(plan_name, points, measured_nt)`: the plan's limits again, with the measured value.
 Its driver (drivers/registry.py, role "field_source", type = kind) gets the model itself as options.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -33,6 +40,7 @@ if TYPE_CHECKING:
     from rig.plan import Point
 
 SETTLE_TIMEOUT_S = 5.0  # readbacks reach their setpoints well within this; movers add their travel
+DRIFT_MAX_NT = 200.0  # a lab's ambient moves a few tens of nT in hours; more means something changed
 
 
 def point_limit_error(plan_name: str, point: Point, what: str) -> LimitError:
@@ -104,9 +112,43 @@ class FieldSourceConfig(DeviceConfig):
     def prepare(self, device) -> None:
         """Called once on the connected device before the first move."""
 
+    # --- a measured ambient / site field ------------------------------------------------------------
+    measured_name: ClassVar[str] = "field"
+
+    def needs_measurement(self) -> bool:
+        """True when `reference()` needs a value measured at the start of the campaign."""
+        return False
+
+    def measuring_magnetometer(self, reference_names: Sequence[str]) -> str | None:
+        """The name of the reference magnetometer that measures it (None when nothing is measured)."""
+        return None
+
+    def measurement_setting(self) -> tuple[float, ...]:
+        """The device setting the measurement is taken at (the field source's own field off / home)."""
+        raise NotImplementedError
+
+    def drift_max_nt(self) -> float:
+        """How far the measured value may move between temperature steps before the run holds."""
+        return DRIFT_MAX_NT
+
+    def check_measured(self, plan_name: str, points: list[Point], measured_nt) -> None:
+        """The plan's limits again once the measured value is known; LimitError naming point and limit."""
+
     # --- station and simulation --------------------------------------------------------------------
-    def station_problems(self, dut_names: set[str]) -> list[tuple[tuple, str]]:
+    def station_problems(self, dut_names: set[str],
+                         reference_names: Sequence[str] = ()) -> list[tuple[tuple, str]]:
         return []
 
     def world_field(self, sim: SimWorld) -> dict:
         raise NotImplementedError
+
+
+def only_reference(reference_names: Sequence[str]) -> str | None:
+    """The station's reference magnetometer when it has exactly one (None otherwise)."""
+    return reference_names[0] if len(reference_names) == 1 else None
+
+
+def drift_keywords(sim: SimWorld) -> dict:
+    """The simulated world's slow ambient drift (nT/h in the station, nT/s in the world)."""
+    drift = sim.ambient_drift_nt_per_h
+    return {} if drift is None else {"ambient_drift_nt_per_s": np.asarray(drift, float) / 3600.0}

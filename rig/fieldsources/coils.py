@@ -1,8 +1,9 @@
 """Three-axis coils: a field vector is made by currents, B = C I + ambient (rig/reference.py).
 
-`ambient_nt` is the field with the coils off, in the lab frame; "measure" means the engine measures it at
-the start of the campaign (with a DUT or a reference magnetometer), and until then `rig check` allows
-for any ambient up to `ambient_max_nt`.
+`ambient_nt` is the field with the coils off, in the lab frame; "measure" means a reference magnetometer
+(the station's `reference_magnetometers`, never a DUT) measures it with the coils at 0 A at the start of
+the campaign and again at each temperature step (rig/sitefield.py). Until then `rig check` allows for any
+ambient up to `ambient_max_nt`; `rig run` checks the plan's currents again with the measured ambient.
 """
 
 from __future__ import annotations
@@ -15,7 +16,13 @@ from pydantic import Discriminator, Field, Tag, model_validator
 from drivers.coils import CoilOptions
 from rig import fieldsets
 from rig.errors import ConfigError
-from rig.fieldsources.base import FieldSourceConfig, point_limit_error
+from rig.fieldsources.base import (
+    DRIFT_MAX_NT,
+    FieldSourceConfig,
+    drift_keywords,
+    only_reference,
+    point_limit_error,
+)
 from rig.names import SafeName
 from rig.numbers import A_MAX, NT, NT_VEC, bounded
 from rig.reference import TYPICAL_FIELD_NT, CoilReference, currents_for_field
@@ -34,6 +41,7 @@ class Coils(FieldSourceConfig, CoilOptions):
     field_kinds: ClassVar[frozenset[str]] = VECTOR_FIELD_KINDS
     point_letter: ClassVar[str] = "F"
     described: ClassVar[str] = "coils"
+    measured_name: ClassVar[str] = "ambient field"
 
     kind: Literal["coils"]
     name: SafeName = "coils"
@@ -43,6 +51,10 @@ class Coils(FieldSourceConfig, CoilOptions):
     ambient_max_nt: NT = Field(
         70_000.0, description="bound on |ambient| used to check currents while ambient is 'measure'"
     )
+    reference_magnetometer: SafeName | None = Field(
+        None, description="which reference magnetometer measures the ambient; default: the only one")
+    ambient_drift_max_nt: NT = Field(
+        DRIFT_MAX_NT, description="a measured ambient that moves more than this between steps holds the run")
 
     @model_validator(mode="after")
     def _invertible(self):
@@ -73,6 +85,16 @@ class Coils(FieldSourceConfig, CoilOptions):
         else:
             ambient, margin = np.asarray(self.ambient_nt, float), np.zeros(3)
             assumption = "the station's ambient_nt"
+        largest = self._check_currents(plan_name, points, ambient, margin, assumption)
+        first_step = [p.command for p in points if p.temp_index == points[0].temp_index]
+        span = fieldsets.span_ratio(np.array(first_step))
+        if span < 0.2:
+            warnings.append(f"field directions barely span 3-D (ratio {span:.2f}): the scale and cross-axis "
+                            "terms will be poorly determined")
+        return [f"largest coil current {largest:.3f} A"]
+
+    def _check_currents(self, plan_name, points, ambient, margin, assumption) -> float:
+        """The largest current any point needs; LimitError at the first point above max_current_a."""
         largest = 0.0
         for p in points:
             worst = np.abs(currents_for_field(p.command, self.constants, ambient)) + margin
@@ -84,12 +106,7 @@ class Coils(FieldSourceConfig, CoilOptions):
                     f"{self.max_current_a:g} A"
                 )
             largest = max(largest, float(worst[axis]))
-        first_step = [p.command for p in points if p.temp_index == points[0].temp_index]
-        span = fieldsets.span_ratio(np.array(first_step))
-        if span < 0.2:
-            warnings.append(f"field directions barely span 3-D (ratio {span:.2f}): the scale and cross-axis "
-                            "terms will be poorly determined")
-        return [f"largest coil current {largest:.3f} A"]
+        return largest
 
     # --- run ----------------------------------------------------------------------------------------
     def reference(self, measured_nt=None) -> CoilReference:
@@ -99,12 +116,45 @@ class Coils(FieldSourceConfig, CoilOptions):
             raise ConfigError("field_source.ambient_nt is 'measure': measure it first")
         return CoilReference(self.constants, ambient)
 
-    # --- simulation ---------------------------------------------------------------------------------
+    # --- a measured ambient -------------------------------------------------------------------------
+    def needs_measurement(self) -> bool:
+        return self.ambient_nt == "measure"
+
+    def measuring_magnetometer(self, reference_names) -> str | None:
+        if not self.needs_measurement():
+            return None
+        return self.reference_magnetometer or only_reference(reference_names)
+
+    def measurement_setting(self) -> tuple[float, ...]:
+        return (0.0, 0.0, 0.0)  # every coil at 0 A: what is left is the ambient
+
+    def drift_max_nt(self) -> float:
+        return self.ambient_drift_max_nt
+
+    def check_measured(self, plan_name, points, measured_nt) -> None:
+        self._check_currents(plan_name, points, np.asarray(measured_nt, float), np.zeros(3),
+                             f"the measured ambient {_fmt_vec(measured_nt)} nT")
+
+    # --- station and simulation ---------------------------------------------------------------------
+    def station_problems(self, dut_names, reference_names=()):
+        if self.reference_magnetometer is not None and self.reference_magnetometer not in reference_names:
+            known = ", ".join(reference_names) or "none defined"
+            return [(("reference_magnetometer",), f"no reference magnetometer named "
+                     f"{self.reference_magnetometer!r} (reference_magnetometers: {known})")]
+        if self.needs_measurement() and self.measuring_magnetometer(reference_names) is None:
+            if not reference_names:
+                return [(("ambient_nt",), "'measure' needs a reference magnetometer at the DUT position: add "
+                         "one under reference_magnetometers (a DUT cannot double as the reference), or state "
+                         "the ambient as [x, y, z] nT")]
+            return [(("reference_magnetometer",), "the station has several reference magnetometers: name "
+                     f"the one that measures the ambient (one of {', '.join(reference_names)})")]
+        return []
+
     def world_field(self, sim) -> dict:
         stated = None if self.ambient_nt == "measure" else self.ambient_nt
         ambient = next(v for v in (sim.ambient_nt, stated, TYPICAL_FIELD_NT) if v is not None)
         return {"field_source": "coils", "coil_constants_nt_per_a": self.constants,
-                "ambient_nt": np.asarray(ambient, float)}
+                "ambient_nt": np.asarray(ambient, float), **drift_keywords(sim)}
 
 
 def _fmt_vec(v) -> str:

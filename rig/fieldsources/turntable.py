@@ -17,9 +17,15 @@ from pydantic import BaseModel, Discriminator, Field, Tag
 from drivers.turntable import TurntableOptions
 from rig.configbase import Strict
 from rig.errors import ConfigError
-from rig.fieldsources.base import SETTLE_TIMEOUT_S, FieldSourceConfig, point_limit_error
+from rig.fieldsources.base import (
+    DRIFT_MAX_NT,
+    SETTLE_TIMEOUT_S,
+    FieldSourceConfig,
+    drift_keywords,
+    point_limit_error,
+)
 from rig.names import SafeName
-from rig.numbers import ANGLE_DEG, NT_VEC, bounded
+from rig.numbers import ANGLE_DEG, NT, NT_VEC, bounded
 from rig.reference import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
 
 ORIENTATION_KINDS = frozenset({"grid", "orientations"})
@@ -28,7 +34,11 @@ MOVE_TRAVEL_DEG = 360.0  # the longest move the settle wait allows for
 
 
 class SiteFromReference(Strict):
-    reference_magnetometer: str
+    """Measured with the table at home by a reference magnetometer on the table (rig/sitefield.py)."""
+
+    reference_magnetometer: SafeName
+    drift_max_nt: NT = Field(
+        DRIFT_MAX_NT, description="a site field that moves more than this between steps holds the run")
 
     def stated_nt(self) -> np.ndarray | None:
         return None  # measured at the start of the campaign
@@ -82,6 +92,7 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     field_kinds: ClassVar[frozenset[str]] = ORIENTATION_KINDS
     point_letter: ClassVar[str] = "O"
     described: ClassVar[str] = "a turntable"
+    measured_name: ClassVar[str] = "site field"
 
     kind: Literal["turntable"]
     name: SafeName = "turntable"
@@ -133,15 +144,32 @@ class Turntable(FieldSourceConfig, TurntableOptions):
             device.home()
             device.wait_settled(SETTLE_TIMEOUT_S + HOMING_TRAVEL_DEG / self.rate_deg_s)
 
+    # --- a measured site field ---------------------------------------------------------------------
+    def needs_measurement(self) -> bool:
+        return self.stated_site_field_nt() is None
+
+    def measuring_magnetometer(self, reference_names) -> str | None:
+        return getattr(self.site_field, "reference_magnetometer", None)
+
+    def measurement_setting(self) -> tuple[float, ...]:
+        return (0.0, 0.0)  # home: table x north, y east, z down, so the reading is the site field (NED)
+
+    def drift_max_nt(self) -> float:
+        return getattr(self.site_field, "drift_max_nt", DRIFT_MAX_NT)
+
     # --- station and simulation --------------------------------------------------------------------
-    def station_problems(self, dut_names):
-        name = getattr(self.site_field, "reference_magnetometer", None)
-        if name is not None and name not in dut_names:
-            return [(("site_field", "reference_magnetometer"), f"no magnetometer named {name!r} in duts")]
+    def station_problems(self, dut_names, reference_names=()):
+        name = self.measuring_magnetometer(reference_names)
+        if name is not None and name not in reference_names:
+            known = ", ".join(reference_names) or "none defined"
+            where = " (a DUT cannot double as the reference)" if name in dut_names else ""
+            return [(("site_field", "reference_magnetometer"),
+                     f"no reference magnetometer named {name!r}{where}; add it under "
+                     f"reference_magnetometers (defined: {known})")]
         return []
 
     def world_field(self, sim) -> dict:
         site = next(v for v in (sim.site_field_nt, self.stated_site_field_nt(), TYPICAL_FIELD_NT)
                     if v is not None)
         return {"field_source": "turntable", "site_field_nt": np.asarray(site, float),
-                "turntable_rate_deg_s": self.rate_deg_s}
+                "turntable_rate_deg_s": self.rate_deg_s, **drift_keywords(sim)}

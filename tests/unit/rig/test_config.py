@@ -158,14 +158,28 @@ def test_duplicate_device_names(tmp_path):
     assert "temperature_sensors[0].name: device name 'm0' is used twice" in msg
 
 
+REFERENCE = """\
+reference_magnetometers:
+  - name: ref0
+    type: mmc5983ma
+    transport: {kind: sim}
+    calibration: ref0.t24.yaml
+    temp_source: self
+"""
+
+
 def test_turntable_site_field_forms(tmp_path):
     base = STATION.split("field_source:")[0] + "field_source:\n  kind: turntable\n  transport: {kind: sim}\n"
-    tail = "duts:" + STATION.split("duts:")[1]
+    tail = "duts:" + STATION.split("duts:")[1] + REFERENCE
     wmm = "{model: wmm, lat_deg: 52, lon_deg: 5, alt_km: 0.1, date: 2026-01-01}"
     for site, kind in [("{vector_nt: [1, 2, 3]}", "SiteFromVector"), (wmm, "SiteFromModel"),
-                       ("{reference_magnetometer: m0}", "SiteFromReference")]:
+                       ("{reference_magnetometer: ref0}", "SiteFromReference")]:
         station = load_station(write(tmp_path, "t.yaml", base + f"  site_field: {site}\n" + tail))
         assert type(station.field_source.site_field).__name__ == kind
+    dut_as_reference = base + "  site_field: {reference_magnetometer: m0}\n" + tail
+    msg = error_of(load_station, write(tmp_path, "t.yaml", dut_as_reference))
+    assert "field_source.site_field.reference_magnetometer: no reference magnetometer named 'm0' (a DUT " \
+           "cannot double as the reference)" in msg and "(line 9)" in msg
     msg = error_of(load_station, write(tmp_path, "t.yaml", base + "  site_field: {lat: 3}\n" + tail))
     assert "field_source.site_field: give one of reference_magnetometer, vector_nt" in msg
 
@@ -262,7 +276,9 @@ def test_simulated_ambient_and_site_defaults(tmp_path):
     assert list(sim.field_source.world_field(sim.sim)["ambient_nt"]) == [15000, 500, 42000]
     data = station.model_dump()
     data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"},
-                            "site_field": {"reference_magnetometer": "m0"}}
+                            "site_field": {"reference_magnetometer": "ref0"}}
+    data["reference_magnetometers"] = [{"name": "ref0", "type": "mmc5983ma", "transport": {"kind": "sim"},
+                                        "calibration": "ref0.t24.yaml"}]
     table = Station.model_validate(data)
     assert list(table.field_source.world_field(table.sim)["site_field_nt"]) == list(TYPICAL_FIELD_NT)
 

@@ -40,6 +40,9 @@ def coil_station(**coil_overrides) -> Station:
         "duts": [{"name": "m", "type": "hmc5883l", "transport": {"kind": "sim"}, "temp_source": "t",
                   "options": {"rate_hz": 7.5}}],
         "temperature_sensors": [{"name": "t", "type": "tmp117", "transport": {"kind": "sim"}, "beside": "m"}],
+        # 'measure' needs a reference magnetometer to measure it with
+        "reference_magnetometers": [{"name": "ref", "type": "mmc5983ma", "transport": {"kind": "sim"},
+                                     "calibration": "ref.t24.yaml", "temp_source": "self"}],
     })
 
 

@@ -98,11 +98,17 @@ def test_reference_for_each_kind_of_station():
 
 
 def test_measured_quantities_must_be_supplied():
-    station = _table_station({"reference_magnetometer": "mmc0"})
+    data = load_station(DEFAULT_STATION).model_dump()
+    data["reference_magnetometers"] = [{"name": "ref0", "type": "mmc5983ma", "transport": {"kind": "sim"},
+                                        "calibration": "ref0.yaml"}]
+    data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"},
+                            "site_field": {"reference_magnetometer": "ref0"}}
+    station = Station.model_validate(data)
     with pytest.raises(ConfigError, match="reference magnetometer"):
         reference_for(station)
     assert np.allclose(reference_for(station, [5.0, 0, 0]).site_field_nt, [5.0, 0, 0])
     data = load_station(DEFAULT_STATION).model_dump()
+    data["reference_magnetometers"] = station.model_dump()["reference_magnetometers"]
     data["field_source"]["ambient_nt"] = "measure"
     measuring = Station.model_validate(data)
     with pytest.raises(ConfigError, match="measure it first"):
