@@ -61,6 +61,7 @@ class Reason(StrEnum):
     DEVICE_FAULT = "device_fault"
     # a run ends
     COMPLETED = "completed"
+    TARGETS_MET = "targets_met"  # stop_when: every DUT's standard errors reached their targets
     RETAKES_EXHAUSTED = "retakes_exhausted"
     LIMIT_REFUSED = "limit_refused"
     OPERATOR_ABORT = "operator_abort"
