@@ -28,6 +28,8 @@ class SimDut(Strict):
     truth: Literal["random"] | TruthSpec = "random"
     noise_nt: float | None = Field(None, ge=0, description="default: the simulator's")
     thermal_lag_s: PositiveFloat | None = Field(None, description="default: the simulator's")
+    sensor_lag_s: float = Field(0.0, ge=0, description="its temperature sensors lag the element by this "
+                                "time constant (s); 0: they read the element's temperature")
 
 
 class SimWorld(Strict):
