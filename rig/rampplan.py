@@ -89,8 +89,9 @@ def sweep_time_s(plan: Plan, station: Station, targets: list[tuple[float, ...]])
 
 
 def sweeps_per_leg(ramp: RampTemperatures, sweep_s: float) -> int:
+    """As many as fill the ramp and the end hold, plus the one at the leg's end (the air there)."""
     leg_s = abs(ramp.range_c[1] - ramp.range_c[0]) / ramp.rate_c_per_min * 60.0 + ramp.end_hold_s
-    return max(1, math.ceil(leg_s / sweep_s - 1e-9))
+    return math.ceil(leg_s / sweep_s - 1e-9) + 1
 
 
 def _check_size(plan: Plan, n_sweeps: int, n_fields: int) -> None:
