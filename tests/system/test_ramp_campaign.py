@@ -3,7 +3,6 @@ good enough, kill -9 in the middle of a ramp then resume, and the lag of a simul
 
 from __future__ import annotations
 
-import json
 import signal
 
 import numpy as np
@@ -114,13 +113,11 @@ def test_kill_9_in_the_middle_of_a_ramp_then_resume_goes_on_without_duplicates(t
     assert after["per_point_dut"] == {(p.id, d.name): 4 for p in points for d in campaign.station.duts}
     assert after["orphan_samples"] == 0
     # the points recorded before the kill were not taken again
-    assert query(session, "SELECT count(*) FROM samples WHERE point_id IN (%s) AND t > ?"
-                 % ",".join("?" * len(done_before)), *done_before, last_t)[0][0] == 0
+    retaken = query(session, "SELECT DISTINCT point_id FROM samples WHERE t > ?", last_t)
+    assert not {r[0] for r in retaken} & done_before
     # the resumed run went on with the ramp: no second trip to the range start and its stability wait
     kinds = [k for k, _ in events(session)]
-    assert kinds.count("stable") == 1
-    ramps = [json.loads(r[0]) for r in query(session, "SELECT data_json FROM events WHERE kind = 'stale_lock'")]
-    assert ramps  # the dead run's lock was reported
+    assert kinds.count("stable") == 1 and "stale_lock" in kinds
 
 
 def test_the_lag_of_a_simulated_temperature_sensor_is_recovered():
