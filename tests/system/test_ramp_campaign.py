@@ -72,6 +72,12 @@ def test_a_small_ramp_runs_end_to_end_and_fits_with_the_lag(tmp_path):
         lag = calfile.load(fit["path"]).stats["thermal_lag"]
         assert lag["tau_s"] is not None and lag["tau_se_s"] is not None  # estimated and stated
     assert final_snapshots(session)["coils"][-1]["enabled"] == [False, False, False]
+    # rig refit of the ramp session applies the lag too, unless told not to
+    for flag, expected in (("--lag", True), ("--no-lag", False)):
+        out = tmp_path / f"refit{flag}.yaml"
+        done = run_rig("refit", str(session), "--dut", "mmc0", flag, "-o", str(out))
+        assert done.returncode == 0, done.stderr
+        assert ("thermal_lag" in calfile.load(out).stats) is expected
 
 
 def test_stop_when_good_enough_ends_the_ramp_early_with_its_reason(tmp_path):
