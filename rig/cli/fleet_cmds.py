@@ -9,12 +9,28 @@ from pathlib import Path
 
 import click
 
+from calib.models import MODELS
 from rig import __version__
 from rig.errors import ERRORS, MagrigError
 
 DB_OPTION = click.option("--db", "db_url", metavar="URL", envvar="MAGRIG_DB",
                          help="Fleet database, e.g. postgresql://rig@db.lab/magrig (default: $MAGRIG_DB).")
 DATE = click.DateTime(["%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S"])
+
+
+def fleet_filters(f):
+    """The fleet listing's filters, shared by `rig fleet list` and `rig sessions --db`."""
+    for option in reversed((
+        click.option("--station", help="Only this station."),
+        click.option("--dut", metavar="NAME_OR_SERIAL",
+                     help="Only sessions with this DUT (name or serial number)."),
+        click.option("--since", type=DATE, help="Started on or after this UTC date/time."),
+        click.option("--until", type=DATE, help="Started before this UTC date/time."),
+        click.option("--verdict", type=click.Choice(["PASS", "FAIL"], case_sensitive=False),
+                     help="Only sessions whose acceptance result is this."),
+    )):
+        f = option(f)
+    return f
 
 
 def _need_db(db_url: str | None) -> str:
@@ -69,19 +85,19 @@ def fleet_group() -> None:
 
 @fleet_group.command("list")
 @DB_OPTION
-@click.option("--station", help="Only this station.")
-@click.option("--dut", metavar="NAME_OR_SERIAL", help="Only sessions with this DUT (name or serial number).")
-@click.option("--since", type=DATE, help="Started on or after this UTC date/time.")
-@click.option("--until", type=DATE, help="Started before this UTC date/time.")
-@click.option("--verdict", type=click.Choice(["PASS", "FAIL"], case_sensitive=False),
-              help="Only sessions whose acceptance result is this.")
+@fleet_filters
 def list_cmd(db_url, station, dut, since, until, verdict) -> None:
     """One line per session in the fleet database: started, station, DUTs, points, exit, verdict, file."""
+    list_fleet(_need_db(db_url), station, dut, since, until, verdict)
+
+
+def list_fleet(db_url: str, station, dut, since, until, verdict) -> None:
+    """The fleet listing (also `rig sessions --db URL`)."""
     from rig.fleet.query import Filters, list_sessions
     from rig.fleet.schema import connect
 
     filters = Filters(station=station, dut=dut, since=_utc(since), until=_utc(until), verdict=verdict)
-    with connect(_need_db(db_url)) as conn:
+    with connect(db_url) as conn:
         rows = list_sessions(conn, filters)
     if not rows:
         click.echo("no sessions match")
@@ -110,7 +126,7 @@ def _utc(value: dt.datetime | None) -> dt.datetime | None:
 @click.argument("sessions_dir", metavar="[SESSIONS_DIR]", required=False,
                 type=click.Path(file_okay=False, path_type=Path))
 @DB_OPTION
-@click.option("--model", type=click.Choice(["t24", "p12", "scalar"]), default="t24", show_default=True)
+@click.option("--model", type=click.Choice(MODELS), default="t24", show_default=True)
 @click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Results table to write (Parquet).")
 @click.option("--scheduler", metavar="tcp://HOST:PORT",

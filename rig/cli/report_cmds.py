@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from rig.cli.fleet_cmds import fleet_filters, list_fleet
 from rig.errors import ERRORS, DataError, SessionError
 from rig.exports import FORMATS
 from rig.sessionfile import SESSION_SUFFIXES
@@ -72,10 +73,20 @@ def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path |
 
 @click.command("sessions")
 @click.argument("directory", default=".", type=click.Path(file_okay=False, path_type=Path))
-def sessions_cmd(directory: Path) -> None:
+@click.option("--db", "db_url", metavar="URL", help="List the fleet database's sessions instead (all rigs).")
+@fleet_filters
+def sessions_cmd(directory: Path, db_url: str | None, **filters) -> None:
     """One line per session file in DIRECTORY: date, station, DUTs, points done of planned, exit status,
-    last fit residual. Files that are not sessions, or are damaged, get a one-line note."""
+    last fit residual. Files that are not sessions, or are damaged, get a one-line note. With --db, the
+    sessions pushed to the fleet database, across rigs, filtered by station, DUT, date and verdict."""
     from rig.report.sessions import HEADER, session_files, session_line, skipped_line
+
+    if db_url:
+        list_fleet(db_url, **filters)
+        return
+    given = [f"--{name}" for name, value in filters.items() if value is not None]
+    if given:
+        raise click.UsageError(f"{', '.join(given)}: filters of the fleet database listing; add --db URL")
 
     if not directory.is_dir():
         raise SessionError(f"{directory}: no such folder")

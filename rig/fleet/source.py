@@ -12,11 +12,12 @@ import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
 
+from calib.digest import sha256_text
 from rig.errors import SessionError
-from rig.store import APPLICATION_ID, is_session_file
+from rig.reader import open_read_only
+from rig.sessionfile import APPLICATION_ID, SESSION_SUFFIXES, is_session_file
 
 # Suffixes `rig sessions` lists; a file of another name that starts like an SQLite file is taken too.
-SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ def session_uid(session_row: dict) -> str:
         repr(session_row.get(k))
         for k in ("plan_text", "station_name", "station_text", "started", "wall_started")
     )
-    return hashlib.sha256(key.encode()).hexdigest()[:32]
+    return sha256_text(key)[:32]
 
 
 def session_snapshot(path: str | Path) -> SessionSnapshot:
@@ -89,7 +90,7 @@ def session_snapshot(path: str | Path) -> SessionSnapshot:
     if not is_session_file(path):
         raise SessionError(f"{path}: not a session file (not an SQLite database)")
     try:
-        conn = sqlite3.connect(f"file:{path.resolve().as_posix()}?mode=ro", uri=True, isolation_level=None)
+        conn, private_copy = open_read_only(path)  # never writes beside the session, even for a live WAL
     except sqlite3.Error as exc:
         raise SessionError(f"{path}: cannot open: {exc}") from None
     try:
@@ -104,6 +105,8 @@ def session_snapshot(path: str | Path) -> SessionSnapshot:
         raise SessionError(f"{path}: damaged session file: {exc}") from None
     finally:
         conn.close()
+        if private_copy is not None:
+            private_copy.cleanup()
     if "session" not in tables or len(tables["session"].rows) != 1:
         raise SessionError(f"{path}: damaged session file (no session record)")
     for needed in ("points", "samples"):
@@ -116,7 +119,8 @@ def _read_table(conn: sqlite3.Connection, name: str) -> Table:
     quoted = '"' + name.replace('"', '""') + '"'
     columns = [Column(r[1], r[2] or "", r[5]) for r in conn.execute(f"PRAGMA table_info({quoted})")]
     order = ", ".join(f'"{c.name}"' for c in sorted(columns, key=lambda c: c.pk_index) if c.pk_index)
-    rows = conn.execute(f"SELECT * FROM {quoted}" + (f" ORDER BY {order}" if order else "")).fetchall()
+    query = f"SELECT * FROM {quoted}" + (f" ORDER BY {order}" if order else "")
+    rows = [tuple(r) for r in conn.execute(query)]
     return Table(name, columns, rows)
 
 

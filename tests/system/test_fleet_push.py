@@ -236,3 +236,19 @@ def test_fleet_list_filters(fleet, capsys, args, expected):
         assert f"{len(expected)} session(s)" in out
     else:
         assert "no sessions match" in out
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (("--station", "rig-b"), "cd"),
+    (("--verdict", "fail"), "b"),
+])
+def test_rig_sessions_lists_the_fleet_database_with_db(fleet, capsys, args, expected):
+    url, paths = fleet
+    code, out, err = run(capsys, "sessions", "--db", url, *args)
+    assert code == 0, err
+    assert "".join(sorted(k for k, p in paths.items() if str(p.resolve()) in out)) == expected
+
+
+def test_rig_sessions_filters_without_db_are_refused(tmp_path, capsys):
+    code, out, err = run(capsys, "sessions", str(tmp_path), "--station", "rig-a")
+    assert code == 2 and "--station" in err and "--db" in err
