@@ -120,9 +120,14 @@ class CampaignRunner:
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
         self._settle_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
+        from rig import ramp
+
+        self.ramp = ramp.attach(self)  # continuous-ramp tasks (None for steps); stop_when
 
     # --- the plan as generators -------------------------------------------------------------------
     def tasks(self) -> list[Task]:
+        if self.ramp is not None:
+            return self.ramp.tasks()
         return [Task(p.id, functools.partial(self.point_commands, p)) for p in self.points]
 
     def point_commands(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
@@ -140,7 +145,8 @@ class CampaignRunner:
     # --- handlers ---------------------------------------------------------------------------------
     def handlers(self) -> dict:
         return {SetChamber: self.set_chamber, WaitStable: self.wait_stable, MoveField: self.move_field,
-                Settle: self.settle, CollectPoint: self.collect_point, Checkpoint: self.checkpoint}
+                Settle: self.settle, CollectPoint: self.collect_point, Checkpoint: self.checkpoint,
+                **(self.ramp.handlers() if self.ramp is not None else {})}
 
     def set_chamber(self, cmd: SetChamber) -> None:
         chamber = self.rig.chamber
@@ -499,6 +505,11 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
         except ERRORS as exc:
             out.append({"dut": dut.name, "model": "-", "error": str(exc)})
             continue
+        lag = None
+        if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
+            from rig.ramp import lag_corrected
+
+            ds, lag = lag_corrected(ds)
         for model in plan.fit.models:
             entry: dict[str, Any] = {"dut": dut.name, "model": model}
             try:
@@ -509,6 +520,10 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                                   level="WARNING", device=dut.name, model=model)
                 out.append(entry)
                 continue
+            if lag is not None:
+                from rig.ramp import annotate
+
+                annotate(cal, lag)
             try:
                 path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:

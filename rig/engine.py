@@ -182,6 +182,7 @@ class Engine:
         self._abort_code = Reason.OPERATOR_ABORT
         self._prompting = False
         self._events_lost = 0
+        self._stop: tuple[str, Reason] | None = None  # end early as completed (stop_when targets met)
 
     # --- requests (signal handlers and tests call these) -----------------------------------------
     def request_pause(self) -> None:
@@ -198,6 +199,10 @@ class Engine:
             self._abort_code = code
         if self._prompting:
             raise KeyboardInterrupt  # stop waiting for the operator's answer
+
+    def request_stop(self, reason: str, code: Reason) -> None:
+        """End the run after the current task as completed although points remain (good enough)."""
+        self._stop = (reason, code)
 
     def check_interrupt(self) -> None:
         """Called between commands and by long handlers at every poll: raises to pause or abort."""
@@ -244,8 +249,12 @@ class Engine:
             try:
                 self.event(Kind.RUN, f"{len(todo)} of {len(tasks)} points to take", code=Reason.STARTED)
                 for task in todo:
+                    if self._stop is not None:
+                        break
                     self._run_point(task)
                 status, reason, code = COMPLETED, f"all {len(tasks)} points taken", Reason.COMPLETED
+                if self._stop is not None:
+                    reason, code = self._stop
             except _Abort as exc:
                 status, reason, code = ABORTED, str(exc), exc.code
             except KeyboardInterrupt:
@@ -267,7 +276,10 @@ class Engine:
     def _finish(self, status: str, reason: str, code: Reason) -> None:
         """Record the exit status where the disk allows; a failure here must not hide how the run ended."""
         try:
-            self.session.finish(status, reason, code=code)
+            if self._stop is not None and status == COMPLETED:  # the points left are not wanted
+                self.session.finish(status, reason, code=code, completed=True)
+            else:
+                self.session.finish(status, reason, code=code)
         except Exception as exc:
             log.warning("could not record the exit status in the session: %s", exc)
 

@@ -63,6 +63,7 @@ class Reason(StrEnum):
     SITE_FIELD_DRIFT = "site_field_drift"  # the measured ambient moved beyond the station's limit
     # a run ends
     COMPLETED = "completed"
+    TARGETS_MET = "targets_met"  # stop_when: every DUT's standard errors reached their targets
     RETAKES_EXHAUSTED = "retakes_exhausted"
     LIMIT_REFUSED = "limit_refused"
     OPERATOR_ABORT = "operator_abort"

@@ -116,6 +116,10 @@ def point_id(temp_index: int, field_index: int, n_temps: int, n_fields: int, let
 
 
 def compile_plan(plan: Plan, station: Station) -> list[Point]:
+    if plan.ramp is not None:
+        from rig.rampplan import compile_ramp
+
+        return list(compile_ramp(plan, station))
     check_size(plan)
     steps = plan.temperatures.step_list()
     source = station.field_source
@@ -154,10 +158,12 @@ class PlanCheck:
     breakdown_s: dict[str, float]
     source_lines: list[str] = field(default_factory=list)  # the field source's own figures
     warnings: list[str] = field(default_factory=list)
+    temperatures_word: str = "temperatures"  # "sweeps" for a continuous ramp
 
     def summary_lines(self) -> list[str]:
         lines = [
-            f"{len(self.points)} points = {self.n_temperatures} temperatures x {self.n_fields} fields; "
+            f"{len(self.points)} points = {self.n_temperatures} {self.temperatures_word} x {self.n_fields} "
+            "fields; "
             f"{self.samples_per_dut} samples per DUT, {self.n_duts} DUT(s)",
             f"estimated duration {format_duration(self.duration_s)} ("
             + ", ".join(f"{k} {format_duration(v)}" for k, v in self.breakdown_s.items()) + ")",
@@ -277,14 +283,15 @@ _DURATION_KEYS: dict[str, KeyPath] = {
 }
 
 
-def _check_duration(plan: Plan, breakdown: dict[str, float]) -> None:
+def _check_duration(plan: Plan, breakdown: dict[str, float],
+                    keys: dict[str, KeyPath] = _DURATION_KEYS) -> None:
     """Refuse a plan that would run for more than MAX_DURATION_S, blaming its largest part."""
     total = sum(breakdown.values())
     if math.isfinite(total) and total <= MAX_DURATION_S:
         return
     part = max(breakdown, key=lambda k: breakdown[k] if math.isfinite(breakdown[k]) else math.inf)
     days = total / 86_400.0
-    raise _plan_error(ConfigError, plan, _DURATION_KEYS[part],
+    raise _plan_error(ConfigError, plan, keys[part],
                       f"estimated duration {days:.3g} days (mostly {part}) is longer than the bound of "
                       f"{MAX_DURATION_S / 86_400.0:g} days")
 
@@ -297,6 +304,10 @@ def check_campaign(campaign: Campaign) -> PlanCheck:
 
 def check_plan(plan: Plan, station: Station) -> PlanCheck:
     """Validate `plan` against `station` without touching hardware. Raises LimitError naming the limit."""
+    if plan.ramp is not None:
+        from rig.rampplan import check_ramp
+
+        return check_ramp(plan, station)
     points = compile_plan(plan, station)
     n_temps, n_fields = check_size(plan)
     warnings: list[str] = []
@@ -308,6 +319,10 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
             warnings.append(problem)
     breakdown = estimate_duration(plan, station, points, n_fields)
     _check_duration(plan, breakdown)
+    if plan.stop_when:
+        from rig.rampplan import stop_when_line
+
+        source_lines = [*source_lines, stop_when_line(plan, sum(breakdown.values()))]
     return PlanCheck(
         points=points,
         n_temperatures=n_temps,

@@ -47,6 +47,7 @@ def dut_truths(station) -> dict[str, DutTruth]:
             continue
         truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
         out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
+        out[dut.name].sensor_lag_s = spec.sensor_lag_s
     return out
 
 

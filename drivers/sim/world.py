@@ -3,8 +3,10 @@
 - Field in the lab frame: coil constants (3x3, nT/A) x coil currents + ambient field, when the coils are
   the field source; or the site field rotated into the table frame by the turntable angles. Either may
   drift slowly and steadily (`ambient_drift_nt_per_s`), as a lab's field does when something nearby moves.
-- Chamber air follows its setpoint at a limited ramp rate; each DUT's temperature lags the air with its
-  own time constant (first order).
+- Chamber air follows its setpoint at a limited ramp rate; each DUT's element temperature lags the air
+  with its own time constant (first order). What the DUT's temperature sensors report (the TMP117 beside
+  it, its own die sensor) lags the element by `sensor_lag_s` (first order, as a probe glued on the board
+  lags the sensing element); 0 (the default) reports the element's own temperature.
 - Each DUT has known calibration errors of the T24 form, B = (S + tau K) h + b + tau kb, plus a bridge
   offset that a SET/RESET pair cancels and that drifts with temperature, and white noise.
 
@@ -40,6 +42,7 @@ class DutTruth:
     noise_nt: float = 0.0  # white noise per axis, RMS
     thermal_lag_s: float = 600.0  # DUT temperature time constant against the chamber air
     mount: np.ndarray = field(default_factory=lambda: np.eye(3))  # lab frame -> sensor frame rotation
+    sensor_lag_s: float = 0.0  # the reported temperature lags the element's by this time constant
 
     def field_from_raw(self, h_nt: np.ndarray, temp_c: float) -> np.ndarray:
         """The T24 model itself: true field from a raw reading."""
@@ -72,7 +75,12 @@ class DutTruth:
 @dataclass
 class _Dut:
     truth: DutTruth
-    temp_c: float
+    temp_c: float  # the element's
+    sensor_c: float = math.nan  # what its temperature sensors report
+
+    def __post_init__(self):
+        if math.isnan(self.sensor_c):
+            self.sensor_c = self.temp_c
 
 
 class World:
@@ -141,6 +149,8 @@ class World:
                 self.air_c += max(-step, min(step, delta))
             for d in self.duts.values():
                 d.temp_c = self.air_c + (d.temp_c - self.air_c) * math.exp(-dt / d.truth.thermal_lag_s)
+                lag = d.truth.sensor_lag_s
+                d.sensor_c = d.temp_c + (d.sensor_c - d.temp_c) * math.exp(-dt / lag) if lag > 0 else d.temp_c
             t += dt
         self._t = now
 
@@ -176,6 +186,13 @@ class World:
             self.duts[name] = _Dut(truth, self.air_c if temp_c is None else temp_c)
 
     def dut_temp_c(self, name: str) -> float:
+        """What the DUT's temperature sensors report (its element's, unless sensor_lag_s > 0)."""
+        with self._lock:
+            self._advance()
+            return self.duts[name].sensor_c
+
+    def element_temp_c(self, name: str) -> float:
+        """The sensing element's own temperature (the tau of its T24 truth)."""
         with self._lock:
             self._advance()
             return self.duts[name].temp_c

@@ -75,6 +75,8 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     "(default: decided from the data's direction coverage).",
 )
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
+@click.option("--lag/--no-lag", default=True, show_default=True,
+              help="Ramp session: estimate each DUT's thermal lag and fit its element temperature.")
 @click.option(
     "-o",
     "--output",
@@ -93,6 +95,7 @@ def refit(
     field_norm_nt,
     balance_orientations,
     temp_ref_c,
+    lag,
     output,
 ):
     """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT."""
@@ -113,6 +116,12 @@ def refit(
         takers = [m for m, spec in REGISTRY.items() if set(unused) <= spec.options]
         raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
                                f"--model {' or '.join(takers)} only")
+    lag_info = None
+    if lag:
+        from rig.ramp import lag_corrected, session_is_ramp
+
+        if session_is_ramp(data):
+            ds, lag_info = lag_corrected(ds)
     cal = calib.fit(
         ds,
         model,
@@ -122,6 +131,11 @@ def refit(
         balance_orientations=balance_orientations,
         software_version=__version__,
     )
+    if lag_info is not None:
+        from rig.ramp import annotate
+
+        annotate(cal, lag_info)
+        click.echo(lag_info["message"])
     calfile.save(cal, output)
     print_summary(cal)
     click.echo(f"wrote {output}")

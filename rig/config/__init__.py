@@ -26,6 +26,7 @@ from rig.config.plan import (
     ListOrientations,
     Outputs,
     Plan,
+    RampTemperatures,
     Stability,
     Temperatures,
     TempRange,
@@ -98,6 +99,6 @@ __all__ = [
     "GridOrientations", "I2c", "ListOrientations", "ModbusRtu", "ModbusTcp", "Outputs", "Plan", "Serial",
     "Sim", "SimDut", "SimWorld", "SiteFromModel", "SiteFromReference", "SiteFromVector", "Stability",
     "Station", "Strict", "TempRange", "TempStep", "TemperatureSensor", "TemperatureSensorConfig",
-    "Temperatures", "Turntable", "TruthSpec", "VectorFields", "load_campaign", "load_plan",
-    "load_station", "resolve_station_path",
+    "RampTemperatures", "Temperatures", "Turntable", "TruthSpec", "VectorFields", "load_campaign",
+    "load_plan", "load_station", "resolve_station_path",
 ]

@@ -1,9 +1,10 @@
 """Plan files (what to do): name; station (path relative to the plan file, optional; the CLI overrides it);
 mode (only `step_and_dwell` today: each point is collected at a stable temperature; every sample still
 carries its own temperature so a later `continuous_ramp` mode can reuse the store and the fits);
-temperatures {steps | range, ramp_c_per_min, stability}; fields (see rig/fieldsets.py; which kinds a
+temperatures {steps | range, ramp_c_per_min, stability} or {mode: ramp, range_c, rate_c_per_min,
+cycles, end_hold_s, stability} (continuous ramp, rig/ramp.py); fields (see rig/fieldsets.py; which kinds a
 station can make is its field source's business, rig/fieldsources/); samples_per_point, settle_s,
-set_reset; fit {models, robust}; outputs {dir}.
+set_reset; fit {models, robust}; outputs {dir}; stop_when {S, K, b, kb} (optional).
 
 A "temperature step" is one setpoint of `temperatures` (T03 in a point id); the engine runs "tasks".
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BeforeValidator, Field, model_validator
+from pydantic import BeforeValidator, Discriminator, Field, Tag, model_validator
 
 from calib.models import MODELS as CALIBRATION_MODELS
 from rig import fieldsets
@@ -102,6 +103,40 @@ class Temperatures(Strict):
         if step.stability is None:
             return self.stability
         return self.stability.model_copy(update=step.stability.model_dump(exclude_unset=True))
+
+
+class RampTemperatures(Strict):
+    """Continuous ramp: the chamber ramps from range_c[0] to range_c[1] and back, `cycles` times, without
+    stopping, while the field source sweeps the plan's field set again and again (rig/ramp.py). Before
+    the first leg the DUTs are brought to range_c[0] and judged stable with `stability`; `end_hold_s`
+    keeps sweeping at each leg's end while the DUTs catch up with the air."""
+
+    mode: Literal["ramp"]
+    range_c: tuple[TEMP_C, TEMP_C]
+    rate_c_per_min: RAMP_C_PER_MIN
+    cycles: Count(100) = 1
+    end_hold_s: SECONDS = 0.0
+    stability: Stability = Stability()
+
+    @model_validator(mode="after")
+    def _span(self):
+        if self.range_c[0] == self.range_c[1]:
+            raise KeyPathError(("range_c",), "start and end must differ")
+        return self
+
+
+def _temperatures_mode(value: Any) -> str:
+    """`mode:` present means a ramp (a wrong value is then refused by RampTemperatures)."""
+    if isinstance(value, dict):
+        return "ramp mode" if "mode" in value else "step mode"
+    return "ramp mode" if isinstance(value, RampTemperatures) else "step mode"
+
+
+AnyTemperatures = Annotated[
+    # tags are no key of either model, so an error's key path skips them (rig/yamlload.py)
+    Annotated[Temperatures, Tag("step mode")] | Annotated[RampTemperatures, Tag("ramp mode")],
+    Discriminator(_temperatures_mode),
+]
 
 
 def _vectors(directions: np.ndarray, magnitudes_nt: list[float]) -> list[tuple[float, ...]]:
@@ -216,7 +251,7 @@ class Plan(Strict):
     name: SafeName
     station: str | None = Field(None, description="station file, relative to the plan file")
     mode: Literal["step_and_dwell"] = "step_and_dwell"
-    temperatures: Temperatures
+    temperatures: AnyTemperatures
     fields: FieldSet
     samples_per_point: Count(MAX_SAMPLES_PER_POINT)
     settle_s: SECONDS = Field(1.0, description="wait after a field change before sampling")
@@ -225,3 +260,22 @@ class Plan(Strict):
     )
     fit: Fit = Fit()
     outputs: Outputs = Outputs()
+    stop_when: dict[str, bounded(gt=0)] | None = Field(
+        None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
+        "them (calib/targets.py)")
+
+    @model_validator(mode="after")
+    def _stop_groups(self):
+        from calib.targets import GROUP_KEYS
+
+        for group in self.stop_when or {}:
+            if group not in GROUP_KEYS:
+                raise KeyPathError(("stop_when", group), "unknown parameter group (known: S, K, b, kb)")
+        if self.stop_when is not None and not self.stop_when:
+            raise KeyPathError(("stop_when",), "give at least one target, e.g. {K: 1e-6}")
+        return self
+
+    @property
+    def ramp(self) -> RampTemperatures | None:
+        """The ramp settings of a continuous-ramp plan, None for temperature steps."""
+        return self.temperatures if isinstance(self.temperatures, RampTemperatures) else None

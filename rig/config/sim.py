@@ -32,6 +32,8 @@ class SimDut(Strict):
     truth: Literal["random"] | TruthSpec = "random"
     noise_nt: bounded(lo=0, hi=NT_MAX) | None = Field(None, description="default: the simulator's")
     thermal_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="default: the simulator's")
+    sensor_lag_s: bounded(lo=0, hi=DAY_S) = Field(0.0, description="its temperature sensors lag the element "
+                                                   "by this time constant (s); 0: they read the element")
 
 
 class SimWorld(Strict):
