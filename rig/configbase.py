@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from drivers import registry
 
@@ -37,10 +37,18 @@ class ModbusRtu(Strict):
     timeout_s: PositiveFloat = 1.0
 
 
+class Mux(Strict):
+    """A TCA9548A/PCA9548A I2C switch in front of the device: its address (0x70..0x77) and channel."""
+
+    address: int = Field(ge=0x70, le=0x77)
+    channel: int = Field(ge=0, le=7)
+
+
 class I2c(Strict):
     kind: Literal["i2c"]
     bus: int = Field(ge=0)
     address: int = Field(ge=0x03, le=0x77)
+    mux: Mux | None = None
 
 
 class Serial(Strict):
@@ -54,6 +62,18 @@ class Sim(Strict):
     """Simulated device: the same driver talks its protocol to a simulator of `sim:`'s world."""
 
     kind: Literal["sim"]
+    # I2C devices behind a simulated switch share ONE simulated bus per `bus` number (without `mux`
+    # each simulated chip keeps a bus of its own); serial devices naming the same `line` share one pty.
+    bus: int = Field(0, ge=0)
+    address: int | None = Field(None, ge=0x03, le=0x77)
+    mux: Mux | None = None
+    line: str | None = None
+
+    @model_validator(mode="after")
+    def _muxed_needs_address(self):
+        if self.mux is not None and self.address is None:
+            raise ValueError("a simulated device behind a switch (mux) needs its `address`")
+        return self
 
 
 TRANSPORTS: dict[str, type[Strict]] = {

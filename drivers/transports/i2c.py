@@ -139,10 +139,21 @@ class I2CTransport:
             except OSError as exc:
                 raise self._as_device_error(exc, operation) from exc
 
-        return with_retries(
-            attempt, device=self.name, operation=operation, tries=self.tries,
-            backoff_s=self.backoff_s, clock=self.clock,
-        )
+        try:
+            return with_retries(
+                attempt, device=self.name, operation=operation, tries=self.tries,
+                backoff_s=self.backoff_s, clock=self.clock,
+            )
+        except DeviceError as exc:
+            cause = exc.__cause__
+            if isinstance(cause, DeviceError) and cause.device != self.name:
+                # Another device failed on the way (an I2C switch in front of this chip): its fault,
+                # named as its own, not as this chip's.
+                raise type(cause)(
+                    cause.device, cause.operation,
+                    f"{cause.detail} (after {self.tries} tries, on the way to {self.name} {operation})",
+                ) from cause
+            raise
 
     def _as_device_error(self, exc: OSError, operation: str) -> DeviceError:
         if exc.errno == NACK_ERRNO:

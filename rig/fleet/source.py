@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.errors import SessionError
-from rig.store import APPLICATION_ID, is_session_file
+from rig.sessionfile import APPLICATION_ID, is_session_file
 
 # Suffixes `rig sessions` lists; a file of another name that starts like an SQLite file is taken too.
 SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db", ".session")

@@ -16,7 +16,8 @@ from rig.errors import SessionError
 from rig.fleet.push import dut_serials, verdict
 from rig.fleet.refit import dut_datasets, refit_file
 from rig.fleet.source import session_snapshot
-from rig.store import SampleRow, Session, read_dataset
+from rig.reader import read_dataset
+from rig.store import SampleRow, Session
 from tests.fleet_sessions import Spec, record_points, write_session
 
 
