@@ -50,6 +50,7 @@ from rig.engine import (
 from rig.errors import ERRORS, ConfigError, SessionError
 from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
+from rig.interleave import read_all
 from rig.lock import SessionLock
 from rig.plan import Point, compile_plan
 from rig.reference import reference_for
@@ -217,8 +218,9 @@ class CampaignRunner:
         for _ in range(point.samples):
             sensors = {name: dev.read().temp_c for name, dev in self.rig.temp_sensors.items()}
             ref_nt = self._reference_now()
+            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (rig/interleave.py)
             for dut, dev in self.rig.duts.items():
-                sample = dev.read()
+                sample = samples[dut]
                 if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
                     temp_c, other_c = sample.temp_c, sensors.get(beside.get(dut, ""))
                 else:

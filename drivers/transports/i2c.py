@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import errno
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import Any, Protocol, TypeVar
 
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
+from drivers.steps import run_steps
 from drivers.transports.retry import with_retries
 
 log = logging.getLogger("magrig.transport.i2c")
@@ -174,12 +175,25 @@ class I2CTransport:
     ) -> None:
         """Sleep the expected conversion time, then poll `ready` every `poll_s` until `timeout_s`
         (counted from the call) has passed; DeviceTimeout names what was awaited."""
+        run_steps(self.wait_steps(ready, what=what, first_wait_s=first_wait_s, timeout_s=timeout_s,
+                                  poll_s=poll_s), self.clock)
+
+    def wait_steps(
+        self,
+        ready: Callable[[], bool],
+        *,
+        what: str,
+        first_wait_s: float,
+        timeout_s: float,
+        poll_s: float = 0.001,
+    ) -> Generator[float, None, None]:
+        """wait_until as steps (drivers/steps.py): yields each wait instead of sleeping it."""
         start = self.clock.now()
         deadline = start + timeout_s
-        self.clock.sleep(first_wait_s)
+        yield first_wait_s
         while not ready():
             remaining_s = deadline - self.clock.now()
             if remaining_s < CLOCK_RESOLUTION_S:
                 waited_ms = (self.clock.now() - start) * 1e3
                 raise DeviceTimeout(self.name, f"wait for {what}", f"not ready after {waited_ms:.1f} ms")
-            self.clock.sleep(min(poll_s, remaining_s))
+            yield min(poll_s, remaining_s)
