@@ -216,7 +216,7 @@ class CampaignRunner:
         rows: list[SampleRow] = []
         beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
         for _ in range(point.samples):
-            sensors = {name: dev.read().temp_c for name, dev in self.rig.temp_sensors.items()}
+            sensors = {name: r.temp_c for name, r in read_all(self.rig.temp_sensors, self.rig.clock).items()}
             ref_nt = self._reference_now()
             samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (rig/interleave.py)
             for dut, dev in self.rig.duts.items():
