@@ -274,6 +274,7 @@ class RunOutcome:
     fits: list[dict] = field(default_factory=list)  # {dut, model, path, rms_nt, error}
     stale_lock_pid: int | None = None
     wall_s: float = 0.0
+    verdicts: list = field(default_factory=list)  # rig.acceptance.Verdict per DUT (plan's acceptance:)
 
 
 def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
@@ -421,7 +422,25 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
     if result.status == COMPLETED:
         outcome.fits = fit_session(session, plan, rig.station)
+        if plan.acceptance is not None:
+            outcome.verdicts = accept_session(session, plan, rig.station, outcome.fits, runner)
     return outcome
+
+
+def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dict], runner) -> list:
+    """PASS/FAIL per DUT (rig/acceptance.py): stored in the session, written as a CSV beside it, shown in
+    the live view's summaries."""
+    from rig import acceptance
+
+    verdicts = acceptance.judge_session(session.path, plan, station, fits)
+    session.record_acceptance(acceptance.rows(verdicts))
+    acceptance.write_summary_csv(acceptance.summary_csv_path(session.path), session.path.name, station.name,
+                                 verdicts)
+    for v in verdicts:
+        session.log_event(Kind.ACCEPTANCE, v.line(), code=Reason.ACCEPTED if v.passed else Reason.REJECTED,
+                          device=v.dut, level="INFO" if v.passed else "WARNING")
+        runner.live_summaries[v.dut] = f"{v.verdict} " + runner.live_summaries.get(v.dut, "")
+    return verdicts
 
 
 def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
