@@ -155,3 +155,24 @@ def test_acceptance_exit_code_and_summary_csv(tmp_path, acceptance, code, verdic
         assert "FAIL" in result.stderr and "mmc0" in result.stderr
     listing = run_rig("sessions", str(out))
     assert ("PASS 2/2" if code == 0 else "FAIL 2/2") in listing.stdout
+
+
+def test_the_shipped_16_dut_station_loads_and_interleaves(tmp_path):
+    """sim-16: 16 DUTs; one interleaved round of readings costs about one DUT's simulated time."""
+    from rig.interleave import read_all
+
+    station = cfg.load_station(REPO / "configs" / "stations" / "sim-16.yaml")
+    assert len(station.duts) == 16
+    rig = open_rig(station)
+    try:
+        one = next(d for d in rig.duts.values() if hasattr(d, "read_steps"))
+        t0 = rig.clock.now()
+        one.read()
+        single_s = rig.clock.now() - t0
+        t0 = rig.clock.now()
+        samples = read_all(rig.duts, rig.clock)
+        all_s = rig.clock.now() - t0
+    finally:
+        rig.close()
+    assert set(samples) == {d.name for d in station.duts}
+    assert all_s < 2 * single_s
