@@ -26,6 +26,7 @@ from drivers import registry
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
+from drivers.steps import Steps, run_steps
 from drivers.transports.i2c import I2CTransport, SMBusLike
 
 log = logging.getLogger("magrig.drivers.hmc5883l")
@@ -166,11 +167,15 @@ class HMC5883L(Device):
 
     def read(self) -> FieldSample:
         """One single measurement (after a discarded one if the gain just changed)."""
+        return run_steps(self.read_steps(), self.clock)
+
+    def read_steps(self) -> Steps[FieldSample]:
+        """read() as steps (drivers/steps.py): the conversions of several chips can then overlap."""
         if self._discard_next:
-            self.measure_codes()
+            yield from self._measure_steps()
             self._discard_next = False
         t = self.clock.now()
-        codes = self.measure_codes()
+        codes = yield from self._measure_steps()
         field_nt = tuple(code_to_nt(c, self.gain) for c in codes)
         flags = frozenset({"overflow"}) if OVERFLOW_CODE in codes else frozenset()
         temp_c = None
@@ -195,8 +200,11 @@ class HMC5883L(Device):
 
     def measure_codes(self) -> tuple[int, int, int]:
         """Single-measurement mode: trigger, wait for RDY, read X Z Y."""
+        return run_steps(self._measure_steps(), self.clock)
+
+    def _measure_steps(self) -> Steps[tuple[int, int, int]]:
         self.link.write_byte(REG_MODE, MODE_SINGLE, "mode (single measurement)")
-        self.link.wait_until(
+        yield from self.link.wait_steps(
             lambda: bool(self.link.read_byte(REG_STATUS, "status") & STATUS_RDY),
             what=f"RDY (status 0x{REG_STATUS:02X})",
             first_wait_s=MEASUREMENT_TIME_S, timeout_s=4 * MEASUREMENT_TIME_S + 0.001,

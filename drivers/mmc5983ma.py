@@ -23,6 +23,7 @@ from drivers import registry
 from drivers.base import Device, FieldSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
+from drivers.steps import Steps, run_steps
 from drivers.transports.i2c import I2CTransport, SMBusLike
 
 log = logging.getLogger("magrig.drivers.mmc5983ma")
@@ -177,6 +178,10 @@ class MMC5983MA(Device):
     def read(self) -> FieldSample:
         """One field sample (and the temperature, if enabled); in continuous mode the next new one.
         t is the start of a triggered measurement, or when continuous-mode data arrived."""
+        return run_steps(self.read_steps(), self.clock)
+
+    def read_steps(self) -> Steps[FieldSample]:
+        """read() as steps (drivers/steps.py): the conversions of several chips can then overlap."""
         t = self.clock.now()
         offset_nt = None
         codes_reset: tuple[int, ...] = ()
@@ -185,17 +190,17 @@ class MMC5983MA(Device):
             t = self.clock.now()  # when the new data was seen, not when we started waiting
             field_nt = tuple(code_to_nt(c) for c in codes)
         elif self.set_reset:
-            self.pulse(CONTROL0_SET)
-            codes = self.measure_codes()
-            self.pulse(CONTROL0_RESET)
-            codes_reset = self.measure_codes()
+            yield from self._pulse_steps(CONTROL0_SET)
+            codes = yield from self._measure_steps()
+            yield from self._pulse_steps(CONTROL0_RESET)
+            codes_reset = yield from self._measure_steps()
             pairs = list(zip(codes, codes_reset, strict=True))
             field_nt = tuple(code_to_nt(NULL_CODE + (s - r) / 2) for s, r in pairs)
             offset_nt = tuple(code_to_nt((s + r) / 2) for s, r in pairs)
         else:
-            codes = self.measure_codes()
+            codes = yield from self._measure_steps()
             field_nt = tuple(code_to_nt(c) for c in codes)
-        temp_c = self.measure_temp_c() if self.read_temperature else None
+        temp_c = (yield from self._temp_steps()) if self.read_temperature else None
         saturated = any(c in (0, CODE_MAX) for c in codes + codes_reset)
         flags = frozenset({"saturated"}) if saturated else frozenset()
         return FieldSample(
@@ -221,20 +226,30 @@ class MMC5983MA(Device):
 
     def pulse(self, set_or_reset: int) -> None:
         """Send a SET (CONTROL0_SET) or RESET (CONTROL0_RESET) pulse and let the bridge settle."""
-        self.link.write_byte(REG_CONTROL0, self._control0 | set_or_reset, "control 0 (SET/RESET)")
-        self.clock.sleep(SET_RESET_WAIT_S)
+        run_steps(self._pulse_steps(set_or_reset), self.clock)
 
     def measure_codes(self) -> tuple[int, int, int]:
         """One single magnetic measurement: TM_M, wait for Meas_M_Done, burst-read the 7 data bytes."""
-        self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_TM_M, "control 0 (TM_M)")
-        self._wait_status(STATUS_MEAS_M_DONE, "Meas_M_Done", MEASUREMENT_TIME_S[self.bandwidth],
-                          status_timeout_s(self.bandwidth))
-        return decode_field_codes(self.link.read_block(REG_XOUT0, FIELD_BURST_BYTES, "field data"))
+        return run_steps(self._measure_steps(), self.clock)
 
     def measure_temp_c(self) -> float:
+        return run_steps(self._temp_steps(), self.clock)
+
+    def _pulse_steps(self, set_or_reset: int) -> Steps[None]:
+        self.link.write_byte(REG_CONTROL0, self._control0 | set_or_reset, "control 0 (SET/RESET)")
+        yield SET_RESET_WAIT_S
+
+    def _measure_steps(self) -> Steps[tuple[int, int, int]]:
+        self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_TM_M, "control 0 (TM_M)")
+        yield from self._status_steps(STATUS_MEAS_M_DONE, "Meas_M_Done", MEASUREMENT_TIME_S[self.bandwidth],
+                                      status_timeout_s(self.bandwidth))
+        return decode_field_codes(self.link.read_block(REG_XOUT0, FIELD_BURST_BYTES, "field data"))
+
+    def _temp_steps(self) -> Steps[float]:
         self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_TM_T, "control 0 (TM_T)")
         timeout_s = max(TEMP_TIMEOUT_MIN_S, status_timeout_s(self.bandwidth))
-        self._wait_status(STATUS_MEAS_T_DONE, "Meas_T_Done", MEASUREMENT_TIME_S[self.bandwidth], timeout_s)
+        yield from self._status_steps(STATUS_MEAS_T_DONE, "Meas_T_Done", MEASUREMENT_TIME_S[self.bandwidth],
+                                      timeout_s)
         return decode_temp_c(self.link.read_byte(REG_TOUT, "temperature"))
 
     def start_continuous(self, rate_hz: float) -> None:
@@ -264,7 +279,10 @@ class MMC5983MA(Device):
         return codes
 
     def _wait_status(self, mask: int, what: str, first_wait_s: float, timeout_s: float) -> None:
-        self.link.wait_until(
+        run_steps(self._status_steps(mask, what, first_wait_s, timeout_s), self.clock)
+
+    def _status_steps(self, mask: int, what: str, first_wait_s: float, timeout_s: float) -> Steps[None]:
+        yield from self.link.wait_steps(
             lambda: bool(self.link.read_byte(REG_STATUS, "status") & mask),
             what=f"{what} (status 0x{REG_STATUS:02X})", first_wait_s=first_wait_s, timeout_s=timeout_s,
         )

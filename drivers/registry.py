@@ -125,6 +125,7 @@ class SerialLink:
     port: str
     baudrate: int
     timeout_s: float
+    line: Any = None  # a drivers.transports.serial.SerialLine several devices share (by device id)
 
 
 @dataclass(frozen=True)

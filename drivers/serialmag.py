@@ -64,7 +64,7 @@ from __future__ import annotations
 import logging
 import re
 
-from pydantic import field_validator
+from pydantic import Field, field_validator
 
 from drivers import registry
 from drivers.base import Device, FieldSample
@@ -507,6 +507,7 @@ def _saturated(counts) -> frozenset[str]:
 class SerialMagOptions(registry.Options):
     rate_hz: float = 20
     set_reset: bool = True
+    device_id: int = Field(0, ge=0, le=98, description="the `dd` of its commands on a shared RS-485 line")
 
     @field_validator("rate_hz")
     @classmethod
@@ -519,9 +520,13 @@ class SerialMagOptions(registry.Options):
 def _build(link: registry.SerialLink, options: SerialMagOptions, *, name: str, clock: Clock,
            set_reset: bool = True) -> SerialMagnetometer:
     pulse = set_reset and options.set_reset
+    if link.line is not None:  # a line the station shares between several devices (by device id)
+        return SerialMagnetometer.on_line(link.line, name=name, device_id=options.device_id, clock=clock,
+                                          timeout_s=link.timeout_s, rate_hz=int(options.rate_hz),
+                                          set_reset="pulse" if pulse else "off")
     return SerialMagnetometer.from_port(link.port, name=name, clock=clock, baudrate=link.baudrate,
                                         timeout_s=link.timeout_s, rate_hz=int(options.rate_hz),
-                                        set_reset="pulse" if pulse else "off")
+                                        device_id=options.device_id, set_reset="pulse" if pulse else "off")
 
 
 def _sample_time_s(options: SerialMagOptions, set_reset_pair: bool) -> float:

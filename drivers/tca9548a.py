@@ -29,6 +29,7 @@ import weakref
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+from drivers.base import Device
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 
 log = logging.getLogger("magrig.drivers.tca9548a")
@@ -216,3 +217,38 @@ class MuxedBus:
 
     def close(self) -> None:
         """Nothing to release: the physical bus belongs to whoever opened it."""
+
+
+class SwitchBank(Device):
+    """The switches of one bus as one station device: connect() checks that each answers (a fault
+    named as the switch's), safe_state() switches every channel of every switch off (the end of a run).
+
+        bank = SwitchBank(bus, {0x70: "i2c-1 switch 0x70", 0x71: "i2c-1 switch 0x71"}, name="i2c-1 switches")
+    """
+
+    kind = "i2c_switch"
+
+    def __init__(self, bus: Any, switches: dict[int, str], *, name: str, clock=None):
+        super().__init__(name, clock)
+        self.bus = bus
+        self.switches = [switch_on(bus, address, label) for address, label in switches.items()]
+
+    def connect(self) -> None:
+        with bus_lock(self.bus):
+            for switch in self.switches:
+                switch.read_control()
+
+    def read(self) -> dict[str, int | None]:
+        """{switch name: control byte as last written and verified (None: unknown)}."""
+        return {switch.name: switch.control for switch in self.switches}
+
+    def describe(self) -> dict:
+        return {**super().describe(), "model": "TCA9548A",
+                "switches": {s.name: f"0x{s.address:02X}" for s in self.switches}}
+
+    def safe_state(self) -> None:
+        """Every channel off. Never raises (a dead switch is logged)."""
+        try:
+            disable_all(self.bus)
+        except DeviceError as exc:
+            log.warning("%s: channels not confirmed off: %s", self.name, exc, extra={"device": self.name})

@@ -21,6 +21,7 @@ from drivers import registry
 from drivers.base import Device, TempSample
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
+from drivers.steps import Steps, run_steps
 from drivers.transports.i2c import I2CTransport, SMBusLike
 
 log = logging.getLogger("magrig.drivers.tmp117")
@@ -144,6 +145,10 @@ class TMP117(Device):
         }
 
     def read(self) -> TempSample:
+        return run_steps(self.read_steps(), self.clock)
+
+    def read_steps(self) -> Steps[TempSample]:
+        """read() as steps (drivers/steps.py): several probes then wait for their conversions together."""
         t = self.clock.now()
         if self.mode == "one_shot":
             self._write_config(MODE_ONE_SHOT)
@@ -152,7 +157,7 @@ class TMP117(Device):
         else:
             first_wait_s = 0.0
             timeout_s = 4 * cycle_time_s(self.averaging, self.conversion_code) + 0.001
-        self.link.wait_until(
+        yield from self.link.wait_steps(
             lambda: bool(int.from_bytes(self._read_word(REG_CONFIGURATION, "configuration"), "big")
                          & CONFIG_DATA_READY),
             what=f"Data_Ready (configuration 0x{REG_CONFIGURATION:02X} bit 13)",

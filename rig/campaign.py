@@ -51,6 +51,7 @@ from rig.errors import ERRORS, ConfigError, SessionError
 from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.frozen import FrozenReadings
+from rig.interleave import read_all
 from rig.lock import SessionLock
 from rig.plan import Point, check_campaign
 from rig.reference import reference_for
@@ -235,10 +236,11 @@ class CampaignRunner:
         rows: list[SampleRow] = []
         beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
         for _ in range(point.samples):
-            sensors = {name: dev.read().temp_c for name, dev in self.rig.temp_sensors.items()}
+            sensors = {name: r.temp_c for name, r in read_all(self.rig.temp_sensors, self.rig.clock).items()}
             ref_nt = self._reference_now()
+            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (rig/interleave.py)
             for dut, dev in self.rig.duts.items():
-                sample = dev.read()
+                sample = samples[dut]
                 if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
                     temp_c, other_c = sample.temp_c, sensors.get(beside.get(dut, ""))
                 else:
@@ -292,6 +294,7 @@ class RunOutcome:
     fits: list[dict] = field(default_factory=list)  # {dut, model, path, rms_nt, error}
     stale_lock_pid: int | None = None
     wall_s: float = 0.0
+    verdicts: list = field(default_factory=list)  # rig.acceptance.Verdict per DUT (plan's acceptance:)
 
 
 def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
@@ -487,7 +490,25 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
     if result.status == COMPLETED:
         outcome.fits = fit_session(session, plan, rig.station)
+        if plan.acceptance is not None:
+            outcome.verdicts = accept_session(session, plan, rig.station, outcome.fits, runner)
     return outcome
+
+
+def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dict], runner) -> list:
+    """PASS/FAIL per DUT (rig/acceptance.py): stored in the session, written as a CSV beside it, shown in
+    the live view's summaries."""
+    from rig import acceptance
+
+    verdicts = acceptance.judge_session(session.path, plan, station, fits)
+    session.record_acceptance(acceptance.rows(verdicts))
+    acceptance.write_summary_csv(acceptance.summary_csv_path(session.path), session.path.name, station.name,
+                                 verdicts)
+    for v in verdicts:
+        session.log_event(Kind.ACCEPTANCE, v.line(), code=Reason.ACCEPTED if v.passed else Reason.REJECTED,
+                          device=v.dut, level="INFO" if v.passed else "WARNING")
+        runner.live_summaries[v.dut] = f"{v.verdict} " + runner.live_summaries.get(v.dut, "")
+    return verdicts
 
 
 def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:

@@ -11,6 +11,7 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from drivers import registry
+from rig.names import SafeName
 from rig.numbers import BAUDRATE, TIMEOUT_S, Count, NonNegativeFloat, PositiveFloat, Vec3  # noqa: F401 - the config models'
 from rig.yamlload import KeyPathError
 
@@ -37,10 +38,18 @@ class ModbusRtu(Strict):
     timeout_s: TIMEOUT_S = 1.0
 
 
+class Mux(Strict):
+    """A TCA9548A/PCA9548A I2C switch in front of the device: its address (0x70..0x77) and channel."""
+
+    address: Count(0x77, lower=0x70)
+    channel: Count(7, lower=0)
+
+
 class I2c(Strict):
     kind: Literal["i2c"]
     bus: Count(1_000, lower=0)
     address: Count(0x77, lower=0x03)
+    mux: Mux | None = None
 
 
 class Serial(Strict):
@@ -94,6 +103,18 @@ class Sim(Strict):
 
     kind: Literal["sim"]
     faults: SimFaults | None = None
+    # I2C devices behind a simulated switch share ONE simulated bus per `bus` number (without `mux`
+    # each simulated chip keeps a bus of its own); serial devices naming the same `line` share one pty.
+    bus: Count(1_000, lower=0) = 0
+    address: Count(0x77, lower=0x03) | None = None
+    mux: Mux | None = None
+    line: SafeName | None = None
+
+    @model_validator(mode="after")
+    def _muxed_needs_address(self):
+        if self.mux is not None and self.address is None:
+            raise ValueError("a simulated device behind a switch (mux) needs its `address`")
+        return self
 
 
 TRANSPORTS: dict[str, type[Strict]] = {

@@ -41,6 +41,7 @@ class Kind(StrEnum):
     SAFE_STATE = "safe_state"
     EXIT = "exit"
     FIT_FAILED = "fit_failed"
+    ACCEPTANCE = "acceptance"  # a DUT's PASS/FAIL verdict against the plan's acceptance limits
     WARNING = "warning"  # a WARNING log record of the rig (transport retries...)
     ERROR = "error"  # an ERROR log record of the rig
     SITE_FIELD = "site_field"  # the ambient / site field measured by a reference magnetometer
@@ -83,6 +84,8 @@ class Reason(StrEnum):
     SAFE_STATE_FAILED = "safe_state_failed"
     STALE_LOCK = "stale_lock"
     FIT_FAILED = "fit_failed"
+    ACCEPTED = "accepted"  # a DUT passed the plan's acceptance limits
+    REJECTED = "rejected"  # ... or failed them
     LOGGED = "logged"  # a copied log record
     UNKNOWN = "unknown"  # a version 1 event whose wording is not recognised
 

@@ -196,6 +196,11 @@ class SessionReader:
         )
 
     # --- at a glance ------------------------------------------------------------------------------------
+    def acceptance(self) -> list[dict]:
+        """The per-DUT verdicts (rig/acceptance.py); [] when the plan set no acceptance limits."""
+        found = self._rows("SELECT name FROM sqlite_master WHERE type = 'table' AND name = 'acceptance'")
+        return self._rows("SELECT * FROM acceptance ORDER BY rowid") if found else []
+
     def summary(self) -> dict:
         """One session at a glance (for `rig sessions` and the report)."""
         s = self.info()

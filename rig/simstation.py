@@ -3,6 +3,7 @@ whose transport is `{kind: sim}`. The only production module that imports driver
 
     bench = SimBench(station, clock)
     link = bench.link(device_config)        # starts the device's simulator; the SAME driver is built on it
+    bench.i2c_bus(1)                        # the shared simulated bus 1 (its switches), for the safe state
     bench.stop()
 
 Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
@@ -13,6 +14,9 @@ a mount that follows the simulated air.
 
 A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
 (drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.
+Muxed simulated chips (`{kind: sim, bus: 0, address: 0x30, mux: {address: 0x70, channel: 3}}`) share ONE
+simulated bus per bus number, with a TCA9548A model per switch, so the channel switching is exercised;
+simulated serial devices naming the same `line:` share one pty (SerialMagLine), each by its device id.
 """
 
 from __future__ import annotations
@@ -26,10 +30,12 @@ from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
+from drivers.sim.serialmag import SerialMagLine
 from drivers.sim.truths import AIR_C, dut_truth, mount_truth
 from drivers.sim.world import DutTruth, World
+from drivers.transports.serial import SerialLine
 from rig.configbase import ModbusTcp
-from rig.links import open_link
+from rig.links import muxed, open_link
 
 LOOPBACK = "127.0.0.1"
 FAULTY_TIMEOUT_S = 0.3  # a simulator answers within ms: a lost reply need not cost the usual second
@@ -89,11 +95,18 @@ class SimBench:
     def __init__(self, station, clock: Clock):
         self.clock = clock
         self.seed = station.sim.seed
+        self.station = station
         self.world = make_world(station, clock)
         self.running: list[Any] = []
+        self.buses: dict[int, FakeSMBus] = {}  # simulated buses with switches, by bus number
+        self.lines: dict[str, tuple[SerialLine, float]] = {}  # shared serial lines by `line:` name
 
     def link(self, dev_cfg):
         """Start the device's simulator and return the link its driver is built on."""
+        t = dev_cfg.transport
+        if getattr(t, "line", None) is not None:
+            line, timeout_s = self._line(t.line)
+            return SerialLink(line.port, line.baudrate, timeout_s, line=line)
         endpoint = dev_cfg.spec.load_simulator()(dev_cfg.sim_request(self.world))
         faults = self.faults_of(dev_cfg)
         match endpoint:
@@ -108,6 +121,13 @@ class SimBench:
                 timeout_s = timeout_s if faults is None else min(timeout_s, FAULTY_TIMEOUT_S)
                 return SerialLink(self._start(firmware), baudrate, timeout_s)
             case SimI2c(chip=chip, address=address):
+                address = t.address if t.address is not None else address
+                if t.mux is not None:  # ONE bus per bus number, the chip behind its switch channel
+                    if faults is not None:  # the chip's own faults; bus-level NACKs would hit its neighbours
+                        chip.faults = faults
+                    bus = self.i2c_bus(t.bus)
+                    bus.chips[t.mux.address].attach(t.mux.channel, address, chip)
+                    return I2cLink(muxed(bus, t.bus, t.mux, simulated=True), address)
                 bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
                 bus.attach(address, chip)
                 if faults is not None:
@@ -131,6 +151,28 @@ class SimBench:
             stuck=Window() if stuck is True else _window(stuck))
         self.world.faults[dev_cfg.name] = faults
         return faults
+    def i2c_bus(self, number: int) -> FakeSMBus:
+        """Simulated bus `number` with every switch the station puts on it (all channels off)."""
+        if number not in self.buses:
+            bus = self.buses[number] = FakeSMBus(number)
+            for dev_cfg in self.station.devices():
+                t = dev_cfg.transport
+                mux = getattr(t, "mux", None)
+                if dev_cfg.simulated and mux is not None and t.bus == number and mux.address not in bus.chips:
+                    bus.add_switch(mux.address)
+        return self.buses[number]
+
+    def _line(self, name: str) -> tuple[SerialLine, float]:
+        """One pty with every simulated device naming `line: name` behind it (SerialMagLine)."""
+        if name not in self.lines:
+            members = [d for d in self.station.devices()
+                       if d.simulated and getattr(d.transport, "line", None) == name]
+            endpoints = [d.spec.load_simulator()(d.sim_request(self.world)) for d in members]
+            firmware = SerialMagLine([e.firmware for e in endpoints])
+            port = self._start(firmware)
+            line = SerialLine(port, baudrate=endpoints[0].baudrate)
+            self.lines[name] = (line, endpoints[0].timeout_s)
+        return self.lines[name]
 
     def _start(self, sim) -> Any:
         self.running.append(sim)

@@ -26,7 +26,7 @@ from drivers.base import Device, make_all_safe
 from drivers.clock import Clock, RealClock, SimClock
 from rig import config as cfg
 from rig.errors import ERRORS
-from rig.links import open_link
+from rig.links import Shared, open_link, switch_banks
 
 
 @dataclass
@@ -106,23 +106,31 @@ def build_devices(station: cfg.Station, plan: cfg.Plan | None = None, clock: Clo
         bench = SimBench(station, clock)
         built.world, built.sims = bench.world, bench.running
     set_reset = plan is None or plan.set_reset == "pair"
+    shared = Shared()  # buses and serial lines the station's devices share
     try:
         for dev_cfg in station.devices():
             try:
                 if dev_cfg.simulated:
                     link = bench.link(dev_cfg)
                 else:
-                    link = open_link(dev_cfg, dev_cfg.transport, clock)
+                    link = open_link(dev_cfg, dev_cfg.transport, clock, shared)
                 built.devices[dev_cfg.name] = dev_cfg.spec.build(
                     link, dev_cfg.device_options, name=dev_cfg.name, clock=clock, set_reset=set_reset)
             except (*ERRORS, OSError) as exc:
                 if errors is None:
                     raise
                 errors[dev_cfg.name] = str(exc)
+        add_switch_banks(built, station, shared, bench)
     except BaseException:
         built.stop_sims()
         raise
     return built
+
+
+def add_switch_banks(built: Built, station: cfg.Station, shared: Shared, bench) -> None:
+    """The I2C switches as devices, after the others: their safe state (every channel off) comes last."""
+    for bank in switch_banks(station, shared, bench.i2c_bus if bench is not None else None):
+        built.devices[bank.name] = bank
 
 
 def open_rig(station: cfg.Station, plan: cfg.Plan | None = None, clock: Clock | None = None) -> Rig:

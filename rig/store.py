@@ -360,6 +360,19 @@ class Session:
                 (self.clock.now(), dut, model, calibration_json, residual_rms_nt),
             )
 
+    def record_acceptance(self, rows: list[dict]) -> None:
+        """The per-DUT verdicts (rig/acceptance.py) in table `acceptance`, made when first needed."""
+        with self._transaction() as conn:
+            conn.execute("CREATE TABLE IF NOT EXISTS acceptance (t REAL, dut TEXT, model TEXT, "
+                         "passed INTEGER, verdict TEXT, failed TEXT, heldout_rms_nt REAL, fit_rms_nt REAL, "
+                         "lag_s REAL, notes TEXT)")
+            conn.execute("DELETE FROM acceptance")  # a resumed run judges again: the last verdict stands
+            conn.executemany(
+                "INSERT INTO acceptance (t, dut, model, passed, verdict, failed, heldout_rms_nt, fit_rms_nt, "
+                "lag_s, notes) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(self.clock.now(), r["dut"], r["model"], r["passed"], r["verdict"], r["failed"],
+                  r["heldout_rms_nt"], r["fit_rms_nt"], r["lag_s"], r["notes"]) for r in rows])
+
     def finish(self, status: str, reason: str = "", completed: bool | None = None,
                code: Reason | None = None) -> None:
         """Record how the run ended. `completed` defaults to: every planned point is done."""

@@ -452,4 +452,5 @@ class SerialMagSim:
 
 
 def simulate(req: SimRequest) -> SimSerial:
-    return SimSerial(SerialMagSim(req.world, req.name), baudrate=9600, timeout_s=0.5)
+    device_id = getattr(req.options, "device_id", 0)
+    return SimSerial(SerialMagSim(req.world, req.name, device_id), baudrate=9600, timeout_s=0.5)

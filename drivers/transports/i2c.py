@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import errno
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import Any, Protocol, TypeVar
 
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
+from drivers.steps import run_steps
 from drivers.transports.retry import with_retries
 
 log = logging.getLogger("magrig.transport.i2c")
@@ -139,10 +140,21 @@ class I2CTransport:
             except OSError as exc:
                 raise self._as_device_error(exc, operation) from exc
 
-        return with_retries(
-            attempt, device=self.name, operation=operation, tries=self.tries,
-            backoff_s=self.backoff_s, clock=self.clock,
-        )
+        try:
+            return with_retries(
+                attempt, device=self.name, operation=operation, tries=self.tries,
+                backoff_s=self.backoff_s, clock=self.clock,
+            )
+        except DeviceError as exc:
+            cause = exc.__cause__
+            if isinstance(cause, DeviceError) and cause.device != self.name:
+                # Another device failed on the way (an I2C switch in front of this chip): its fault,
+                # named as its own, not as this chip's.
+                raise type(cause)(
+                    cause.device, cause.operation,
+                    f"{cause.detail} (after {self.tries} tries, on the way to {self.name} {operation})",
+                ) from cause
+            raise
 
     def _as_device_error(self, exc: OSError, operation: str) -> DeviceError:
         if exc.errno == NACK_ERRNO:
@@ -163,12 +175,25 @@ class I2CTransport:
     ) -> None:
         """Sleep the expected conversion time, then poll `ready` every `poll_s` until `timeout_s`
         (counted from the call) has passed; DeviceTimeout names what was awaited."""
+        run_steps(self.wait_steps(ready, what=what, first_wait_s=first_wait_s, timeout_s=timeout_s,
+                                  poll_s=poll_s), self.clock)
+
+    def wait_steps(
+        self,
+        ready: Callable[[], bool],
+        *,
+        what: str,
+        first_wait_s: float,
+        timeout_s: float,
+        poll_s: float = 0.001,
+    ) -> Generator[float, None, None]:
+        """wait_until as steps (drivers/steps.py): yields each wait instead of sleeping it."""
         start = self.clock.now()
         deadline = start + timeout_s
-        self.clock.sleep(first_wait_s)
+        yield first_wait_s
         while not ready():
             remaining_s = deadline - self.clock.now()
             if remaining_s < CLOCK_RESOLUTION_S:
                 waited_ms = (self.clock.now() - start) * 1e3
                 raise DeviceTimeout(self.name, f"wait for {what}", f"not ready after {waited_ms:.1f} ms")
-            self.clock.sleep(min(poll_s, remaining_s))
+            yield min(poll_s, remaining_s)

@@ -22,6 +22,15 @@ class RunNotCompleted(click.ClickException):
         click.echo(f"run not completed: {self.message}", err=True)
 
 
+class AcceptanceFailed(click.ClickException):
+    """The run completed but at least one DUT failed the plan's acceptance limits: exit code 3."""
+
+    exit_code = 3
+
+    def show(self, file=None) -> None:
+        click.echo(f"acceptance: {self.message}", err=True)
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt("SIGTERM")
 
@@ -43,6 +52,17 @@ def _print_summary(outcome) -> None:
         rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
         table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, str(f.get("path") or f.get("error")))
     console.print(table)
+    if outcome.verdicts:
+        from rig.acceptance import summary_csv_path
+
+        table = Table(title=f"acceptance (summary: {summary_csv_path(outcome.session_path)})")
+        for col in ("DUT", "model", "verdict", "held-out RMS (nT)", "failed criteria"):
+            table.add_column(col, overflow="fold")
+        for v in outcome.verdicts:
+            held = v.figures.get("heldout_rms_nt")
+            table.add_row(v.dut, v.model, v.verdict, "-" if held is None else f"{held:.1f}",
+                          "; ".join(v.failed + v.notes) or "-")
+        console.print(table)
 
 
 def register(group: click.Group) -> None:
@@ -92,3 +112,7 @@ def register(group: click.Group) -> None:
         if outcome.result.status != COMPLETED:
             raise RunNotCompleted(f"{outcome.result.status}: {outcome.result.reason}; continue with: "
                                   f"rig run --resume {outcome.session_path}")
+        failed = [v.dut for v in outcome.verdicts if not v.passed]
+        if failed:
+            total = len(outcome.verdicts)
+            raise AcceptanceFailed(f"{len(failed)} of {total} DUT(s) FAIL: {', '.join(failed)}")

@@ -243,6 +243,36 @@ class Fit(Strict):
     robust: bool = False
 
 
+class Acceptance(Strict):
+    """Per-DUT PASS/FAIL limits on the calibration of `model` (default: the first of fit.models); see
+    rig/acceptance.py. Parameter names are the model's (calib.models.REGISTRY), e.g. S, b_nt for t24."""
+
+    model: Literal[CALIBRATION_MODELS] | None = None
+    max_heldout_rms_nt: NT | None = Field(None, description="RMS error on held-out points")
+    max_rms_nt: NT | None = Field(None, description="RMS residual of the full fit")
+    max_std_error: dict[str, bounded(gt=0)] = Field({}, description="largest standard error per parameter")
+    bounds: dict[str, tuple[bounded(), bounded()]] = Field({}, description="[low, high] of every element")
+    max_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="thermal lag (ramp data only)")
+
+    def check_against(self, models: list[str]) -> None:
+        """The judged model is fitted, the parameters named are its own, each bound is low <= high."""
+        from calib.models import REGISTRY
+
+        model = self.model or models[0]
+        if model not in models:
+            raise KeyPathError(("acceptance", "model"), f"{model} is not among fit.models {models}")
+        spec = REGISTRY[model]
+        known = {**spec.params, **spec.optional}
+        for key in ("max_std_error", "bounds"):
+            for name in getattr(self, key):
+                if name not in known:
+                    raise KeyPathError(("acceptance", key, name),
+                                       f"{model} has no parameter {name!r} (it has {', '.join(known)})")
+        for name, (low, high) in self.bounds.items():
+            if low > high:
+                raise KeyPathError(("acceptance", "bounds", name), f"low {low:g} is above high {high:g}")
+
+
 class Outputs(Strict):
     dir: str = "sessions"
 
@@ -259,6 +289,7 @@ class Plan(Strict):
         "pair", description="pair: SET and RESET reading per sample (offset removed); off: plain reading"
     )
     fit: Fit = Fit()
+    acceptance: Acceptance | None = Field(None, description="per-DUT PASS/FAIL limits (rig/acceptance.py)")
     outputs: Outputs = Outputs()
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
@@ -279,3 +310,9 @@ class Plan(Strict):
     def ramp(self) -> RampTemperatures | None:
         """The ramp settings of a continuous-ramp plan, None for temperature steps."""
         return self.temperatures if isinstance(self.temperatures, RampTemperatures) else None
+
+    @model_validator(mode="after")
+    def _acceptance_model(self):
+        if self.acceptance is not None:
+            self.acceptance.check_against(list(self.fit.models))
+        return self

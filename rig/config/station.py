@@ -165,6 +165,15 @@ class Station(Strict):
             raise KeyPathError(("field_source", *path), message)
         return self
 
+    @model_validator(mode="after")
+    def _wiring(self):
+        """Address clashes on an I2C segment, device ids and baud rates on a serial line."""
+        from rig.config.wiring import problems
+
+        for path, message in problems(self):
+            raise KeyPathError(path, message)
+        return self
+
     def _named_devices(self):
         yield ("chamber",), self.chamber
         yield ("field_source",), self.field_source

@@ -60,6 +60,17 @@ def read_inputs(
     return from_calibration(path, data, dut)
 
 
+def acceptance_section(recorded: list[dict]) -> Section:
+    """The run's PASS/FAIL per DUT against the plan's acceptance limits, as recorded in the session."""
+    def fig(x) -> str:
+        return "-" if x is None else f"{x:.4g}"
+
+    rows = [[r["dut"], str(r["model"]).upper(), r["verdict"], r["failed"] or "-", fig(r["heldout_rms_nt"]),
+             fig(r["fit_rms_nt"]), r["notes"] or "-"] for r in recorded]
+    header = ["DUT", "model", "verdict", "failed criteria", "held-out RMS (nT)", "fit RMS (nT)", "notes"]
+    return Section("Acceptance", [Table(header, rows)])
+
+
 def _subtitle(inputs: ReportInputs) -> str:
     return "; ".join(f"{k}: {v}" for k, v in inputs.provenance[:2])
 
@@ -75,6 +86,8 @@ def report_sections(inputs: ReportInputs) -> list[Section]:
         Section("Summary", [summary_table(results)]),
         Section("Data-quality warnings", [ItemList(warnings, kind="warning", empty_text="No warnings.")]),
     ]
+    if inputs.acceptance:
+        sections.insert(1, acceptance_section(inputs.acceptance))
     for r in results:
         sections += dut_sections(r, inputs.steps)
     sections.append(Section("Provenance", [Table(["item", "value"], [list(p) for p in inputs.provenance])]))

@@ -7,7 +7,7 @@ from pathlib import Path
 from rig.events import Reason
 from rig.report.sources import utc
 
-WIDTHS = (28, 17, 16, 16, 18, 12)  # file, started, station, DUTs, points, exit; then the last fit
+WIDTHS = (28, 17, 16, 16, 18, 12, 14)  # file, started, station, DUTs, points, exit, acceptance; last fit
 
 
 def _row(*cells: str) -> str:
@@ -15,7 +15,8 @@ def _row(*cells: str) -> str:
     return " ".join(f"{c:<{w}}" for c, w in zip(fixed, WIDTHS, strict=True)) + " " + last
 
 
-HEADER = _row("file", "started (UTC)", "station", "DUTs", "points done", "exit", "last fit residual")
+HEADER = _row("file", "started (UTC)", "station", "DUTs", "points done", "exit", "acceptance",
+              "last fit residual")
 
 
 def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
@@ -24,10 +25,12 @@ def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 def session_line(path: Path) -> str:
     """The session at a glance; raises SessionError for a file that is not a session or is damaged."""
+    from rig.acceptance import verdict_text
     from rig.reader import SessionReader
 
     with SessionReader(path) as reader:
         s = reader.summary()
+        accepted = verdict_text(reader.acceptance())
     points = f"{s['points_done']}/{s['points_planned']}"
     if s["points_failed"]:
         points += f" ({s['points_failed']} failed)"
@@ -41,7 +44,8 @@ def session_line(path: Path) -> str:
     exit_status = s["exit_status"] or "not finished"
     if s["exit_code"] and s["exit_code"] != Reason.COMPLETED:  # why it stopped, as a code
         exit_status += f" ({s['exit_code']})"
-    return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, last)
+    return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, accepted,
+                last)
 
 
 def skipped_line(path: Path, reason: str) -> str:

@@ -53,6 +53,7 @@ class ReportInputs:
     steps: dict[int, StepInfo] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     provenance: list[tuple[str, str]] = field(default_factory=list)
+    acceptance: list[dict] = field(default_factory=list)  # the session's verdicts (rig/acceptance.py)
 
 
 def utc(t: float | None) -> str:
@@ -87,6 +88,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         if not names:
             raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
         info, points, events, snapshots = reader.info(), reader.points(), reader.events(), reader.snapshots()
+        acceptance = [r for r in reader.acceptance() if r["dut"] in names]
         duts = []
         for name in names:
             ds = reader.dataset(name)
@@ -125,7 +127,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         ("report made with", f"magrig {__version__}"),
     ]
     title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
-    return ReportInputs(title, duts, steps, warnings, provenance)
+    return ReportInputs(title, duts, steps, warnings, provenance, acceptance)
 
 
 def _devices(snapshots: list[dict]) -> list[tuple[str, str]]:

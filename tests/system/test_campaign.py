@@ -43,7 +43,7 @@ def test_demo_campaign_recovers_every_dut_within_three_sigma(tmp_path):
     points = compile_plan(campaign.plan, campaign.station)
     counts = session_counts(session)
     duts = [d.name for d in campaign.station.duts]
-    assert counts["planned"] == counts["done"] == len(points) == 56
+    assert counts["planned"] == counts["done"] == len(points) == 4 * 26
     assert counts["completed"] and counts["status"] == "completed"
     expected = {(p.id, d): campaign.plan.samples_per_point for p in points for d in duts}
     assert counts["per_point_dut"] == expected

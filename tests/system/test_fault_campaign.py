@@ -79,10 +79,10 @@ def test_one_fault_in_100_operations_everywhere_still_takes_every_point_once(tmp
     points = compile_plan(campaign.plan, campaign.station)
     duts = [d.name for d in campaign.station.duts]
     counts = session_counts(session)
-    assert counts["planned"] == counts["done"] == len(points) == 56
+    assert counts["planned"] == counts["done"] == len(points) == 4 * 26  # the demo: 4 steps x 26 fields
     assert counts["per_point_dut"] == {(p.id, d): 3 for p in points for d in duts}
     assert counts["orphan_samples"] == 0
-    assert query(session, "SELECT count(*) FROM samples")[0][0] == 56 * len(duts) * 3  # none twice
+    assert query(session, "SELECT count(*) FROM samples")[0][0] == 4 * 26 * len(duts) * 3  # none twice
 
     # every device met faults, every kind its protocol allows was played somewhere
     faults = worlds[0].faults

@@ -116,14 +116,14 @@ def test_report_of_a_simulated_campaign(tmp_path, capsys):
     html = (tmp_path / "r" / "report.html").read_text(encoding="utf-8")
     text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
     assert "DUT mmc0 " in text and "DUT serial0" not in text  # --dut: that DUT only
-    # every step settled (the campaign's settle statistics), 14 of 14 points each
-    steps = re.findall(r" (\d) (-?\d+) -?\d+\.\d\d 140 14/14 (\d+\.\d) yes ", text)
+    # every step settled (the campaign's settle statistics), 26 of 26 points of 5 samples each
+    steps = re.findall(r" (\d) (-?\d+) -?\d+\.\d\d 130 26/26 (\d+\.\d) yes ", text)
     assert [(s, t) for s, t, _ in steps[:4]] == [("1", "-20"), ("2", "0"), ("3", "25"), ("4", "60")]
     assert all(float(minutes) > 1 for _, _, minutes in steps)
     assert "station sim (configs/stations/sim.yaml)" in text and "simulated devices chamber, coils" in text
     assert "device mmc0 MMC5983MA" in text  # the device snapshots the campaign recorded
     summary = re.search(
-        r"<td>mmc0</td><td>T24</td><td>560</td><td>vector</td><td>[\d.]+</td><td>([\d.]+)</td>", html
+        r"<td>mmc0</td><td>T24</td><td>520</td><td>vector</td><td>[\d.]+</td><td>([\d.]+)</td>", html
     )
     assert float(summary.group(1)) < 60  # the simulated noise is 40 nT per axis
     capsys.readouterr()

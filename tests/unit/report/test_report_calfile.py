@@ -109,7 +109,8 @@ def test_sessions_lists_good_and_bad_files(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("file") and len(lines) == 5
     date = r"\d{4}-\d\d-\d\d \d\d:\d\d"  # the wall-clock start
-    assert re.match(rf"a_done\.sqlite +{date} +simstation +dut1 +12/12 +completed +no fit", lines[1])
+    # "-" in the acceptance column: the plan set no acceptance limits
+    assert re.match(rf"a_done\.sqlite +{date} +simstation +dut1 +12/12 +completed +- +no fit", lines[1])
     assert re.match(r"b_running\.db +\S+ \S+ +simstation +x,y +6/6 +not finished", lines[2])
     assert "c_notes.db" in lines[3] and "SKIPPED: not a session file or damaged" in lines[3]
     assert "d_cut.sqlite" in lines[4] and "SKIPPED" in lines[4]

@@ -116,7 +116,7 @@ def test_sessions_read_in_a_folder_nobody_may_write_to(tmp_path):
         sessions = subprocess.run(without_override([sys.executable, "-m", "rig", "sessions", str(folder)]),
                                   capture_output=True, text=True, cwd=REPO)
         assert sessions.returncode == 0 and "SKIPPED" not in sessions.stdout, sessions.stdout
-        assert sessions.stdout.count(" 3/56 ") == 3
+        assert sessions.stdout.count(" 3/104 ") == 3
     finally:
         folder.chmod(0o755)
     assert listing(folder) == before

@@ -180,16 +180,16 @@ def test_read_dataset_round_trip(tmp_path, campaign, points):
                      offset_nt=(0.5, 0.25, 0.125))
     first = [SampleRow.from_field_sample("mmc0", fs, points[0].field_nt, ref_temp_c=-19.0)]
     s.record_point(points[0].id, first + rows_for(points[0], n=3) + rows_for(points[0], dut="serial0"))
-    s.record_point(points[20].id, rows_for(points[20], n=2) + rows_for(points[20], n=1, flags={"overflow"})
-                   + rows_for(points[20], n=1, temp_c=None))
-    s.record_point(points[21].id, [SampleRow("mmc0", 9.0, (1.0, 1.0, 1.0), points[21].field_nt,
+    s.record_point(points[32].id, rows_for(points[32], n=2) + rows_for(points[32], n=1, flags={"overflow"})
+                   + rows_for(points[32], n=1, temp_c=None))
+    s.record_point(points[33].id, [SampleRow("mmc0", 9.0, (1.0, 1.0, 1.0), points[33].field_nt,
                                              temp_c=None, ref_temp_c=3.5)])
     s.close()
     ds = read_dataset(tmp_path / "s.magrig", "mmc0")
     assert isinstance(ds, Dataset)
     assert ds.n == 1 + 3 + 2 + 1 + 1
     assert np.allclose(ds.h_nt[0], [11.0, 12.0, 13.0]) and ds.temp_c[0] == -19.5
-    assert np.allclose(ds.ref_nt[0], points[0].field_nt) and np.allclose(ds.ref_nt[-1], points[21].field_nt)
+    assert np.allclose(ds.ref_nt[0], points[0].field_nt) and np.allclose(ds.ref_nt[-1], points[33].field_nt)
     assert ds.temp_c[-1] == 3.5  # no DUT temperature: the reference sensor's
     assert list(ds.group[[0, 4]]) == ["T01 -20.0C", "T02 0.0C"]
     assert list(ds.columns["point"][[0, 4, 7]]) == ["T01-F01", "T02-F07", "T02-F08"]

@@ -30,7 +30,7 @@ def test_check_prints_steps_and_duration(capsys):
     code, out, err = run(capsys, "check", DEMO)
     assert code == 0, err
     assert "plan demo" in out and "all devices simulated" in out
-    assert "56 points = 4 temperatures x 14 fields; 560 samples per DUT, 2 DUT(s)" in out
+    assert "104 points = 4 temperatures x 26 fields; 520 samples per DUT, 2 DUT(s)" in out
     assert "estimated duration" in out and "largest coil current" in out
 
 
@@ -52,7 +52,7 @@ def test_check_refuses_an_over_current_plan_in_one_line(tmp_path, capsys):
 
 
 def test_check_names_file_key_and_line_of_a_bad_plan(tmp_path, capsys):
-    bad = DEMO.read_text().replace("samples_per_point: 10", "samples_per_point: 0")
+    bad = DEMO.read_text().replace("samples_per_point: 5", "samples_per_point: 0")
     (tmp_path / "bad.yaml").write_text(bad)
     code, _, err = run(capsys, "check", tmp_path / "bad.yaml", "--station", CONFIGS / "stations" / "sim.yaml")
     line = bad.splitlines().index("samples_per_point: 0") + 1
@@ -62,7 +62,7 @@ def test_check_names_file_key_and_line_of_a_bad_plan(tmp_path, capsys):
 
 @pytest.fixture
 def recorded(tmp_path):
-    """A session with noise-free readings of a known T24 truth at the demo's 4 temperatures x 14 fields."""
+    """A session with noise-free readings of a known T24 truth at the demo's 4 temperatures x 26 fields."""
     campaign = load_campaign(DEMO)
     points = compile_plan(campaign.plan, campaign.station)
     truth = DutTruth.random(np.random.default_rng(5), noise_nt=0.0)
@@ -87,7 +87,7 @@ def test_export_writes_the_csv_contract_that_refit_reads(recorded, tmp_path, cap
     out_csv = tmp_path / "mmc0.csv"
     code, out, err = run(capsys, "export", recorded, "--csv", "--dut", "mmc0", "-o", out_csv)
     assert code == 0, err
-    assert "wrote 168 samples of mmc0" in out and "1 flagged sample(s) left out" in out
+    assert "wrote 312 samples of mmc0" in out and "1 flagged sample(s) left out" in out
     with out_csv.open(newline="") as f:
         header = next(csv.reader(f))
     assert {"hx", "hy", "hz", "temp", "bx", "by", "bz", "point", "t", "flags"} <= set(header)
@@ -108,10 +108,10 @@ def test_export_writes_the_csv_contract_that_refit_reads(recorded, tmp_path, cap
 def test_export_with_flagged_rows_on_request(recorded, tmp_path, capsys):
     out_csv = tmp_path / "all.csv"
     code, out, _ = run(capsys, "export", recorded, "--dut", "mmc0", "--include-flagged", "-o", out_csv)
-    assert code == 0 and "wrote 169 samples" in out
+    assert code == 0 and "wrote 313 samples" in out
     with out_csv.open(newline="") as f:
         flags = [row["flags"] for row in csv.DictReader(f)]
-    assert flags.count("overflow") == 1 and flags.count("") == 168
+    assert flags.count("overflow") == 1 and flags.count("") == 312
 
 
 def test_export_needs_a_dut_when_there_are_several(recorded, tmp_path, capsys):
