@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 from drivers.clock import Clock
-from rig import __version__
 from rig import config as cfg
+from rig import sessionfit, sitefield
 from rig.engine import (
     COMPLETED,
     Checkpoint,
@@ -372,7 +372,8 @@ def run_campaign(
     if not station.field_source.needs_measurement():
         reference_for(station)  # a stated site field that cannot be evaluated stops us here
     # a resume finds the reference calibration files beside the station file the session recorded
-    calibrations = _reference_calibrations(station, None if resume else campaign, info if resume else None)
+    calibrations = sitefield.reference_calibrations(station, None if resume else campaign,
+                                                   info if resume else None)
     lock = SessionLock(session_path)
     lock.acquire()
     try:
@@ -430,36 +431,6 @@ def _check_resumable(session, points: list[Point]) -> None:
                            "cannot resume")
 
 
-def _reference_calibrations(station: cfg.Station, campaign: cfg.Campaign | None, info: dict | None) -> dict:
-    """The reference magnetometers' calibrations, their files relative to the (recorded) station file."""
-    from rig.sitefield import load_reference_calibrations
-
-    if not station.reference_magnetometers:
-        return {}
-    if campaign is not None:
-        return load_reference_calibrations(station, campaign.station_path, campaign.station_text)
-    assert info is not None
-    return load_reference_calibrations(station, info.get("station_path") or ".", info["station_text"])
-
-
-def measure_site_field(runner: CampaignRunner, session, calibrations: dict) -> None:
-    """Before the first field is set: the reference magnetometer measures the ambient / site field that
-    every reference of the run uses, and the plan's limits are checked with it. A failure here is
-    recorded in the session as how the run ended, then raised."""
-    from rig.engine import FAILED
-    from rig.events import code_of, device_of
-    from rig.sitefield import SiteFieldMonitor
-
-    try:
-        runner.site = SiteFieldMonitor(runner.rig, calibrations, settle_s=runner.plan.settle_s)
-        measured = runner.site.measure_at_start(session.log_event, runner.plan.name, runner.points)
-        runner.reference = reference_for(runner.rig.station, measured.vector_nt)
-    except ERRORS as exc:
-        session.log_event(Kind.FAULT, str(exc), code=code_of(exc), level="ERROR", device=device_of(exc))
-        session.finish(FAILED, str(exc), code=code_of(exc))
-        raise
-
-
 def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, hold_wait_s, max_retakes,
                     resume, calibrations=None) -> RunOutcome:
     if lock.stale_pid is not None:
@@ -474,7 +445,7 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     status = RunStatus()
     runner = CampaignRunner(rig, plan, points, session, status)
     if runner.source.needs_measurement():
-        measure_site_field(runner, session, calibrations or {})
+        sitefield.measure_for_run(runner, session, calibrations or {})
     done = session.done_point_ids()
     if done:
         runner.preload_live(session.path)
@@ -489,71 +460,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     record_final_state(rig, session)
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
     if result.status == COMPLETED:
-        outcome.fits = fit_session(session, plan, rig.station)
+        outcome.fits = sessionfit.fit_session(session, plan, rig.station)
         if plan.acceptance is not None:
-            outcome.verdicts = accept_session(session, plan, rig.station, outcome.fits, runner)
+            outcome.verdicts = sessionfit.accept_session(session, plan, rig.station, outcome.fits,
+                                                         runner.live_summaries)
     return outcome
-
-
-def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dict], runner) -> list:
-    """PASS/FAIL per DUT (rig/acceptance.py): stored in the session, written as a CSV beside it, shown in
-    the live view's summaries."""
-    from rig import acceptance
-
-    verdicts = acceptance.judge_session(session.path, plan, station, fits)
-    session.record_acceptance(acceptance.rows(verdicts))
-    acceptance.write_summary_csv(acceptance.summary_csv_path(session.path), session.path.name, station.name,
-                                 verdicts)
-    for v in verdicts:
-        session.log_event(Kind.ACCEPTANCE, v.line(), code=Reason.ACCEPTED if v.passed else Reason.REJECTED,
-                          device=v.dut, level="INFO" if v.passed else "WARNING")
-        runner.live_summaries[v.dut] = f"{v.verdict} " + runner.live_summaries.get(v.dut, "")
-    return verdicts
-
-
-def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
-    """Fit each of the plan's models for each DUT from the session's own dataset; write one calibration
-    file per DUT and model next to the session and record each fit in it."""
-    import calib
-    from calib import calfile
-    from rig.outputs import calibration_file
-    from rig.reader import read_dataset
-
-    out = []
-    for dut in station.duts:
-        try:
-            ds = read_dataset(session.path, dut.name)
-        except ERRORS as exc:
-            out.append({"dut": dut.name, "model": "-", "error": str(exc)})
-            continue
-        lag = None
-        if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
-            from rig.ramp import lag_corrected
-
-            ds, lag = lag_corrected(ds)
-        for model in plan.fit.models:
-            entry: dict[str, Any] = {"dut": dut.name, "model": model}
-            try:
-                cal = calib.fit(ds, model, robust=plan.fit.robust, software_version=__version__)
-            except ERRORS as exc:
-                entry["error"] = str(exc)
-                session.log_event(Kind.FIT_FAILED, f"{dut.name} {model}: {exc}", code=Reason.FIT_FAILED,
-                                  level="WARNING", device=dut.name, model=model)
-                out.append(entry)
-                continue
-            if lag is not None:
-                from rig.ramp import annotate
-
-                annotate(cal, lag)
-            try:
-                path = calibration_file(session.path, dut.name, model)
-            except ERRORS as exc:
-                entry["error"] = str(exc)
-                out.append(entry)
-                continue
-            calfile.save(cal, path)
-            rms = cal.stats.get("rms_after_nt")
-            session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)
-            entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
-            out.append(entry)
-    return out

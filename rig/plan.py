@@ -239,10 +239,23 @@ def _settle_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st
     return decay + st.dwell_s
 
 
+def sample_time_s(plan: Plan, station: Station) -> float:
+    """Time for one sample of every DUT. Reading is interleaved (rig/interleave.py): the DUTs wait for
+    their conversions together, so a sample takes as long as the slowest DUT, except that DUTs sharing
+    one serial line are polled in turn."""
+    pair = plan.set_reset == "pair"
+    groups: dict[tuple[str, str], float] = {}
+    for d in station.duts:
+        line, port = getattr(d.transport, "line", None), getattr(d.transport, "port", None)
+        key = ("line", line) if line else ("port", port) if port else ("dut", d.name)
+        groups[key] = groups.get(key, 0.0) + d.spec.sample_time_s(d.options, pair)
+    return max(groups.values())
+
+
 def estimate_duration(plan: Plan, station: Station, points: list[Point],
                       n_fields: int) -> dict[str, float]:
-    """Seconds spent ramping, waiting for stability, moving/settling and sampling. DUTs are assumed to
-    be read one after another; real-station mounts are assumed to lag by ASSUMED_THERMAL_LAG_S."""
+    """Seconds spent ramping, waiting for stability, moving/settling and sampling (see sample_time_s);
+    real-station mounts are assumed to lag by ASSUMED_THERMAL_LAG_S."""
     lags = [_stated(station.sim.duts[d.name].thermal_lag_s if d.simulated and d.name in station.sim.duts
                     else None, ASSUMED_THERMAL_LAG_S) for d in station.duts]
     lag_s = max(lags)
@@ -255,9 +268,7 @@ def estimate_duration(plan: Plan, station: Station, points: list[Point],
         stable_s += _settle_after_ramp_s(delta, rate, lag_s, p.stability)
         temp = p.setpoint_c
     move_s = sum(p.settle_s for p in points) + station.field_source.move_time_s([p.command for p in points])
-    pair = plan.set_reset == "pair"
-    per_sample = sum(d.spec.sample_time_s(d.options, pair) for d in station.duts)
-    sampling_s = per_sample * sum(p.samples for p in points)
+    sampling_s = sample_time_s(plan, station) * sum(p.samples for p in points)
     return {"ramps": ramp_s, "stability": stable_s, "moves+settle": move_s, "sampling": sampling_s}
 
 

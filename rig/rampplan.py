@@ -33,6 +33,7 @@ from rig.plan import (
     _stated,
     field_targets,
     format_duration,
+    sample_time_s,
     t24_design_problem,
 )
 
@@ -82,10 +83,8 @@ def legs(ramp: RampTemperatures) -> list[Leg]:
 def sweep_time_s(plan: Plan, station: Station, targets: list[tuple[float, ...]]) -> dict[str, float]:
     """One sweep of the field set: moves (back to the first target included), settling and sampling."""
     moves = station.field_source.move_time_s([*targets, targets[0]])
-    pair = plan.set_reset == "pair"
-    per_sample = sum(d.spec.sample_time_s(d.options, pair) for d in station.duts)
     return {"moves+settle": moves + plan.settle_s * len(targets),
-            "sampling": per_sample * plan.samples_per_point * len(targets)}
+            "sampling": sample_time_s(plan, station) * plan.samples_per_point * len(targets)}
 
 
 def sweeps_per_leg(ramp: RampTemperatures, sweep_s: float) -> int:

@@ -24,9 +24,9 @@ import numpy as np
 
 from calib import calfile, models
 from calib.calibration import Calibration
-from rig.engine import Hold
-from rig.errors import ConfigError, DataError, DeviceFault
-from rig.events import Kind, Reason
+from rig.engine import FAILED, Hold
+from rig.errors import ERRORS, ConfigError, DataError, DeviceFault
+from rig.events import Kind, Reason, code_of, device_of
 from rig.yamlload import locate_in_text
 
 MIN_GOOD_SAMPLES = 2  # a standard error needs two readings
@@ -172,3 +172,30 @@ class SiteFieldMonitor:
             raise Hold(f"{message}: the references of this run would be off by that much",
                        code=Reason.SITE_FIELD_DRIFT, device=self.name)
         return m
+
+
+def reference_calibrations(station, campaign, info: dict | None) -> dict:
+    """The reference magnetometers' calibrations for a run, their files relative to the station file
+    (on a resume: the station path the session recorded, `info`)."""
+    if not station.reference_magnetometers:
+        return {}
+    if campaign is not None:
+        return load_reference_calibrations(station, campaign.station_path, campaign.station_text)
+    assert info is not None
+    return load_reference_calibrations(station, info.get("station_path") or ".", info["station_text"])
+
+
+def measure_for_run(runner, session, calibrations: dict) -> None:
+    """Before the first field is set: the reference magnetometer measures the ambient / site field that
+    every reference of the run uses, and the plan's limits are checked with it. A failure here is
+    recorded in the session as how the run ended, then raised."""
+    from rig.reference import reference_for
+
+    try:
+        runner.site = SiteFieldMonitor(runner.rig, calibrations, settle_s=runner.plan.settle_s)
+        measured = runner.site.measure_at_start(session.log_event, runner.plan.name, runner.points)
+        runner.reference = reference_for(runner.rig.station, measured.vector_nt)
+    except ERRORS as exc:
+        session.log_event(Kind.FAULT, str(exc), code=code_of(exc), level="ERROR", device=device_of(exc))
+        session.finish(FAILED, str(exc), code=code_of(exc))
+        raise
