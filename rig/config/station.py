@@ -84,13 +84,6 @@ class ReferenceMagnetometerConfig(DutConfig):
         None, description='a temperature sensor or "self"; needed when the calibration has temperature terms')
     samples: Count(100_000, lower=2) = Field(100, description="readings averaged per measurement")
 
-    @model_validator(mode="after")
-    def _own_temperature(self):
-        if self.temp_source == "self" and not self.spec.has_temperature:
-            raise KeyPathError(("temp_source",),
-                               f"{self.device_type} has no temperature sensor; name a TMP117")
-        return self
-
 
 class TemperatureSensorConfig(DeviceConfig):
     role: ClassVar[str] = "temperature"
