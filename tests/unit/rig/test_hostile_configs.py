@@ -12,25 +12,13 @@ from pathlib import Path
 import pytest
 
 from rig.cli import main
+from tests.helpers.small_plan import PLAN
+from tests.helpers.small_plan import plan_with as _plan
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 STATION = (CONFIGS / "stations" / "sim.yaml").read_text()
 CUBE = "kind: cube24, magnitude_nt: 50000"
 AMBIENT = "ambient_nt: [15000, 500, 42000] # what"
-PLAN = """\
-name: p
-temperatures:
-  steps: [0, 25]
-  ramp_c_per_min: 3
-fields: {kind: cube24, magnitude_nt: 50000}
-samples_per_point: 2
-settle_s: 0.5
-"""
-
-
-def _plan(old: str, new: str) -> str:
-    assert old in PLAN
-    return PLAN.replace(old, new)
 
 
 def _station(old: str, new: str) -> str:
