@@ -8,24 +8,15 @@ import contextlib
 import io
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from timing import median_time
 
 from calib import csvio
 from rig.cli import main as rig_main
 
 ROWS = 1_000_000
-
-
-def _median(fn, repeat: int = 3) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def main(rows: int = ROWS) -> None:
@@ -37,7 +28,7 @@ def main(rows: int = ROWS) -> None:
         names = ("hx", "hy", "hz", "temp", "bx", "by", "bz")
         csvio.write_csv(path, dict(zip(names, [*h.T, tau, *ref.T], strict=True)))
         size_mb = path.stat().st_size / 1e6
-        t_read = _median(lambda: csvio.read_csv(path, extra_columns=False))
+        t_read = median_time(lambda: csvio.read_csv(path, extra_columns=False), repeat=3)
         codes = []
 
         def refit():
@@ -45,7 +36,7 @@ def main(rows: int = ROWS) -> None:
                 args = ["refit", str(path), "--model", "t24", "-o", str(Path(tmp) / "cal.yaml")]
                 codes.append(rig_main(args))
 
-        t_total = _median(refit)
+        t_total = median_time(refit, repeat=3)
     if any(codes):
         sys.exit(max(codes))
     print(

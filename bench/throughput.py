@@ -12,18 +12,10 @@ import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from timing import median_time
 
 from calib import synthetic
 from calib.gram import GramAccumulator
-
-
-def _median_time(fn, repeat: int = 5) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def _thread_time(fn) -> float:
@@ -61,14 +53,14 @@ def streaming(n: int) -> None:
             list(pool.map(lambda acc, sl: acc.add(h[sl], tau[sl], ref[sl]), halves, rows))
         return halves[0].merge(halves[1]).solve()
 
-    t_sum = _median_time(lambda: (np.sum(h), np.sum(tau), np.sum(ref)))
-    t_fit = _median_time(fit)
+    t_sum = median_time(lambda: (np.sum(h), np.sum(tau), np.sum(ref)))
+    t_fit = median_time(fit)
     # CPU time of this thread, best of 7 taken in turns: what a quiet machine shows on a busy one
     cpu_sum = cpu_fit = np.inf
     for _ in range(7):
         cpu_sum = min(cpu_sum, _thread_time(lambda: (np.sum(h), np.sum(tau), np.sum(ref))))
         cpu_fit = min(cpu_fit, _thread_time(fit))
-    t_two = _median_time(fit_two_threads)
+    t_two = median_time(fit_two_threads)
     tracemalloc.start()
     fit()
     peak = tracemalloc.get_traced_memory()[1]
