@@ -297,12 +297,6 @@ class RunOutcome:
     verdicts: list = field(default_factory=list)  # rig.acceptance.Verdict per DUT (plan's acceptance:)
 
 
-def default_session_path(out_dir: str | Path, plan_name: str) -> Path:
-    from rig.outputs import session_file
-
-    return session_file(out_dir, plan_name)
-
-
 def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.Plan, cfg.Station]:
     """The plan and the station exactly as the session recorded them (a resume never rereads files).
     Refused when the plan or station file at its recorded path no longer matches the recorded text:

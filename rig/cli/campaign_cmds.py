@@ -81,10 +81,11 @@ def register(group: click.Group) -> None:
     @click.option("--no-live", is_flag=True, help="Plain log lines instead of the live display.")
     def run(plan, station, session_path, out_dir, resume_path, no_live):
         """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
-        from rig.campaign import default_session_path, run_campaign
+        from rig.campaign import run_campaign
         from rig.config import load_campaign
         from rig.display import make_display
         from rig.engine import COMPLETED, prompt_from_tty
+        from rig.outputs import session_file
         from rig.plan import located_errors
 
         if resume_path:
@@ -98,7 +99,7 @@ def register(group: click.Group) -> None:
             if session_path and out_dir:
                 raise ConfigError("rig run: give --session PATH or --out DIR, not both")
             campaign = load_campaign(plan, station)
-            path = Path(session_path) if session_path else default_session_path(
+            path = Path(session_path) if session_path else session_file(
                 out_dir or campaign.plan.outputs.dir, campaign.plan.name)
         interactive = sys.stdin.isatty()
         signal.signal(signal.SIGTERM, _terminate)  # outside the engine's own handling: clean exit too
