@@ -9,8 +9,8 @@ the same composed nodes. Unknown keys are rejected by the models (extra="forbid"
 Hostile files are refused before they cost anything: files over MAX_CONFIG_BYTES, YAML aliases (a
 config never needs them, and they make "billion laughs" bombs), nesting deeper than MAX_DEPTH, and
 inf/NaN anywhere (written `.inf` or as text "nan"). The models state the name rule (rig/names.py
-SafeName) and the number types (rig/numbers.py) on their fields; after validation `check_document` adds
-what no single field can say: device names distinct after transformation.
+SafeName) and the number types (rig/numbers.py) on their fields; the station model checks that device
+names stay distinct after transformation (file names, C symbols).
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import pydantic
 import yaml
 
 from drivers.registry import KeyPathError  # noqa: F401 - the models raise it, from here or drivers
-from rig import names
 from rig.errors import ConfigError
 
 M = TypeVar("M", bound=pydantic.BaseModel)
@@ -279,36 +278,6 @@ def find_non_finite(data: Any, path: KeyPath = ()) -> tuple[KeyPath, Any] | None
     return None
 
 
-def device_names(value: Any, path: KeyPath = ()) -> list[tuple[KeyPath, str]]:
-    """(key path, name) of every `name` below the top level (the devices of a station)."""
-    found: list[tuple[KeyPath, str]] = []
-    if isinstance(value, pydantic.BaseModel):
-        for field, info in type(value).model_fields.items():
-            sub, sub_path = getattr(value, field), (*path, info.alias or field)
-            if field == "name" and path and isinstance(sub, str):
-                found.append((sub_path, sub))
-            else:
-                found += device_names(sub, sub_path)
-    elif isinstance(value, list | tuple):
-        for i, item in enumerate(value):
-            found += device_names(item, (*path, i))
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            found += device_names(item, (*path, str(key)))
-    return found
-
-
-def check_document(model: pydantic.BaseModel) -> tuple[KeyPath, str] | None:
-    """What a single field's type cannot say: device names that collide after transformation (file
-    names, C symbols). Each name's own rule and every number's type are the models' (rig/names.py
-    SafeName, rig/numbers.py)."""
-    named = device_names(model)
-    clash = names.collision(name for _, name in named)
-    if clash:
-        return named[clash[0]][0], f"device name {clash[1]}"
-    return None
-
-
 def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
     """Read `path` (or use `text`, naming it `path`) and validate it as `model`."""
     source = str(path)
@@ -327,9 +296,6 @@ def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
         raise error_from_validation(exc, data, lines, source) from None
     except (ArithmeticError, ValueError, TypeError) as exc:  # a model check that met numbers it cannot use
         raise ConfigError(located(source, lines, (), f"cannot use these values: {exc}")) from None
-    found = check_document(result)
-    if found:
-        raise ConfigError(located(source, lines, *found))
     return result
 
 

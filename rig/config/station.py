@@ -21,6 +21,7 @@ from pydantic import Field, create_model, model_validator
 
 from drivers import registry
 from drivers.chamber import ChamberAlarm, ChamberSettings
+from rig import names
 from rig.config.sim import SimWorld
 from rig.configbase import DeviceConfig, Strict, transport_type
 from rig.errors import ConfigError
@@ -127,11 +128,15 @@ class Station(Strict):
 
     @model_validator(mode="after")
     def _references(self):
+        named = list(self._named_devices())
         seen: set[str] = set()
-        for path, dev in self._named_devices():
+        for path, dev in named:
             if dev.name in seen:
                 raise KeyPathError((*path, "name"), f"device name {dev.name!r} is used twice")
             seen.add(dev.name)
+        clash = names.collision(dev.name for _, dev in named)  # one file or C symbol for two devices
+        if clash:
+            raise KeyPathError((*named[clash[0]][0], "name"), f"device name {clash[1]}")
         sensors = {s.name for s in self.temperature_sensors}
         duts = {d.name for d in self.duts}
         for i, d in enumerate(self.duts):
