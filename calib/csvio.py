@@ -5,8 +5,9 @@ Real recordings can be read as they are: `columns` maps our names to theirs
 (e.g. {"hx": "mx_gauss", ...}) and `raw_unit` / `counts_per_unit` convert the raw readings to nT.
 Any problem raises DataError naming the file, the line and the column.
 
-Parsing is columnar (pyarrow), block by block; only when it refuses a file does a line-by-line scan
-run, to name the line and column of the problem.
+A numeric file is parsed by a compiled scanner on every core (calib.csvfast); anything else (text or
+quoted cells, no numba) by pyarrow's columnar reader, block by block; only when that refuses a file does
+a line-by-line scan run, to name the line and column of the problem. Every path reads the same values.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
+from calib import csvfast
 from calib.atomic import atomic_write
 from calib.dataset import Dataset
 from calib.errors import DataError
@@ -31,7 +33,7 @@ RAW_COLUMNS = ("hx", "hy", "hz")
 REF_COLUMNS = ("bx", "by", "bz")
 NUMERIC_COLUMNS = (*RAW_COLUMNS, "temp", *REF_COLUMNS, "bnorm")
 # bytes parsed per block: memory stays bounded by the result, not by the file (which may exceed memory)
-BLOCK_BYTES = 1 << 24
+BLOCK_BYTES = csvfast.BLOCK_BYTES
 
 
 def nt_per_raw_unit(raw_unit: str = "nT", counts_per_unit: str | float | None = None) -> float:
@@ -92,13 +94,18 @@ def read_csv(
     mapping = _column_mapping(header, columns, p)
     numeric = [mapping[k] for k in NUMERIC_COLUMNS if k in mapping]
     wanted = header if extra_columns else [h for h in header if h in mapping.values()]
-    digest = hashlib.sha256()
     try:
-        cols = _read_columnar(p, header, numeric, wanted, digest)
+        fast = csvfast.read_numeric(p, header, wanted)
+        if fast is not None:
+            cols, sha256 = fast
+        else:
+            digest = hashlib.sha256()
+            cols = _read_columnar(p, header, numeric, wanted, digest)
+            sha256 = digest.hexdigest()
     except (pa.ArrowInvalid, UnicodeDecodeError):
         _locate_problem(p, header, numeric)  # raises the DataError naming line and column
         cols = _parse_slow(p, header, wanted)  # cells Python reads as numbers, the columnar parser not
-        digest = hashlib.sha256(p.read_bytes())
+        sha256 = hashlib.sha256(p.read_bytes()).hexdigest()
     except OSError as err:
         raise DataError(f"{p}: cannot read ({err.strerror or err})") from None
     n = len(cols[wanted[0]])
@@ -124,7 +131,7 @@ def read_csv(
         source={
             "kind": "csv",
             "path": str(p),
-            "sha256": digest.hexdigest(),
+            "sha256": sha256,
             "rows_total": n,
             "rows_used": n,
             "rows_rejected": 0,

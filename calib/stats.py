@@ -10,28 +10,39 @@ AXES = "xyz"
 STEP_GAP_C = 1.0  # temperatures further apart than this belong to different steps
 
 
-def temperature_steps(temp_c: np.ndarray) -> np.ndarray:
-    """Label each sample with its temperature step: sorted temperatures split where the gap > STEP_GAP_C."""
-    order = np.argsort(temp_c, kind="stable")
-    t_sorted = temp_c[order]
-    step_sorted = np.concatenate([[0], np.cumsum(np.diff(t_sorted) > STEP_GAP_C)])
-    labels = np.empty(temp_c.shape[0], dtype=object)
-    for step in np.unique(step_sorted):
-        members = order[step_sorted == step]
-        labels[members] = f"{np.mean(temp_c[members]):.1f}C"
-    return labels
+def temperature_steps(temp_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(step of each sample, numbered from 0 at the coldest; mean temperature of each step): the sorted
+    temperatures split where a gap exceeds STEP_GAP_C."""
+    t = np.asarray(temp_c, float)
+    t_sorted = np.sort(t)
+    below_gap = t_sorted[np.flatnonzero(np.diff(t_sorted) > STEP_GAP_C)]  # the last value before each gap
+    steps = np.searchsorted(below_gap, t, side="left")
+    count = np.bincount(steps, minlength=below_gap.size + 1)
+    return steps, np.bincount(steps, weights=t, minlength=below_gap.size + 1) / np.maximum(count, 1)
 
 
-def groups_of(ds: Dataset) -> np.ndarray | None:
+def group_codes(ds: Dataset) -> tuple[np.ndarray, list[str]] | None:
+    """(group number of each row, the groups' labels): the dataset's group column, else its
+    temperature steps (labelled by their mean temperature), else None."""
     if ds.group is not None:
-        return np.asarray(ds.group)
+        return _factorize(np.asarray(ds.group))
     if ds.temp_c is not None:
-        return temperature_steps(np.asarray(ds.temp_c, float))
+        steps, mean_c = temperature_steps(ds.temp_c)
+        return steps, [f"{m:.1f}C" for m in mean_c]
     return None
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+def _factorize(labels: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    if labels.dtype.kind in "biuf":  # numbers sort in C; group labels read from a CSV are floats
+        values, codes = np.unique(labels, return_inverse=True)
+        return codes.reshape(-1), [_label_text(v) for v in values.tolist()]
+    index: dict = {}
+    codes = np.fromiter((index.setdefault(v, len(index)) for v in labels.tolist()), np.int64, len(labels))
+    return codes, [str(v) for v in index]
+
+
+def _rms(sum_of_squares: float, count: int) -> float:
+    return float(np.sqrt(sum_of_squares / count)) if count else float("nan")
 
 
 def known_norm(ds: Dataset) -> np.ndarray | None:
@@ -51,7 +62,8 @@ def residual_stats(
     vector=True compares field vectors with ref_nt (T24, P12); otherwise magnitudes with norm_nt
     (a constant or per-sample array; default: the known |B| of the dataset).
     """
-    used = np.ones(len(ds), bool) if used is None else used
+    used = np.ones(len(ds), bool) if used is None else np.asarray(used, bool)
+    every_row = bool(used.all())
     if vector:
         after = field_nt - ds.ref_nt
         before = ds.h_nt - ds.ref_nt
@@ -59,33 +71,54 @@ def residual_stats(
         norm = known_norm(ds) if norm_nt is None else norm_nt
         after = np.linalg.norm(field_nt, axis=1) - norm
         before = np.linalg.norm(ds.h_nt, axis=1) - norm
-    stats: dict = {
-        "rms_before_nt": _rms(before[used]),
-        "rms_after_nt": _rms(after[used]),
+    # squares of the used rows, once: every statistic below is a sum of them
+    squares = {
+        name: np.square(x if every_row else x[used]) for name, x in (("before", before), ("after", after))
     }
+    n_used = int(used.sum())
+    stats: dict = {f"rms_{name}_nt": _rms(sq.sum(), sq.size) for name, sq in squares.items()}
     if vector:
+        per_column = {name: sq.sum(axis=0) for name, sq in squares.items()}
         stats["per_axis"] = {
-            a: {"rms_before_nt": _rms(before[used, i]), "rms_after_nt": _rms(after[used, i])}
+            a: {f"rms_{name}_nt": _rms(per_column[name][i], n_used) for name in squares}
             for i, a in enumerate(AXES)
         }
     else:
-        mag = np.linalg.norm(field_nt[used], axis=1)
+        mag = np.linalg.norm(field_nt if every_row else field_nt[used], axis=1)
         stats["norm_spread_pct"] = float(100 * np.std(mag) / np.mean(mag))
-    groups = groups_of(ds)
+    groups = group_codes(ds)
     if groups is not None:
-        per_group = {}
-        for label in _ordered_unique(groups):
-            rows = (groups == label) & used
-            entry = {
-                "n": int(rows.sum()),
-                "rms_before_nt": _rms(before[rows]),
-                "rms_after_nt": _rms(after[rows]),
-            }
-            if ds.temp_c is not None and rows.any():
-                entry["temp_c"] = float(np.mean(ds.temp_c[rows]))
-            per_group[_label_text(label)] = entry
-        stats["per_group"] = per_group
+        row_squares = {name: sq.reshape(n_used, -1).sum(axis=1) for name, sq in squares.items()}
+        width = 1 if before.ndim == 1 else before.shape[1]
+        stats["per_group"] = _per_group(ds, groups, used, row_squares, width)
     return stats
+
+
+def _per_group(ds: Dataset, groups, used: np.ndarray, row_squares: dict, width: int) -> dict:
+    """Samples, RMS before and after (and mean temperature) per group, in order of first appearance;
+    one bincount over the used rows' squares, whatever the number of groups."""
+    codes, labels = groups
+    k = len(labels)
+    first_row = np.full(k, len(codes))
+    np.minimum.at(first_row, codes, np.arange(len(codes)))
+    codes_used = codes[used]
+
+    def per_code(weights=None):
+        return np.bincount(codes_used, weights=weights, minlength=k)
+
+    n = per_code()
+    sums = {name: per_code(sq) for name, sq in row_squares.items()}
+    temp_sum = per_code(np.asarray(ds.temp_c, float)[used]) if ds.temp_c is not None else None
+    per_group = {}
+    for code in np.argsort(first_row, kind="stable"):
+        if first_row[code] == len(codes):  # a label no row carries
+            continue
+        entry = {"n": int(n[code])}
+        entry.update({f"rms_{name}_nt": _rms(total[code], n[code] * width) for name, total in sums.items()})
+        if temp_sum is not None and n[code]:
+            entry["temp_c"] = float(temp_sum[code] / n[code])
+        per_group[labels[code]] = entry
+    return per_group
 
 
 def _label_text(label) -> str:
@@ -93,10 +126,3 @@ def _label_text(label) -> str:
     if isinstance(label, float) and label.is_integer():
         return str(int(label))
     return str(label)
-
-
-def _ordered_unique(labels: np.ndarray) -> list:
-    seen: dict = {}
-    for label in labels.tolist():
-        seen.setdefault(label, None)
-    return list(seen)

@@ -175,10 +175,8 @@ def step_of_each_row(ds) -> np.ndarray:
         return np.ones(len(ds), int)
     from calib.stats import temperature_steps
 
-    labels = temperature_steps(np.asarray(ds.temp_c, float))
-    mean_c = {lab: float(np.mean(ds.temp_c[labels == lab])) for lab in set(labels.tolist())}
-    number = {lab: i + 1 for i, lab in enumerate(sorted(mean_c, key=mean_c.get))}
-    return np.array([number[lab] for lab in labels.tolist()])
+    steps, _ = temperature_steps(ds.temp_c)  # numbered from the coldest
+    return steps + 1
 
 
 @dataclass
