@@ -222,3 +222,18 @@ def test_a_kernel_that_fails_to_compile_falls_back_with_a_warning(monkeypatch):
     monkeypatch.setattr(numba, "njit", broken_njit)
     with pytest.warns(UserWarning, match="using numpy"):
         assert gram_kernel._compiled() is None
+
+
+def test_rows_cut_over_cores_give_the_same_sums_every_time(monkeypatch):
+    pytest.importorskip("numba")
+    if gram_kernel._compiled() is None:
+        pytest.skip("numba kernel did not compile here")
+    h, temp, ref, weights = _random_columns(20_000, seed=21)
+    single = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
+    monkeypatch.setattr(gram_kernel, "PARALLEL_ROWS", 1000)
+    monkeypatch.setattr(gram_kernel, "_cores", lambda: 3)  # three uneven parts
+    first = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
+    again = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
+    np.testing.assert_array_equal(first[0], again[0])  # a fixed order of sums, whatever the threads did
+    _assert_same_gram(first[0], single[0])
+    assert first[1:] == single[1:]
