@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 
 # bytes read per block
-BLOCK_BYTES = 1 << 24
+BLOCK_BYTES = 1 << 22
+# pieces per thread and block: the threads share the block's pieces and its hashing evenly
+PIECES_PER_THREAD = 4
 # cells that need float() (see calib.csvscan) collected per scan before Python reads them
 SLOW_CELLS = 4096
 
@@ -51,27 +53,29 @@ class _NotFast(Exception):
 
 def _parse_piece(scan, buf: np.ndarray, start: int, end: int, slots: np.ndarray, nslots: int,
                  line_bytes: int) -> np.ndarray:
-    """The whole lines of buf[start:end] parsed: an (nslots, rows) array."""
-    out = np.empty((nslots, (end - start) // max(1, line_bytes) + 16))
+    """The whole lines of buf[start:end] parsed: a (rows, nslots) array."""
+    out = np.empty(((end - start) // max(1, line_bytes) + 16, nslots))
     slow = np.empty((SLOW_CELLS, 4), np.int64)
     row, status = 0, scan.FULL
     while status in (scan.FULL, scan.TOO_MANY_SLOW):
-        if status == scan.FULL and row == out.shape[1]:  # lines shorter than the first: grow
-            out = np.concatenate([out, np.empty_like(out)], axis=1)
-        status, row, nslow, start = scan.parse(
-            buf, start, end, row, slots, out, out.view(np.uint64), slow,
-            scan.POW10_HI, scan.POW10_LO, scan.EXACT_POW10,
-        )
+        if status == scan.FULL and row == out.shape[0]:  # lines shorter than the first: grow
+            out = np.concatenate([out, np.empty_like(out)])
+        status, row, nslow, start = scan.parse(buf, start, end, row, slots, out, out.view(np.uint64), slow)
         if status not in (scan.OK, scan.FULL, scan.TOO_MANY_SLOW):
             raise _NotFast
         for slot, cell_row, first, last in slow[:nslow]:
-            out[slot, cell_row] = float(buf[first:last].tobytes())
-    return out[:, :row]
+            out[cell_row, slot] = float(buf[first:last].tobytes())
+    return out[:row]
 
 
-def read_numeric(path: Path, header: list[str], wanted: list[str]) -> tuple[dict, str] | None:
-    """({column: float64 array} for the wanted columns, sha256 of the file), or None when the file is
-    not in the shape the scanner takes: then the caller reads it another way."""
+def read_numeric(path: Path, header: list[str], wanted: list[str]) -> tuple[np.ndarray, str] | None:
+    """(an (N, len(wanted)) float64 table, one column per wanted name in that order; sha256 of the file),
+    or None when the file is not in the shape the scanner takes: then the caller reads it another way.
+    Each wanted name appears once.
+
+    Two buffers take turns: while the threads parse one block, the next is read into the other (which
+    first takes the block's unfinished last line), and one more thread hashes each block in file order.
+    """
     scan = _scanner()
     if scan is None:
         return None
@@ -79,51 +83,60 @@ def read_numeric(path: Path, header: list[str], wanted: list[str]) -> tuple[dict
     threads = max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
     digest = hashlib.sha256()
     pieces: list[np.ndarray] = []
-    buf = bytearray(BLOCK_BYTES)
-    carry = 0  # bytes of an unfinished line kept from the block before
-    data_start = None  # where the data lines start in buf (after the header in the first block)
+    bufs = [bytearray(BLOCK_BYTES), bytearray(BLOCK_BYTES)]  # [being filled, in the threads' hands]
+    carry = 0  # bytes of an unfinished line at the start of bufs[0]
+    data_start = None  # where the data lines start in bufs[0] (after the header in the first block)
     line_bytes = 1
-    with open(path, "rb") as f, ThreadPoolExecutor(threads + 1) as pool:
-        while True:
-            if carry == len(buf):  # one line longer than the block: grow it
-                buf.extend(bytes(len(buf)))
-            with memoryview(buf) as free:
-                n = f.readinto(free[carry:])
-            filled, at_eof = carry + n, n == 0
-            hashed = pool.submit(_hash, digest, buf, carry, filled)  # while the scanner parses
-            try:
+    in_flight: list = []  # the parse jobs of the block in bufs[1]
+    hashing = None  # the hash job of the block in bufs[1]
+    with open(path, "rb") as f, ThreadPoolExecutor(threads) as pool, ThreadPoolExecutor(1) as hasher:
+        try:
+            while True:
+                buf = bufs[0]
+                with memoryview(buf) as free:
+                    n = f.readinto(free[carry:])
+                filled, at_eof = carry + n, n == 0
+                hashed = hasher.submit(_hash, digest, buf, carry, filled)
                 if data_start is None:  # the header line is in buf from offset 0
                     header_end = buf.find(b"\n", 0, filled) + 1 or filled
                     first_end = buf.find(b"\n", header_end, filled) + 1 or filled
-                    if first_end == filled and not at_eof:  # the first data line is not all in yet
-                        carry = filled
-                        continue
-                    data_start = header_end
-                    if not _numeric_cells(bytes(buf[data_start:first_end]), slots):
-                        return None
-                    line_bytes = first_end - data_start
+                    if first_end < filled or at_eof:
+                        data_start = header_end
+                        if not _numeric_cells(bytes(buf[data_start:first_end]), slots):
+                            return None
+                        line_bytes = first_end - data_start
                 end = filled if at_eof else buf.rfind(b"\n", 0, filled) + 1
-                if end <= data_start and not at_eof:  # no whole data line yet: keep it all, read more
+                if data_start is None or (end <= data_start and not at_eof):  # no whole line yet
+                    hashed.result()
+                    if filled == len(buf):  # one line longer than the block: a larger buffer
+                        bufs[0] = bytearray(2 * len(buf))
+                        bufs[0][:filled] = buf[:filled]
                     carry = filled
                     continue
                 view = np.frombuffer(buf, np.uint8)
                 jobs = [
                     pool.submit(_parse_piece, scan, view, a, b, slots, len(wanted), line_bytes)
-                    for a, b in _cuts(buf, data_start, end, threads)
+                    for a, b in _cuts(buf, data_start, end, PIECES_PER_THREAD * threads)
                 ]
                 del view
-                pieces.extend(job.result() for job in jobs)
-            except _NotFast:
-                return None
-            finally:
-                hashed.result()
-            if at_eof:
-                break
-            buf[: filled - end] = buf[end:filled]
-            carry, data_start = filled - end, 0
-    columns = {name: np.concatenate([p[k] for p in pieces]) if pieces else np.zeros(0)
-               for k, name in enumerate(wanted)}
-    return columns, digest.hexdigest()
+                pieces.extend(job.result() for job in in_flight)  # the block before: bufs[1] is free
+                if hashing is not None:
+                    hashing.result()
+                in_flight, hashing = jobs, hashed
+                if at_eof:
+                    break
+                carry = filled - end
+                if len(bufs[1]) < len(buf):
+                    bufs[1] = bytearray(len(buf))
+                bufs[1][:carry] = buf[end:filled]
+                bufs.reverse()
+                data_start = 0
+            pieces.extend(job.result() for job in in_flight)
+            hashing.result()
+        except _NotFast:
+            return None
+    table = np.concatenate(pieces) if pieces else np.zeros((0, len(wanted)))
+    return table, digest.hexdigest()
 
 
 def _hash(digest, buf: bytearray, start: int, end: int) -> None:

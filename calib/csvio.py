@@ -94,10 +94,14 @@ def read_csv(
     mapping = _column_mapping(header, columns, p)
     numeric = [mapping[k] for k in NUMERIC_COLUMNS if k in mapping]
     wanted = header if extra_columns else [h for h in header if h in mapping.values()]
+    # the scanner's table puts hx,hy,hz and bx,by,bz side by side: the blocks below are views of it
+    order = list(dict.fromkeys([mapping[k] for k in (*RAW_COLUMNS, *REF_COLUMNS) if k in mapping] + wanted))
+    table = None
     try:
-        fast = csvfast.read_numeric(p, header, wanted)
+        fast = csvfast.read_numeric(p, header, order)
         if fast is not None:
-            cols, sha256 = fast
+            table, sha256 = fast
+            cols = {name: table[:, order.index(name)] for name in wanted}
         else:
             digest = hashlib.sha256()
             cols = _read_columnar(p, header, numeric, wanted, digest)
@@ -111,13 +115,17 @@ def read_csv(
     n = len(cols[wanted[0]])
     if n == 0:
         raise DataError(f"{p}: no data rows after the header")
-    for ours in NUMERIC_COLUMNS:
-        if ours in mapping:
-            _check_finite(cols[mapping[ours]], mapping[ours], p)
+    if table is None or not np.isfinite(table).all():  # one contiguous pass when all is well
+        for ours in NUMERIC_COLUMNS:
+            if ours in mapping:
+                _check_finite(cols[mapping[ours]], mapping[ours], p)
 
     def block(names):
         if not all(k in mapping for k in names):
             return None
+        slots = [order.index(mapping[k]) for k in names]
+        if table is not None and slots == list(range(slots[0], slots[0] + len(names))):
+            return table[:, slots[0] : slots[0] + len(names)]  # adjacent columns of the table: a view
         return np.column_stack([cols[mapping[k]] for k in names])
 
     h = block(RAW_COLUMNS)
@@ -262,7 +270,7 @@ def _parse_slow(p: Path, header: list[str], wanted: list[str]) -> dict[str, np.n
 
 
 def _check_finite(values: np.ndarray, name: str, p: Path) -> None:
-    bad = ~np.isfinite(values.astype(float))
+    bad = ~np.isfinite(np.asarray(values, float))  # no copy of a float column
     if bad.any():
         row = int(np.flatnonzero(bad)[0])
         raise DataError(

@@ -62,27 +62,26 @@ def _mul_hi(typingctx, a, b):
 
 
 @intrinsic
-def _load8(typingctx, buf, i):
-    """Eight bytes from buf[i] on as a little-endian uint64, one unaligned load (the caller keeps
-    i + 8 <= len(buf))."""
-    sig = types.uint64(buf, types.intp)
+def _load8(typingctx, address, i):
+    """The eight bytes at address + i as a little-endian uint64, one unaligned load."""
+    sig = types.uint64(types.intp, types.intp)
 
     def codegen(context, builder, signature, args):
-        data = context.make_array(signature.args[0])(context, builder, args[0]).data
-        word = builder.bitcast(builder.gep(data, [args[1]]), ir.IntType(64).as_pointer())
+        base = builder.inttoptr(args[0], ir.IntType(8).as_pointer())
+        word = builder.bitcast(builder.gep(base, [args[1]]), ir.IntType(64).as_pointer())
         return builder.load(word, align=1)
 
     return sig, codegen
 
 
 @intrinsic
-def _at(typingctx, buf, i):
-    """buf[i] for 0 <= i < len(buf), without the negative-index check buf[i] makes, in the hot loops."""
-    sig = types.uint8(buf, types.intp)
+def _at(typingctx, address, i):
+    """The byte at address + i."""
+    sig = types.uint8(types.intp, types.intp)
 
     def codegen(context, builder, signature, args):
-        data = context.make_array(signature.args[0])(context, builder, args[0]).data
-        return builder.load(builder.gep(data, [args[1]]))
+        base = builder.inttoptr(args[0], ir.IntType(8).as_pointer())
+        return builder.load(builder.gep(base, [args[1]]))
 
     return sig, codegen
 
@@ -103,17 +102,17 @@ def _value_of_digits(d):
 
 
 @njit(inline="always")
-def _eisel_lemire(man, q, pow_hi, pow_lo):
+def _eisel_lemire(man, q):
     """The float64 bits of man * 10**q correctly rounded, or 0 when this cannot decide (then float()
     must). 0 < man < 2**64, q within the table."""
     clz = leading_zeros(man)
     man = man << U(clz)
     exp2 = ((217706 * q) >> 16) + 64 + 1023 - clz  # 217706 / 2**16 ~ log2(10)
     k = q - MIN_EXP10
-    x_hi = _mul_hi(man, pow_hi[k]); x_lo = man * pow_hi[k]
+    x_hi = _mul_hi(man, POW10_HI[k]); x_lo = man * POW10_HI[k]
     low9 = U(0x1FF)
     if (x_hi & low9) == low9 and x_lo + man < man:  # the truncated product may be off: widen it
-        y_hi = _mul_hi(man, pow_lo[k]); y_lo = man * pow_lo[k]
+        y_hi = _mul_hi(man, POW10_LO[k]); y_lo = man * POW10_LO[k]
         m_hi = x_hi; m_lo = x_lo + y_hi
         if m_lo < x_lo:
             m_hi += U(1)
@@ -135,34 +134,57 @@ def _eisel_lemire(man, q, pow_hi, pow_lo):
 
 
 @njit(inline="always")
-def _digits(buf, i, end, man):
-    """Read a run of digits from buf[i]: (index after it, man extended by them, how many). Up to eight
-    digits per step: one load, the run's length from the first non-digit byte, then three multiplies."""
+def _run_length(v, room):
+    """How many of the eight bytes of v, from the first, are digits (at most `room`, at least 0)."""
+    flags = _non_digits(v)
+    k = 8 if flags == U(0) else np.int64(trailing_zeros(flags)) >> 3
+    return max(0, min(k, room))
+
+
+@njit(inline="always")
+def _first_digits(v, k):
+    """The number the first k (0..8) bytes of v spell when they are digits."""
+    shift = U(4 * (8 - k))  # the k digits to the top bytes, zeros below (two shifts: 64 is no shift)
+    return _value_of_digits(((v - U(0x3030303030303030)) << shift) << shift)
+
+
+@njit(inline="always")
+def _digits(base, size, i, end, man):
+    """Read the run of digits at byte i of the `size`-byte buffer at `base`: (index after it, man
+    extended by them, how many). Two 8-byte loads cover runs of up to 16 digits with no branch on the
+    run's length (a data-dependent branch costs more than the arithmetic here); longer runs and the
+    buffer's last bytes go on eight, then one, at a time."""
     start = i
-    while i + 8 <= buf.shape[0]:
-        v = _load8(buf, i)
-        flags = _non_digits(v)
-        k = min(8 if flags == U(0) else np.int64(trailing_zeros(flags)) >> 3, end - i)
-        if k > 0:
-            # the k digits to the top bytes, zeros (as digit values) below: their value is the run's
-            digits = (v - U(0x3030303030303030)) << U(8 * (8 - k)) if k < 8 else v - U(0x3030303030303030)
-            man = man * POW10_INT[k] + _value_of_digits(digits)
-            i += k
+    if i + 16 <= size:
+        v1 = _load8(base, i)
+        v2 = _load8(base, i + 8)
+        k1 = _run_length(v1, end - i)
+        k2 = _run_length(v2, end - i - 8) if k1 == 8 else 0
+        man = man * POW10_INT[k1] + _first_digits(v1, k1)
+        man = man * POW10_INT[k2] + _first_digits(v2, k2)
+        i += k1 + k2
+        if k1 + k2 < 16:
+            return i, man, i - start
+    while i + 8 <= size:
+        v = _load8(base, i)
+        k = _run_length(v, end - i)
+        man = man * POW10_INT[k] + _first_digits(v, k)
+        i += k
         if k < 8:
             return i, man, i - start
-    while i < end and 48 <= _at(buf, i) <= 57:  # the last bytes of the buffer
-        man = man * U(10) + U(_at(buf, i) - 48); i += 1
+    while i < end and 48 <= _at(base, i) <= 57:
+        man = man * U(10) + U(_at(base, i) - 48); i += 1
     return i, man, i - start
 
 
 @njit
-def _long_mantissa(buf, i, end):
+def _long_mantissa(base, i, end):
     """A mantissa of more than 19 digits, re-read keeping its first 19 significant ones:
     (index after it, mantissa, power of ten, whether a nonzero digit was dropped)."""
     man = U(0); digits = 0; exp10 = 0; dropped = False
     dot = False
     while i < end:
-        c = _at(buf, i)
+        c = _at(base, i)
         if c == 46 and not dot:
             dot = True; i += 1
             continue
@@ -183,23 +205,26 @@ def _long_mantissa(buf, i, end):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def parse(buf, start, end, row, slots, out, out_bits, slow, pow_hi, pow_lo, exact):
-    """Parse the whole lines of buf[start:end] into out[slot, row...] for the file columns whose
+def parse(buf, start, end, row, slots, out, out_bits, slow):
+    """Parse the whole lines of buf[start:end] into out[row..., slot] for the file columns whose
     slots[col] >= 0 (blank lines skipped). Returns (status, next row, cells for float(), where the scan
     stopped). Such a cell is slow[k] = (slot, row, first byte, end byte). When `slow` or `out` is full
     the scan stops at the start of its line (TOO_MANY_SLOW, FULL), to be resumed from there."""
+    # the hot loops read through the buffer's address: no array (and no reference count) in their calls
+    base = buf.ctypes.data
+    size = buf.shape[0]
     ncols = slots.shape[0]
     nslow = 0
     i = start
     while i < end:
         line_start = i
-        if _at(buf, i) == 10:
+        if _at(base, i) == 10:
             i += 1
             continue
-        if _at(buf, i) == 13 and i + 1 < end and _at(buf, i + 1) == 10:
+        if _at(base, i) == 13 and i + 1 < end and _at(base, i + 1) == 10:
             i += 2
             continue
-        if row == out.shape[1]:
+        if row == out.shape[0]:
             return FULL, row, nslow, line_start
         col = 0
         while True:
@@ -207,75 +232,74 @@ def parse(buf, start, end, row, slots, out, out_bits, slow, pow_hi, pow_lo, exac
                 return CELL_COUNT, row, nslow, line_start
             slot = slots[col]
             if slot < 0:  # a column nobody asked for: skip it, unless quoting could hide a separator
-                while i < end and _at(buf, i) != 44 and _at(buf, i) != 10:
-                    if _at(buf, i) == 34:
+                while i < end and _at(base, i) != 44 and _at(base, i) != 10:
+                    if _at(base, i) == 34:
                         return BAD_CELL, row, nslow, line_start
                     i += 1
             else:
                 first = i
-                while i < end and (_at(buf, i) == 32 or _at(buf, i) == 9):
+                while i < end and (_at(base, i) == 32 or _at(base, i) == 9):
                     i += 1
-                negative = False
-                if i < end and (_at(buf, i) == 45 or _at(buf, i) == 43):
-                    negative = _at(buf, i) == 45
-                    i += 1
+                sign = _at(base, i) if i < end else U(0)
+                negative = sign == 45
+                i += 1 if negative or sign == 43 else 0  # a select, not a branch: signs come at random
                 mantissa_start = i
-                i, man, n_int = _digits(buf, i, end, U(0))
+                i, man, n_int = _digits(base, size, i, end, U(0))
                 n_frac = 0
-                if i < end and _at(buf, i) == 46:
-                    i, man, n_frac = _digits(buf, i + 1, end, man)
+                if i < end and _at(base, i) == 46:
+                    i, man, n_frac = _digits(base, size, i + 1, end, man)
                 if n_int + n_frac == 0:
                     return BAD_CELL, row, nslow, line_start
                 exp10 = -n_frac
                 dropped = False
                 if n_int + n_frac > 19:  # man overflowed: keep the first 19 significant digits
-                    i, man, exp10, dropped = _long_mantissa(buf, mantissa_start, end)
-                if i < end and (_at(buf, i) == 101 or _at(buf, i) == 69):
+                    i, man, exp10, dropped = _long_mantissa(base, mantissa_start, end)
+                if i < end and (_at(base, i) == 101 or _at(base, i) == 69):
                     i += 1
                     e_negative = False
-                    if i < end and (_at(buf, i) == 45 or _at(buf, i) == 43):
-                        e_negative = _at(buf, i) == 45
+                    if i < end and (_at(base, i) == 45 or _at(base, i) == 43):
+                        e_negative = _at(base, i) == 45
                         i += 1
-                    if i >= end or not 48 <= _at(buf, i) <= 57:
+                    if i >= end or not 48 <= _at(base, i) <= 57:
                         return BAD_CELL, row, nslow, line_start
                     e = 0
-                    while i < end and 48 <= _at(buf, i) <= 57:
+                    while i < end and 48 <= _at(base, i) <= 57:
                         if e < 100000:
-                            e = e * 10 + (_at(buf, i) - 48)
+                            e = e * 10 + (_at(base, i) - 48)
                         i += 1
                     exp10 += -e if e_negative else e
                 last = i
-                while i < end and (_at(buf, i) == 32 or _at(buf, i) == 9):
+                while i < end and (_at(base, i) == 32 or _at(base, i) == 9):
                     i += 1
                 done = True
                 if man == U(0):
-                    out_bits[slot, row] = SIGN_BIT if negative else U(0)
+                    out_bits[row, slot] = SIGN_BIT if negative else U(0)
                 elif exp10 < MIN_EXP10 or exp10 > MAX_EXP10:
                     done = False
                 elif not dropped and man <= U(1 << 53) and -22 <= exp10 <= 22:  # one exact operation
                     v = float(man)
-                    v = v * exact[exp10] if exp10 >= 0 else v / exact[-exp10]
-                    out[slot, row] = -v if negative else v
+                    v = v * EXACT_POW10[exp10] if exp10 >= 0 else v / EXACT_POW10[-exp10]
+                    out[row, slot] = -v if negative else v
                 else:
-                    bits = _eisel_lemire(man, exp10, pow_hi, pow_lo)
-                    if dropped and bits != _eisel_lemire(man + U(1), exp10, pow_hi, pow_lo):
+                    bits = _eisel_lemire(man, exp10)
+                    if dropped and bits != _eisel_lemire(man + U(1), exp10):
                         bits = U(0)  # digits were dropped and the next mantissa up rounds elsewhere
                     done = bits != U(0)
                     if done:
-                        out_bits[slot, row] = (bits | SIGN_BIT) if negative else bits
+                        out_bits[row, slot] = (bits | SIGN_BIT) if negative else bits
                 if not done:  # float() reads it, after the scan
                     if nslow == slow.shape[0]:
                         return TOO_MANY_SLOW, row, nslow, line_start
                     slow[nslow, 0] = slot; slow[nslow, 1] = row; slow[nslow, 2] = first; slow[nslow, 3] = last
                     nslow += 1
-            if i < end and _at(buf, i) == 44:
+            if i < end and _at(base, i) == 44:
                 col += 1
                 i += 1
                 continue
-            if i < end and _at(buf, i) == 13:
+            if i < end and _at(base, i) == 13:
                 i += 1
             if i < end:
-                if _at(buf, i) != 10:
+                if _at(base, i) != 10:
                     return BAD_CELL, row, nslow, line_start
                 i += 1
             if col != ncols - 1:

@@ -48,12 +48,12 @@ def test_every_number_reads_as_python_float_reads_it(tmp_path):
     path = _write(tmp_path, "a,b\n" + "".join(f"{x},{y}\n" for x, y in zip(texts, shifted, strict=True)))
     result = csvfast.read_numeric(path, ["a", "b"], ["a", "b"])
     assert result is not None, "a plain numeric file must take the fast path"
-    cols, sha256 = result
-    for name, spelled in (("a", texts), ("b", shifted)):
+    table, sha256 = result
+    for k, spelled in enumerate((texts, shifted)):
         expected = np.array([float(t) for t in spelled])
-        same = (cols[name] == expected) & (np.signbit(cols[name]) == np.signbit(expected))
+        same = (table[:, k] == expected) & (np.signbit(table[:, k]) == np.signbit(expected))
         wrong = np.flatnonzero(~same)
-        assert wrong.size == 0, [(spelled[i], cols[name][i], expected[i]) for i in wrong[:5]]
+        assert wrong.size == 0, [(spelled[i], table[i, k], expected[i]) for i in wrong[:5]]
     assert sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -94,8 +94,7 @@ def test_blocks_and_pieces_of_any_size_give_the_same_columns(tmp_path, monkeypat
         monkeypatch.setattr(csvfast, "BLOCK_BYTES", block)
         parts = csvfast.read_numeric(path, ["t_s", "hx", "hy", "hz", "temp"], ["hx", "hy", "hz"])
         assert parts is not None
-        for name in ("hx", "hy", "hz"):
-            np.testing.assert_array_equal(parts[0][name], whole[0][name])
+        np.testing.assert_array_equal(parts[0], whole[0])
         assert parts[1] == whole[1]
 
 
@@ -105,9 +104,9 @@ def test_many_cells_for_float_and_lines_shorter_than_the_first(tmp_path, monkeyp
     lines = ["hx,hy,hz", "1.00000000000000000000000000000000001,2,3"] + [f"{c},1,-{c}" for c in long_cells]
     path = _write(tmp_path, "\n".join(lines) + "\n")
     monkeypatch.setattr(csvfast, "SLOW_CELLS", 3)
-    cols, _ = csvfast.read_numeric(path, ["hx", "hy", "hz"], ["hx", "hy", "hz"])
-    np.testing.assert_array_equal(cols["hx"], [float(line.split(",")[0]) for line in lines[1:]])
-    np.testing.assert_array_equal(cols["hz"], [float(line.split(",")[2]) for line in lines[1:]])
+    table, _ = csvfast.read_numeric(path, ["hx", "hy", "hz"], ["hx", "hy", "hz"])
+    np.testing.assert_array_equal(table[:, 0], [float(line.split(",")[0]) for line in lines[1:]])
+    np.testing.assert_array_equal(table[:, 2], [float(line.split(",")[2]) for line in lines[1:]])
 
 
 @pytest.mark.parametrize(
