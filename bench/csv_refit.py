@@ -37,7 +37,7 @@ def _scanner_cpu_s(path: Path) -> float:
     start = data.index(b"\n") + 1
     best = np.inf
     for _ in range(3):
-        out = np.empty((len(NAMES), data.count(b"\n") + 1))
+        out = np.empty((data.count(b"\n") + 1, len(NAMES)))
         slow = np.empty((csvfast.SLOW_CELLS, 4), np.int64)
         t0 = time.thread_time()
         scan.parse(buf, start, len(data), 0, np.arange(len(NAMES)), out, out.view(np.uint64), slow)

@@ -120,21 +120,24 @@ def p12_angles_from_rows(p: np.ndarray) -> np.ndarray:
 
 
 def _t24_field(h, t, s, k, b, kb) -> np.ndarray:
-    """(S + t K) h + b + t kb, one output column at a time: no (N,3,3) temporary, and no BLAS call,
-    which for an inner size of 3 spends more on waking its threads than on the sums."""
-    out = np.empty_like(h)
+    """(S + t K) h + b + t kb, one output column at a time over contiguous copies of the inputs' columns:
+    no (N,3,3) temporary, and no BLAS call, which for an inner size of 3 spends more on waking its
+    threads than on the sums. The result is an (N,3) view of a (3,N) array."""
+    x = np.ascontiguousarray(h.T)
+    t = np.ascontiguousarray(t)
+    out = np.empty_like(x)
     for i in range(3):
-        col = h[:, 0] * k[i, 0]
-        col += h[:, 1] * k[i, 1]
-        col += h[:, 2] * k[i, 2]
+        col = out[i]
+        np.multiply(x[0], k[i, 0], out=col)
+        col += x[1] * k[i, 1]
+        col += x[2] * k[i, 2]
         col += kb[i]
         col *= t
-        col += h[:, 0] * s[i, 0]
-        col += h[:, 1] * s[i, 1]
-        col += h[:, 2] * s[i, 2]
+        col += x[0] * s[i, 0]
+        col += x[1] * s[i, 1]
+        col += x[2] * s[i, 2]
         col += b[i]
-        out[:, i] = col
-    return out
+    return out.T
 
 
 def apply(model: str, params: dict, h_nt: np.ndarray, temp_c: np.ndarray | None, temp_ref_c: float | None):
