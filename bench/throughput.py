@@ -14,7 +14,7 @@ import tracemalloc
 import numpy as np
 from timing import median_time
 
-from calib import gram_kernel, synthetic
+from calib import compiled, synthetic
 from calib.gram import GramAccumulator
 
 
@@ -47,12 +47,12 @@ def streaming(n: int) -> None:
         return acc.solve()
 
     def fit_one_core():
-        cores = gram_kernel._cores
-        gram_kernel._cores = lambda: 1
+        cores = compiled.cores
+        compiled.cores = lambda: 1
         try:
             return fit()
         finally:
-            gram_kernel._cores = cores
+            compiled.cores = cores
 
     t_sum = median_time(lambda: (np.sum(h), np.sum(tau), np.sum(ref)))
     t_fit = median_time(fit)
@@ -70,7 +70,7 @@ def streaming(n: int) -> None:
         f"N = {n:.0e}: fit {t_fit * 1e3:.0f} ms, np.sum {t_sum * 1e3:.0f} ms, "
         f"extra peak memory {peak / 1e6:.2f} MB"
     )
-    cores = gram_kernel._cores()
+    cores = compiled.cores()
     print(f"  throughput: {n / t_fit:.3g} samples/s, {t_fit / t_sum:.2f} x np.sum ({cores} cores)")
     print(f"  one core: {n / t_one:.3g} samples/s, {t_one / t_sum:.2f} x np.sum")
     print(f"  one core, thread CPU time, best of 7: {cpu_fit * 1e3:.0f} ms, {cpu_fit / cpu_sum:.2f} x np.sum")

@@ -11,12 +11,13 @@ reader in csvio then reads the file, and names the line and column of any proble
 from __future__ import annotations
 
 import hashlib
-import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from calib import compiled
 
 # bytes read per block
 BLOCK_BYTES = 1 << 22
@@ -33,7 +34,7 @@ def _scanner():
     if _SCANNER:
         return _SCANNER[0]
     scanner = None
-    if os.environ.get("MAGRIG_NO_NUMBA", "") not in ("1", "true", "yes"):
+    if compiled.numba_allowed():
         try:
             from calib import csvscan
 
@@ -79,8 +80,9 @@ def read_numeric(path: Path, header: list[str], wanted: list[str]) -> tuple[np.n
     scan = _scanner()
     if scan is None:
         return None
-    slots = np.array([wanted.index(name) if name in wanted else -1 for name in header], np.int64)
-    threads = max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
+    slot_of = {name: k for k, name in enumerate(wanted)}
+    slots = np.array([slot_of.get(name, -1) for name in header], np.int64)
+    threads = min(8, compiled.cores())
     digest = hashlib.sha256()
     pieces: list[np.ndarray] = []
     bufs = [bytearray(BLOCK_BYTES), bytearray(BLOCK_BYTES)]  # [being filled, in the threads' hands]

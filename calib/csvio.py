@@ -96,12 +96,13 @@ def read_csv(
     wanted = header if extra_columns else [h for h in header if h in mapping.values()]
     # the scanner's table puts hx,hy,hz and bx,by,bz side by side: the blocks below are views of it
     order = list(dict.fromkeys([mapping[k] for k in (*RAW_COLUMNS, *REF_COLUMNS) if k in mapping] + wanted))
+    slot = {name: k for k, name in enumerate(order)}
     table = None
     try:
         fast = csvfast.read_numeric(p, header, order)
         if fast is not None:
             table, sha256 = fast
-            cols = {name: table[:, order.index(name)] for name in wanted}
+            cols = {name: table[:, slot[name]] for name in wanted}
         else:
             digest = hashlib.sha256()
             cols = _read_columnar(p, header, numeric, wanted, digest)
@@ -123,9 +124,9 @@ def read_csv(
     def block(names):
         if not all(k in mapping for k in names):
             return None
-        slots = [order.index(mapping[k]) for k in names]
-        if table is not None and slots == list(range(slots[0], slots[0] + len(names))):
-            return table[:, slots[0] : slots[0] + len(names)]  # adjacent columns of the table: a view
+        first = slot[mapping[names[0]]]
+        if table is not None and [slot[mapping[k]] for k in names] == list(range(first, first + len(names))):
+            return table[:, first : first + len(names)]  # adjacent columns of the table: a view
         return np.column_stack([cols[mapping[k]] for k in names])
 
     h = block(RAW_COLUMNS)

@@ -19,11 +19,12 @@ rounding). Compiled code is cached on disk (cache=True) so only the first run on
 
 from __future__ import annotations
 
-import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+from calib import compiled
 
 # rows per kernel call: bounds the copy when an input is not C-contiguous, costs nothing otherwise
 KERNEL_ROWS = 1 << 16
@@ -151,7 +152,7 @@ def gram_numba(h, t, ref, w, temp_ref: float):
     if kernel is None:
         raise RuntimeError("numba kernel unavailable")
     n = h.shape[0]
-    parts = max(1, min(_cores(), n // PARALLEL_ROWS))
+    parts = max(1, min(compiled.cores(), n // PARALLEL_ROWS))
     bounds = [n * k // parts for k in range(parts + 1)]
 
     def part(k):
@@ -192,10 +193,6 @@ def _moments_of_rows(kernel, h, t, ref, w, temp_ref, start: int, stop: int):
     return total, n_used, t_min, t_max
 
 
-def _cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def gram_numpy(h, t, ref, w, temp_ref: float):
     """The same as gram_numba through numpy and BLAS: a design block [1, t, h, t h, B, 0] per chunk."""
     n_rows = h.shape[0]
@@ -229,7 +226,7 @@ def _compiled():
     if _KERNEL:
         return _KERNEL[0]
     kernel = None
-    if os.environ.get("MAGRIG_NO_NUMBA", "") not in ("1", "true", "yes"):
+    if compiled.numba_allowed():
         try:
             import numba
         except ImportError:

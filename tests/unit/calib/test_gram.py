@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib import gram_kernel, synthetic
+from calib import compiled, gram_kernel, synthetic
 from calib.errors import FitError
 from calib.gram import GramAccumulator
 
@@ -231,7 +231,7 @@ def test_rows_cut_over_cores_give_the_same_sums_every_time(monkeypatch):
     h, temp, ref, weights = _random_columns(20_000, seed=21)
     single = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
     monkeypatch.setattr(gram_kernel, "PARALLEL_ROWS", 1000)
-    monkeypatch.setattr(gram_kernel, "_cores", lambda: 3)  # three uneven parts
+    monkeypatch.setattr(compiled, "cores", lambda: 3)  # three uneven parts
     first = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
     again = gram_kernel.gram_numba(h, temp, ref, weights, 20.0)
     np.testing.assert_array_equal(first[0], again[0])  # a fixed order of sums, whatever the threads did
