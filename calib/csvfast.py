@@ -40,8 +40,8 @@ def _scanner():
 
             _parse_piece(csvscan, np.frombuffer(b"1,x\n", np.uint8), 0, 4, np.array([0, -1]), 1, 4)
             scanner = csvscan
-        except ImportError:
-            scanner = None
+        except ImportError:  # no numba: the columnar reader does the work
+            pass
         except Exception as err:  # any compile failure: the columnar reader does the work
             warnings.warn(f"compiled CSV scanner not used ({err}); using pyarrow", stacklevel=2)
     _SCANNER.append(scanner)

@@ -110,9 +110,7 @@ def _per_group(ds: Dataset, groups, used: np.ndarray, row_squares: dict, width: 
     sums = {name: per_code(sq) for name, sq in row_squares.items()}
     temp_sum = per_code(np.asarray(ds.temp_c, float)[used]) if ds.temp_c is not None else None
     per_group = {}
-    for code in np.argsort(first_row, kind="stable"):
-        if first_row[code] == len(codes):  # a label no row carries
-            continue
+    for code in np.argsort(first_row, kind="stable"):  # every label has rows: codes come from them
         entry = {"n": int(n[code])}
         entry.update({f"rms_{name}_nt": _rms(total[code], n[code] * width) for name, total in sums.items()})
         if temp_sum is not None and n[code]:
