@@ -291,6 +291,9 @@ class Plan(Strict):
     fit: Fit = Fit()
     acceptance: Acceptance | None = Field(None, description="per-DUT PASS/FAIL limits (rig/acceptance.py)")
     outputs: Outputs = Outputs()
+    accuracy_ppm: bounded(gt=0, hi=1e6) | None = Field(
+        None, description="the reference field's accuracy target, relative to the field: `rig check` refuses "
+        "a DUT position where the coil field's non-uniformity exceeds it")
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
         "them (calib/targets.py)")
