@@ -21,9 +21,9 @@ def reference_lines(plan, station, warnings: list[str]) -> list[str]:
     commissioned = getattr(source, "commissioned", None)
     if commissioned is not None:
         lines.append(commissioned.summary(source.max_age_days))
-    elif getattr(source, "commissioning", None) is None and source.kind == "coils":
-        warnings.append(f"coil matrix as declared, not commissioned: its budget uses "
-                        f"{source.constants_uncertainty_ppm:g} ppm per element (rig commission measures it)")
+    elif source.kind == "coils":
+        lines.append(f"coil matrix as declared (not commissioned): the uncertainty budget takes "
+                     f"{source.constants_uncertainty_ppm:g} ppm per element; `rig commission` measures it")
     geometry = getattr(source, "geometry", None)
     stated = [(i, d) for i, d in enumerate(station.duts) if d.position_mm is not None]
     if geometry is None:
