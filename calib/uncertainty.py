@@ -29,12 +29,14 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.errors import FitError
 from calib.models import apply
 
 COVERAGE_FACTOR = 2.0
 COVERAGE_PROBABILITY = 0.95
 DRAWS = 200
 DRAWS_PER_SOURCE = 60
+MIN_SHARE_FITTED = 0.9  # of the draws; a fit that fails more often is too fragile to state an uncertainty
 
 
 @dataclass(frozen=True)
@@ -121,17 +123,24 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
     nominal = cal.apply(grid_h, grid_temp)
 
     def run(chosen: list[Source], n: int) -> tuple[np.ndarray, dict[str, list[np.ndarray]]]:
-        errors = np.empty((n, len(grid_h), 3))
+        errors = []
         params: dict[str, list[np.ndarray]] = {k: [] for k in cal.params}
-        for i in range(n):
+        for _ in range(n):
             data = ds
             for source in chosen:
                 data = with_draw(data, source.draw(rng))
-            fitted = refit(data)
-            errors[i] = fitted.apply(grid_h, grid_temp) - nominal
+            try:
+                fitted = refit(data)
+            except FitError:  # a draw the model cannot fit at all: counted, not used
+                continue
+            errors.append(fitted.apply(grid_h, grid_temp) - nominal)
             for k in params:
                 params[k].append(np.asarray(fitted.params[k], float))
-        return errors, params
+        if len(errors) < MIN_SHARE_FITTED * n:
+            names = ", ".join(s.name for s in chosen)
+            raise FitError(f"{cal.model}: only {len(errors)} of {n} Monte Carlo draws ({names}) could be "
+                           "fitted: the fit is too close to unidentifiable for an uncertainty")
+        return np.array(errors), params
 
     contributions = []
     for source in sources:

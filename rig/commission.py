@@ -32,7 +32,7 @@ from calib.errors import FitError
 from calib.tablefit import PARAM_NAMES, fit_table_axes
 from rig import __version__, commissioning
 from rig.config import Station
-from rig.errors import ConfigError, DeviceFault
+from rig.errors import ConfigError, DeviceError, DeviceFault
 from rig.outputs import inside
 from rig.sitefield import FieldMeasurement, ReferenceReader, load_reference_calibrations, settle_at
 from rig.station import open_rig
@@ -76,9 +76,14 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
         identity = rig.built.devices[ref_config.name].describe()
         readings = []
         for setting, what in design:
-            settle_at(rig, source, setting, SETTLE_S)
-            readings.append(Reading(setting, what, reader.read_mean(f"commission {what}",
-                                                                    flagged_is_fault=True)))
+            try:
+                settle_at(rig, source, setting, SETTLE_S)
+                readings.append(Reading(setting, what, reader.read_mean(f"commission {what}",
+                                                                        flagged_is_fault=True)))
+            except DeviceError as exc:  # say what was being driven when the device failed
+                if exc.operation.startswith("commission"):
+                    raise
+                raise type(exc)(exc.device, f"commission {what}: {exc.operation}", exc.detail) from None
     finally:
         rig.close()  # safe: coils at 0 A, table stopped, chamber at its safe setpoint
     fitted = (_fit_coils(station, ref_config, readings) if source.kind == "coils"

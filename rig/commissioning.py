@@ -157,12 +157,19 @@ def content_digest(data: dict) -> str:
     return sha256_text(json.dumps(body, sort_keys=True, separators=(",", ":")))
 
 
+class _PlainDumper(yaml.SafeDumper):
+    """Every value written out where it stands: no `&anchor`/`*alias` (the loader refuses them)."""
+
+    def ignore_aliases(self, data) -> bool:
+        return True
+
+
 def save(data: dict, path: Path) -> None:
     """Seal and write atomically: the file appears whole or not at all."""
     sealed = {**data, "content_sha256": content_digest(data)}
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as f:
-        yaml.safe_dump(sealed, f, sort_keys=False, default_flow_style=None, width=120)
+        yaml.dump(sealed, f, Dumper=_PlainDumper, sort_keys=False, default_flow_style=None, width=120)
 
 
 def file_path(station_path: str | Path, name: str) -> Path:

@@ -125,6 +125,7 @@ class World:
         coil_constants_nt_per_a=None,
         coil_geometry: CoilGeometry | tuple | None = None,  # or (shape, size_m, spacing_m)
         turntable_axes: TableAxes | tuple | None = None,  # or (az_tilt_deg, el_tilt_deg, zero_offsets_deg)
+        coil_nonlinearity_per_a=(0.0, 0.0, 0.0),
         site_field_nt=(19148.0, 894.0, 45587.0),
         air_c: float = 22.0,
         ramp_c_per_min: float = 3.0,
@@ -143,6 +144,8 @@ class World:
         if isinstance(coil_geometry, tuple):
             coil_geometry = CoilGeometry(*coil_geometry)
         self.coil_geometry = coil_geometry
+        # a coil whose field is not linear in its current: B_j = M_j I_j (1 + n_j |I_j|) (saturation, heat)
+        self.coil_nonlinearity_per_a = np.asarray(coil_nonlinearity_per_a, float)
         if isinstance(turntable_axes, tuple):
             turntable_axes = TableAxes(*turntable_axes)
         self.turntable_axes = turntable_axes or TableAxes()
@@ -270,6 +273,7 @@ class World:
             self._advance()
             if self.field_source == "coils":
                 currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
+                currents = currents * (1.0 + self.coil_nonlinearity_per_a * np.abs(currents))
                 matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
                 return matrix @ currents + self.ambient_nt + self.drift_nt()
             return self.turntable_axes.rotation(*self.table_deg).T @ (self.site_field_nt + self.drift_nt())

@@ -56,6 +56,8 @@ class SimWorld(Strict):
     air_c: TEMP_C | None = Field(None, description="chamber air at the start; default: the simulator's")
     coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC] | None = Field(
         None, description="the simulated coils' true matrix at the centre; default: the field source's")
+    coil_nonlinearity_per_a: bounded_vec3(1.0) = Field(
+        (0.0, 0.0, 0.0), description="each coil's field off linear by this share per ampere (a fault)")
     coil_geometry: CoilGeometry | None = Field(
         None, description="the simulated coils' true geometry; default: the field source's (none: uniform)")
     turntable_axes: TableAxesSpec | None = Field(

@@ -222,6 +222,7 @@ class Coils(FieldSourceConfig, CoilOptions):
             matrix = self.constants if self.coil_constants_nt_per_a is None else self.coil_constants_nt_per_a
         geometry = sim.coil_geometry or self.geometry
         return {"field_source": "coils", "coil_constants_nt_per_a": np.asarray(matrix, float),
+                "coil_nonlinearity_per_a": np.asarray(sim.coil_nonlinearity_per_a, float),
                 "coil_geometry": None if geometry is None else
                 (geometry.shape, tuple(geometry.size_m), tuple(geometry.spacing_m)),
                 "ambient_nt": np.asarray(ambient, float), **drift_keywords(sim)}
