@@ -85,22 +85,21 @@ def run(station_path: Path, plan_path: Path, out: Path) -> Path:
 
 # --- the truth of a simulated station ---------------------------------------------------------------------
 class Truth:
+    """What the simulated world of a station is made of (the same keywords rig/simstation.py gives it)."""
+
     def __init__(self, station):
-        sim = station.sim
-        source = station.field_source
+        world = station.field_source.world_field(station.sim)
         self.station = station
-        self.matrix = np.asarray(sim.coil_constants_nt_per_a if sim.coil_constants_nt_per_a is not None
-                                 else source.coil_constants_nt_per_a, float)
-        geometry = sim.coil_geometry or source.geometry
-        self.geometry = None if geometry is None else CoilGeometry(geometry.shape, tuple(geometry.size_m),
-                                                                   tuple(geometry.spacing_m))
-        self.ambient = np.asarray(sim.ambient_nt, float)
-        self.drift_per_s = np.zeros(3) if sim.ambient_drift_nt_per_h is None else \
-            np.asarray(sim.ambient_drift_nt_per_h, float) / 3600.0
+        self.matrix = np.asarray(world["coil_constants_nt_per_a"], float)
+        geometry = world.get("coil_geometry")
+        self.geometry = None if geometry is None else CoilGeometry(*geometry)
+        self.ambient = np.asarray(world["ambient_nt"], float)
+        self.drift_per_s = np.asarray(world.get("ambient_drift_nt_per_s", np.zeros(3)), float)
         self.duts = dut_truths(station)
 
     def matrix_at(self, dut: str) -> np.ndarray:
-        return coil_matrix_at(self.matrix, self.geometry, true_position_m(self.station, self.station.dut(dut)))
+        where = true_position_m(self.station, self.station.dut(dut))
+        return coil_matrix_at(self.matrix, self.geometry, where)
 
     def ambient_at(self, t: np.ndarray) -> np.ndarray:
         return self.ambient + np.outer(t - SIM_CLOCK_START, self.drift_per_s)
@@ -154,7 +153,8 @@ def three_references(station_path: Path, plan_path: Path, out: Path) -> None:
             errors = {}
             for key, ref in refs.items():
                 cal = calib.fit(dataclasses.replace(ds, ref_nt=ref), "t24")
-                errors[key] = float(np.sqrt(np.mean(heldout_error_nt(cal, truth.calibration(dut), grid) ** 2)))
+                error = heldout_error_nt(cal, truth.calibration(dut), grid)
+                errors[key] = float(np.sqrt(np.mean(error**2)))
                 if key == "b":
                     expanded = inputs.budget(dut, ds, cal).expanded_vector_error_nt
             ratio = errors["b"] / errors["c"]
@@ -185,7 +185,8 @@ def random_station(base: dict, rng: np.random.Generator, n_duts: int, index: int
         "coil_constants_nt_per_a": true.round(3).tolist(),
         "coil_geometry": {"shape": geometry["shape"],
                           "size_m": [s + float(rng.uniform(-tol_m, tol_m)) for s in geometry["size_m"]],
-                          "spacing_m": [s + float(rng.uniform(-tol_m, tol_m)) for s in geometry["spacing_m"]]},
+                          "spacing_m": [s + float(rng.uniform(-tol_m, tol_m))
+                                        for s in geometry["spacing_m"]]},
         "ambient_nt": (rng.normal(0, 1, 3) * [9000, 3000, 9000] + [16000, 0, 43000]).round(1).tolist(),
         "ambient_drift_nt_per_h": rng.normal(0, 15, 3).round(2).tolist(),
     })
@@ -203,10 +204,11 @@ def random_station(base: dict, rng: np.random.Generator, n_duts: int, index: int
             continue
         placed.append(position)
         name = f"dut{len(duts) + 1}"
+        probe = f"tmp{len(duts) + 1}"
         duts.append({"name": name, "type": "mmc5983ma", "transport": {"kind": "sim"},
-                     "options": {"bandwidth_hz": 100, "set_reset": True}, "temp_source": f"tmp{len(duts) + 1}",
+                     "options": {"bandwidth_hz": 100, "set_reset": True}, "temp_source": probe,
                      "position_mm": position.tolist(), "position_tolerance_mm": 1.0})
-        sensors.append({"name": f"tmp{len(duts)}", "type": "tmp117", "transport": {"kind": "sim"}, "beside": name})
+        sensors.append({"name": probe, "type": "tmp117", "transport": {"kind": "sim"}, "beside": name})
         sim_duts[name] = {"truth": "random", "noise_nt": 30, "thermal_lag_s": float(rng.uniform(300, 900)),
                           "position_error_mm": rng.uniform(-1.0, 1.0, 3).round(3).tolist()}
     data["duts"], data["temperature_sensors"] = duts, sensors
@@ -251,9 +253,9 @@ def coverage(base: dict, plan_path: Path, campaigns: int, n_duts: int, out: Path
     for group, values in inside.items():
         print(f"    {group:3s} {np.mean(values):6.1%} of {len(values)}")
     print(f"    all {np.mean(total):6.1%} of {len(total)}   (goal 90-98 %)")
-    print(f"  validation grid: true vector error within expanded_vector_error_nt at {np.mean(vector_inside):.1%} "
-          f"of {len(vector_inside)} points; RMS true error / combined standard uncertainty: median "
-          f"{np.median(ratios):.2f}")
+    print(f"  validation grid: true vector error within expanded_vector_error_nt at "
+          f"{np.mean(vector_inside):.1%} of {len(vector_inside)} points; RMS true error / combined standard "
+          f"uncertainty: median {np.median(ratios):.2f}")
 
 
 def main() -> None:

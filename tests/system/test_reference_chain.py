@@ -14,6 +14,7 @@ from rig import commissioning, referencechain
 from rig.campaign import load_from_session, run_campaign
 from rig.commission import commission
 from rig.config import load_campaign
+from rig.errors import DeviceFault
 from rig.reader import SessionReader
 from rig.reference import TableReference
 from tests.helpers.reference_station import write_station
@@ -100,6 +101,11 @@ def test_a_field_not_linear_in_the_current_is_named(tmp_path):
 
     line = _failed_commission(tmp_path, bent, "coils: commission coil y: ")
     assert "not linear" in line
+    seen = []  # in-process: the coils end safe, and nothing is written
+    with pytest.raises(DeviceFault, match="coil y"):
+        commission(tmp_path / "station.yaml", tmp_path / "again", on_rig=seen.append)
+    assert not seen[0].world.coils_enabled and np.all(seen[0].world.coil_currents_a == 0)
+    assert not (tmp_path / "again").exists() or not list((tmp_path / "again").iterdir())
 
 
 def test_a_commissioned_campaign_states_its_uncertainty_on_every_calibration(tmp_path):
