@@ -18,8 +18,9 @@ The inputs and how they are drawn (standard uncertainties u; a +-tolerance is a 
 - position: each DUT anywhere within +-position_tolerance_mm of its position_mm (coils with a geometry);
 - coil geometry: every loop's size and spacing within +-geometry.tolerance_mm;
 - table axes: the commissioning's covariance of the table's seven parameters (turntable);
-- temperature: the temperature source's accuracy (+-temp_accuracy_c, else its datasheet's) and the
-  DUT-to-probe gradient (+-temp_gradient_c_per_c per degC away from 25 degC).
+- temperature: the temperature source's accuracy (+-temp_accuracy_c, else its datasheet's), the
+  DUT-to-probe gradient (+-temp_gradient_c_per_c per degC away from 25 degC) and, on a ramp, the thermal
+  lag the fit corrected for (its standard error times how fast the temperature moved).
 The grid the calibrated field is judged on: the plan's field targets at the plan's temperatures.
 """
 
@@ -28,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,7 +43,7 @@ from rig.events import Reason
 
 UNSTATED_TEMP_ACCURACY_C = 1.0  # a temperature source whose datasheet states no accuracy
 GRADIENT_REFERENCE_C = 25.0  # the DUT and its probe agree at room temperature
-SQRT3 = np.sqrt(3.0)
+RATE_WINDOW_S = 60.0
 
 
 def refit_like(cal: Calibration):
@@ -75,12 +76,10 @@ class RunInputs:
 
     station: object
     plan: object
-    chain: dict
     point_refs: dict[str, dict]
     site: list[dict]  # the ambient / site field measurements, in time order: {t, vector_nt, std_error_nt}
     reference_cal: Calibration | None  # the reference magnetometer that measured the field source
     reference_temp_accuracy_c: float = 0.0  # of its temperature source, when its calibration needs one
-    notes: list[str] = field(default_factory=list)
 
     @classmethod
     def of_session(cls, reader) -> RunInputs:
@@ -100,7 +99,7 @@ class RunInputs:
         accuracy = 0.0
         if name in refs and refs[name].temp_source is not None:
             accuracy, _ = temperature_accuracy_c(station, refs[name])
-        return cls(station, plan, chain, reader.point_references(), site, reference_cal, accuracy)
+        return cls(station, plan, reader.point_references(), site, reference_cal, accuracy)
 
     # --- the budget of one DUT's calibration ----------------------------------------------------------
     def budget(self, dut: str, ds, cal: Calibration, *, rng: np.random.Generator | None = None,
@@ -135,10 +134,12 @@ class RunInputs:
             out += CoilChain(self, dut, ds).sources(notes)
         else:
             out += TableChain(self, ds).sources(notes)
-        out.append(self._temperature(dut, ds, notes))
+        out.append(self._temperature(dut, ds, cal, notes))
         return [s for s in out if s is not None], notes
 
-    def _temperature(self, dut: str, ds, notes: list[str]) -> Source:
+    def _temperature(self, dut: str, ds, cal: Calibration, notes: list[str]) -> Source:
+        """The probe's accuracy, the DUT-to-probe gradient and, on a ramp, the uncertainty of the thermal
+        lag the fit corrected for (its standard error times how fast each sample's temperature moved)."""
         config = self.station.dut(dut)
         accuracy, stated = temperature_accuracy_c(self.station, config)
         if not stated:
@@ -146,11 +147,18 @@ class RunInputs:
                          f"+-{accuracy:g} degC assumed (state temp_accuracy_c)")
         gradient = config.temp_gradient_c_per_c
         away = ds.temp_c - GRADIENT_REFERENCE_C
+        lag = cal.stats.get("thermal_lag") or {}
+        lag_se = lag.get("tau_se_s") if lag.get("applied") else None
+        rate = temperature_rate_c_per_s(ds) if lag_se else np.zeros(len(ds))
 
         def draw(rng: np.random.Generator) -> Draw:
-            return Draw(temp_c=rng.uniform(-accuracy, accuracy) + rng.uniform(-gradient, gradient) * away)
+            change = rng.uniform(-accuracy, accuracy) + rng.uniform(-gradient, gradient) * away
+            if lag_se:
+                change = change - rng.normal(0.0, lag_se) * rate
+            return Draw(temp_c=change)
 
-        return Source("temperature", draw, f"+-{accuracy:g} degC, gradient +-{gradient:g} degC/degC")
+        note = f"+-{accuracy:g} degC, gradient +-{gradient:g} degC/degC"
+        return Source("temperature", draw, note + (f", thermal lag +-{lag_se:.3g} s" if lag_se else ""))
 
     def reference_transform(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """(T, d): a draw of how far the reference magnetometer's calibration could be off, as a map from
@@ -397,6 +405,20 @@ def statistical_only(ds, cal: Calibration) -> dict:
         "notes": ["no reference chain with these data (a CSV): the reference's own uncertainty is not in "
                   "this budget"],
     }
+
+
+def temperature_rate_c_per_s(ds, window_s: float = RATE_WINDOW_S) -> np.ndarray:
+    """How fast each sample's temperature was moving: the change over `window_s` around it (readings a
+    fraction of a second apart would give the probe's resolution, not the ramp)."""
+    t = ds.columns.get("t")
+    if t is None or len(ds) < 2:
+        return np.zeros(len(ds))
+    order = np.argsort(t, kind="stable")
+    ts, temps = t[order], ds.temp_c[order]
+    half = window_s / 2
+    span = np.minimum(t + half, ts[-1]) - np.maximum(t - half, ts[0])
+    change = np.interp(t + half, ts, temps) - np.interp(t - half, ts, temps)
+    return np.where(span > 0, change / np.where(span > 0, span, 1.0), 0.0)
 
 
 def temperature_accuracy_c(station, config) -> tuple[float, bool]:
