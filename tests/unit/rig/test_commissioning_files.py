@@ -163,3 +163,31 @@ def test_commissioning_data_helper_round_trips(tmp_path):
     station = write_station(tmp_path, commissioned=True)
     data = commissioning_data(station)
     assert data["station"] == "sim-commissioned" and len(data["coils"]["covariance"]) == 12
+
+
+def test_commissioning_needs_a_reference_magnetometer(tmp_path):
+    from rig.commission import commission
+
+    def no_reference(data):
+        data["field_source"]["ambient_nt"] = [16200, -350, 43100]
+        del data["reference_magnetometers"]
+        del data["sim"]["duts"]["ref0"]
+
+    station = write_station(tmp_path, no_reference)
+    with pytest.raises(ConfigError) as err:
+        commission(station, tmp_path)
+    message = str(err.value)
+    assert LOCATED.match(message) and "field_source" in message and "no reference magnetometer" in message
+    assert not list(tmp_path.glob("*.commissioning.yaml"))
+
+
+def test_an_off_centre_reference_needs_the_geometry(tmp_path):
+    from rig.commission import commission
+
+    def off_centre(data):
+        data["reference_magnetometers"][0]["position_mm"] = [20, 0, 0]
+        del data["field_source"]["geometry"]
+
+    where = r"reference_magnetometers\[0\]\.position_mm: ref0 is not at the centre"
+    with pytest.raises(ConfigError, match=where):
+        commission(write_station(tmp_path, off_centre), tmp_path)
