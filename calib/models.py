@@ -45,6 +45,9 @@ class ModelSpec:
     needs_temperature: bool  # every sample must have a temperature
     optional: dict[str, tuple[int, ...]] = field(default_factory=dict)
     options: frozenset[str] = frozenset({"temp_ref_c"})  # the FitOptions it uses
+    # (dataset, FitOptions, robust) -> (fit_weighted(weights), stats recording the choice): decides the
+    # options the caller left open before the fit; None = the model has no open options
+    choose: Callable | None = None
 
 
 def _fit_t24(ds, weights, o: FitOptions):
@@ -60,11 +63,22 @@ def _fit_p12(ds, weights, o: FitOptions):
 
 
 def _fit_scalar(ds, weights, o: FitOptions):
+    """The scalar fit with the options as given (None = off); calib.fit decides open ones by validation."""
     from calib import scalar
 
+    balance = None
+    if o.balance_orientations:
+        first, _ = scalar.fit_weighted(ds, weights, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
+                                       temperature_terms=bool(o.temperature_terms))
+        balance = scalar.orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
     return scalar.fit_weighted(ds, weights, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
-                               temperature_terms=o.temperature_terms,
-                               balance_orientations=o.balance_orientations)
+                               temperature_terms=bool(o.temperature_terms), balance=balance)
+
+
+def _choose_scalar(ds, o: FitOptions, robust: bool):
+    from calib import scalar_choice
+
+    return scalar_choice.choose(ds, o, robust)
 
 
 REGISTRY: dict[str, ModelSpec] = {
@@ -77,7 +91,7 @@ REGISTRY: dict[str, ModelSpec] = {
         ModelSpec("scalar", {"A": (3, 3), "c_nt": (3,)}, _fit_scalar, vector=False, needs_temperature=False,
                   optional={"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
                   options=frozenset({"temp_ref_c", "field_norm_nt", "temperature_terms",
-                                     "balance_orientations"})),
+                                     "balance_orientations"}), choose=_choose_scalar),
     )
 }
 MODELS = tuple(REGISTRY)

@@ -10,6 +10,11 @@ AXES = "xyz"
 STEP_GAP_C = 1.0  # temperatures further apart than this belong to different steps
 
 
+def default_temp_ref_c(temp_c: np.ndarray) -> float:
+    """Centre of the temperature range, rounded to 0.1 degC so files show a tidy number."""
+    return round(float(0.5 * (np.min(temp_c) + np.max(temp_c))), 1)
+
+
 def temperature_steps(temp_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(step of each sample, numbered from 0 at the coldest; mean temperature of each step): the sorted
     temperatures split where a gap exceeds STEP_GAP_C."""

@@ -8,11 +8,7 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
 from calib.gram import GramAccumulator
-
-
-def default_temp_ref_c(temp_c: np.ndarray) -> float:
-    """Centre of the temperature range, rounded to 0.1 degC so files show a tidy number."""
-    return round(float(0.5 * (np.min(temp_c) + np.max(temp_c))), 1)
+from calib.stats import default_temp_ref_c
 
 
 def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | None):

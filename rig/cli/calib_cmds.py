@@ -72,7 +72,7 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     "--balance-orientations/--no-balance-orientations",
     default=None,
     help="Scalar model: weight samples so over-visited orientations do not dominate "
-    "(default: decided from the data's direction coverage).",
+    "(default: chosen by cross-validation inside the data when the coverage is uneven).",
 )
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
 @click.option("--lag/--no-lag", default=True, show_default=True,
@@ -221,6 +221,11 @@ def print_summary(cal) -> None:
             f"|B| spread after calibration: {st['norm_spread_pct']:.3f} % (std/mean); "
             f"field norm: {st.get('field_norm')}"
         )
+    if "validation" in st:
+        v = st["validation"]
+        means = ", ".join(f"{name} {pct:.3f} %" for name, pct in v.get("mean_pct", {}).items())
+        console.print(f"variant: {v['chosen']}, chosen by {v['method']}" + (f" (held-out |B| error: {means})"
+                                                                            if means else ""))
     if st.get("robust"):
         console.print(
             f"robust: {st['n_outliers']} rows flagged as outliers and left out of the fit"
