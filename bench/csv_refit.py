@@ -1,9 +1,12 @@
 """A 1e6-row CSV (hx,hy,hz,temp,bx,by,bz in shortest exact form, 132 MB) written to a temporary directory:
 
-- reading it as `rig refit` does (calib.csvio.read_csv: the compiled scanner on every core, sha256 of
-  the bytes alongside), and with the columnar pyarrow reader that takes over when the scanner cannot;
+- reading it with the compiled scanner (calib.csvio.read_csv once numba is loaded, as here: the scanner on
+  every core, sha256 of the bytes alongside), and with the columnar pyarrow reader, which a new process
+  uses below csvfast.COMPILED_BREAK_EVEN_BYTES (loading numba costs it about a second) and which takes
+  over when the scanner cannot;
 - the reference costs of the same bytes: reading them from the page cache, and hashing them;
-- `rig refit --model t24` end to end, in process, and the read's share of it.
+- `rig refit --model t24` end to end, in this process (numba loaded), and the read's share of it; the
+  same as a new process is bench/startup.py.
 
 Wall-clock medians of 5 (3 for the refit). Thread CPU time of the scanner on one core is printed too:
 it does not swing with the machine's load as wall time does.
@@ -77,13 +80,13 @@ def main(rows: int = ROWS) -> None:
     if any(codes):
         sys.exit(max(codes))
     print(f"{rows:.0e} CSV rows, {size_mb:.0f} MB ({size_mb * 1e6 / rows:.0f} bytes/row):")
-    print(f"  read as rig refit does (scanner + sha256): {t_read * per_row:.3f} us/row")
+    print(f"  read with the scanner (+ sha256):         {t_read * per_row:.3f} us/row")
     print(f"  columnar pyarrow reader instead:           {t_columnar * per_row:.3f} us/row")
     print(f"  scanner alone on one core, CPU time:       {t_cpu * per_row:.3f} us/row "
           f"({t_cpu / (size_mb * 1e6) * 1e9:.2f} ns/byte)")
     print(f"  the bytes from the page cache:             {t_bytes * per_row:.3f} us/row; "
           f"their sha256 {t_hash * per_row:.3f} us/row")
-    print(f"rig refit --model t24 end to end: {t_total * per_row:.2f} us/row, "
+    print(f"rig refit --model t24 end to end, numba loaded: {t_total * per_row:.2f} us/row, "
           f"of which the read {100 * t_read / t_total:.0f} %")
 
 

@@ -44,15 +44,18 @@ def fit(
             return spec.fit_weighted(ds, weights, options)
 
     if robust:
-        cal, _, flagged = irls(fit_weighted, len(ds))
+        cal, residuals, flagged = irls(fit_weighted, len(ds))
     else:
-        cal, _ = fit_weighted(None)
+        cal, residuals = fit_weighted(None)
         flagged = np.zeros(len(ds), bool)
     used = ~flagged
-    field = cal.apply(ds.h_nt, ds.temp_c)
     stats = {**cal.stats, **choice}
     norm = stats.get("field_norm_nt")  # scalar model with one constant |B|
-    stats.update(residual_stats(ds, field, vector=spec.vector, used=used, norm_nt=norm))
+    if spec.residuals_are_field_error:
+        stats.update(residual_stats(ds, None, vector=True, used=used, error_nt=residuals))
+    else:
+        field = cal.apply(ds.h_nt, ds.temp_c)
+        stats.update(residual_stats(ds, field, vector=spec.vector, used=used, norm_nt=norm))
     stats.update(
         {"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust}
     )

@@ -48,6 +48,9 @@ class ModelSpec:
     # (dataset, FitOptions, robust) -> (fit_weighted(weights), stats recording the choice): decides the
     # options the caller left open before the fit; None = the model has no open options
     choose: Callable | None = None
+    # fit_weighted's residuals are the calibrated field minus the reference (T24): the fit statistics take
+    # them as they are instead of applying the calibration again
+    residuals_are_field_error: bool = False
 
 
 def _fit_t24(ds, weights, o: FitOptions):
@@ -85,7 +88,7 @@ REGISTRY: dict[str, ModelSpec] = {
     spec.name: spec
     for spec in (
         ModelSpec("t24", {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)}, _fit_t24,
-                  vector=True, needs_temperature=True),
+                  vector=True, needs_temperature=True, residuals_are_field_error=True),
         ModelSpec("p12", {"k": (3,), "angles_deg": (3,), "b_nt": (3,)}, _fit_p12, vector=True,
                   needs_temperature=False, options=frozenset()),
         ModelSpec("scalar", {"A": (3, 3), "c_nt": (3,)}, _fit_scalar, vector=False, needs_temperature=False,

@@ -21,4 +21,6 @@ def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | No
     acc = GramAccumulator(ref_c)
     acc.add(ds.h_nt, ds.temp_c, ds.ref_nt, weights)
     cal: Calibration = acc.solve()
-    return cal, cal.apply(ds.h_nt, ds.temp_c) - ds.ref_nt
+    residuals = cal.apply(ds.h_nt, ds.temp_c)  # a fresh array: the reference is taken off in place
+    residuals -= ds.ref_nt
+    return cal, residuals

@@ -9,6 +9,7 @@ import numpy as np
 
 from calib.models import MODELS, REGISTRY
 from rig import __version__
+from rig.sessionfile import looks_like_session
 
 MODEL_CHOICE = click.Choice(MODELS)
 
@@ -39,13 +40,13 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     (extra_columns: keep the columns outside the CSV contract; a fit does not need them)."""
     from calib import csvio
     from rig.errors import DataError
-    from rig.reader import read_dataset
-    from rig.sessionfile import looks_like_session
 
     p = Path(path)
     if not p.is_file():
         raise DataError(f"{p}: no such file")
     if looks_like_session(p):
+        from rig.reader import read_dataset
+
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
@@ -117,7 +118,7 @@ def refit(
         raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
                                f"--model {' or '.join(takers)} only")
     lag_info = None
-    if lag:
+    if lag and looks_like_session(Path(data)):  # a CSV has no ramp: rig.ramp is not imported for it
         from rig.ramp import lag_corrected, session_is_ramp
 
         if session_is_ramp(data):
