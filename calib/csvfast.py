@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import compiled
+import calib.compiled as compiled
 
 # file size from which the scanner repays loading numba in a new process: it saves ~2 ns/byte over the
 # columnar reader (bench/csv_refit.py), loading costs ~1 s (bench/startup.py)
@@ -41,7 +41,7 @@ def _scanner():
     scanner = None
     if compiled.numba_allowed():
         try:
-            from calib import csvscan
+            import calib.csvscan as csvscan
 
             _parse_piece(csvscan, np.frombuffer(b"1,x\n", np.uint8), 0, 4, np.array([0, -1]), 1, 4)
             scanner = csvscan

@@ -23,7 +23,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from calib import compiled, csvfast
+import calib.compiled as compiled
+import calib.csvfast as csvfast
 from calib.atomic import atomic_write
 from calib.dataset import Dataset
 from calib.errors import DataError

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import models
+import calib.models as models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError

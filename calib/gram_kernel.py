@@ -26,7 +26,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from calib import compiled
+import calib.compiled as compiled
 
 # rows from which the compiled kernel repays loading numba in a new process: it saves ~40 ns/row over
 # the numpy path (bench/throughput.py), loading costs ~1 s (bench/startup.py)

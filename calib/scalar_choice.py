@@ -27,7 +27,6 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import FitError
-from calib.models import FitOptions
 from calib.robust import irls
 from calib.scalar import (
     MIN_SAMPLES_TO_BALANCE,
@@ -101,38 +100,46 @@ def decide(scores_pct: dict[str, np.ndarray], baseline: str) -> tuple[str, dict[
     return chosen, verdicts
 
 
-def choose(ds: Dataset, options: FitOptions, robust: bool) -> tuple[Callable, dict]:
-    """(fit_weighted(weights) of the chosen variant, the stats that record the choice)."""
-    temp_ref_c = options.temp_ref_c
+def choose(
+    ds: Dataset,
+    robust: bool,
+    *,
+    temp_ref_c: float | None = None,
+    field_norm_nt: float | None = None,
+    temperature_terms: bool | None = None,
+    balance_orientations: bool | None = None,
+) -> tuple[Callable, dict]:
+    """(fit_weighted(weights) of the chosen variant, the stats that record the choice). The options are
+    calib.fit's (see calib.scalar.fit_weighted); None = chosen here."""
     span_c = 0.0 if ds.temp_c is None else float(np.ptp(ds.temp_c))
-    if temp_ref_c is None and span_c >= MIN_TEMP_SPAN_C and options.temperature_terms is not False:
+    if temp_ref_c is None and span_c >= MIN_TEMP_SPAN_C and temperature_terms is not False:
         temp_ref_c = default_temp_ref_c(ds.temp_c)  # one centre for every fold and the final fit
 
     def fitter(part: Dataset, variant: Variant, balance: np.ndarray | None = None) -> Callable:
         def fit(weights):
-            return fit_weighted(part, weights, temp_ref_c=temp_ref_c, field_norm_nt=options.field_norm_nt,
+            return fit_weighted(part, weights, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
                                 temperature_terms=variant.temperature, balance=balance)
         return fit
 
-    unbalanced = Variant(False, bool(options.temperature_terms))
+    unbalanced = Variant(False, bool(temperature_terms))
     rows = np.ones(len(ds), bool)
     if robust:  # validate on the rows a robust fit of the unbalanced variant keeps
         rows = ~irls(fitter(ds, unbalanced), len(ds))[2]
     stats: dict = {}
     balance = None
-    if options.balance_orientations is not False and np.count_nonzero(rows) >= MIN_SAMPLES_TO_BALANCE:
+    if balance_orientations is not False and np.count_nonzero(rows) >= MIN_SAMPLES_TO_BALANCE:
         balance = _balance_weights(ds, fitter(ds, unbalanced)(rows.astype(float))[0])
         stats["coverage_effective_share"] = effective_share(balance[rows])
     candidates = [
         Variant(b, t)
-        for b in _open(options.balance_orientations, stats.get("coverage_effective_share", 1.0)
+        for b in _open(balance_orientations, stats.get("coverage_effective_share", 1.0)
                        < UNEVEN_COVERAGE_SHARE)
-        for t in _open(options.temperature_terms, span_c >= MIN_TEMP_SPAN_C)
+        for t in _open(temperature_terms, span_c >= MIN_TEMP_SPAN_C)
     ]
     chosen = candidates[0]
     if len(candidates) > 1:
-        known = options.field_norm_nt is not None or known_norm(ds) is not None
-        norm = field_norm(ds, options.field_norm_nt)[0][rows] if known else None
+        known = field_norm_nt is not None or known_norm(ds) is not None
+        norm = field_norm(ds, field_norm_nt)[0][rows] if known else None
         chosen, stats["validation"] = _validate(ds.subset(rows), norm, candidates, fitter)
     if chosen.balance and balance is None:  # asked for explicitly, on fewer than MIN_SAMPLES_TO_BALANCE rows
         balance = _balance_weights(ds, fitter(ds, Variant(False, chosen.temperature))(rows.astype(float))[0])
