@@ -34,14 +34,12 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     import calib
     from calib import calfile
     from rig.outputs import calibration_file
-    from rig.reader import read_dataset
+    from rig.reader import each_dataset
 
     out = []
-    for dut in station.duts:
-        try:
-            ds = read_dataset(session.path, dut.name)
-        except ERRORS as exc:
-            out.append({"dut": dut.name, "model": "-", "error": str(exc)})
+    for dut, ds in each_dataset(session.path, station.duts):
+        if isinstance(ds, Exception):
+            out.append({"dut": dut.name, "model": "-", "error": str(ds)})
             continue
         lag = None
         if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
