@@ -4,7 +4,6 @@ worth loading for an input, and how many cores their threads may take."""
 from __future__ import annotations
 
 import os
-import sys
 
 
 def numba_allowed() -> bool:
@@ -13,11 +12,12 @@ def numba_allowed() -> bool:
 
 
 def worth_compiled(size: float, break_even: float) -> bool:
-    """Whether an input of `size` (rows, bytes) takes the compiled path: numba allowed, and either already
-    loaded in this process or `size` at least `break_even`, the size from which the compiled path saves
-    more than loading numba and the cached kernels costs a new process (about a second: numba's import
-    and its compiler context). Both paths give the same numbers (to rounding, for the Gram sums)."""
-    return numba_allowed() and ("numba" in sys.modules or size >= break_even)
+    """Whether an input of `size` (rows, bytes) takes the compiled path: numba allowed and `size` at least
+    `break_even`, the size from which the compiled path saves more than loading numba and the cached
+    kernels costs a new process (about a second: numba's import and its compiler context). It depends on
+    the input alone, never on what the process did before, so one input gives the same numbers in any
+    process (the Gram sums of the two paths differ in rounding)."""
+    return numba_allowed() and size >= break_even
 
 
 def cores() -> int:

@@ -6,8 +6,7 @@ It takes the common shape of a numeric CSV (unquoted numbers, optional spaces ar
 blank lines skipped; values exactly as Python's float() reads them) and returns None for anything
 else: a quote, a text or empty cell, a wrong cell count, no numba (or MAGRIG_NO_NUMBA=1). The columnar
 reader in csvio then reads the file, and names the line and column of any problem. csvio hands a file
-to it only when numba is already loaded or the file is large enough to repay loading it
-(COMPILED_BREAK_EVEN_BYTES).
+to it only when the file is large enough to repay loading numba (COMPILED_BREAK_EVEN_BYTES).
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ the kernel (which runs without the GIL) and the parts added in a fixed order.
 
 numba is optional: without it, or when compiling fails, the numpy path gives the same sums (to
 rounding). Compiled code is cached on disk (cache=True) so only the first run on a machine pays for it;
-even so, loading numba costs a new process about a second, so the kernel runs only when numba is already
-loaded or the input is large enough to repay that (COMPILED_BREAK_EVEN_ROWS).
+even so, loading numba costs a new process about a second, so the kernel runs only for inputs large
+enough to repay that (COMPILED_BREAK_EVEN_ROWS), whatever the process loaded before.
 """
 
 # ruff: noqa: E702 - the kernel puts short statements side by side so its 60 sums read as a table
@@ -249,8 +249,8 @@ def _compiled():
 
 
 def gram_sums(h, t, ref, w, temp_ref: float):
-    """(Gram, rows with w > 0, min and max temperature of those rows): compiled when numba is loaded or
-    the input is big enough to repay loading it (calib.compiled.worth_compiled)."""
+    """(Gram, rows with w > 0, min and max temperature of those rows): compiled when the input is big
+    enough to repay loading numba (calib.compiled.worth_compiled)."""
     if compiled.worth_compiled(h.shape[0], COMPILED_BREAK_EVEN_ROWS) and _compiled() is not None:
         return gram_numba(h, t, ref, w, temp_ref)
     return gram_numpy(h, t, ref, w, temp_ref)

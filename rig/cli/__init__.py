@@ -23,7 +23,7 @@ import click
 from rig import __version__
 from rig.errors import ERRORS
 
-# command name -> the module of rig.cli whose register() adds it (tests/unit/rig/test_cli_lazy.py checks it)
+# command name -> the module of rig.cli whose register() adds it (tests/unit/rig/test_cli_startup.py)
 COMMAND_MODULES = {
     "refit": "calib_cmds", "apply": "calib_cmds",
     "devices": "device_cmds",

@@ -10,7 +10,7 @@ import click
 import numpy as np
 import pytest
 
-from calib import calfile, compiled, csvio, synthetic
+from calib import calfile, compiled, csvfast, csvio, gram_kernel, synthetic
 from rig import cli
 
 HEAVY = ("numpy", "pyarrow", "numba", "pydantic", "rich", "yaml", "matplotlib", "rig.config")
@@ -70,26 +70,25 @@ def _params(path: Path) -> dict:
     return calfile.load(path).params
 
 
-def test_refit_gives_the_same_calibration_with_and_without_numba(t24_csv, tmp_path):
+def test_refit_gives_the_same_calibration_with_and_without_numba(t24_csv, tmp_path, monkeypatch):
     argv = ["refit", str(t24_csv), "--model", "t24", "-o"]
     _imported_after([*argv, str(tmp_path / "new.yaml")])
     _imported_after([*argv, str(tmp_path / "plain.yaml")], MAGRIG_NO_NUMBA="1")
     new, plain = _params(tmp_path / "new.yaml"), _params(tmp_path / "plain.yaml")
     for name in plain:
         np.testing.assert_array_equal(new[name], plain[name])  # the same (plain) path
-    numba = pytest.importorskip("numba")  # loaded here: the compiled scanner and kernel take any size
-    assert numba is not None and compiled.worth_compiled(1, 10**12)
+    pytest.importorskip("numba")
+    monkeypatch.setattr(csvfast, "COMPILED_BREAK_EVEN_BYTES", 0)  # the compiled scanner and kernel
+    monkeypatch.setattr(gram_kernel, "COMPILED_BREAK_EVEN_ROWS", 0)  # for this small file too
+    assert compiled.worth_compiled(1, 0)
     assert cli.main([*argv, str(tmp_path / "compiled.yaml")]) == 0
     compiled_params = _params(tmp_path / "compiled.yaml")
     for name in plain:
         np.testing.assert_allclose(compiled_params[name], plain[name], rtol=1e-9, atol=1e-9)
 
 
-def test_numba_is_worth_loading_only_for_big_inputs(monkeypatch):
-    out = _in_new_process(
-        "from calib import compiled\n"
-        "print(compiled.worth_compiled(10**6, 10**7), compiled.worth_compiled(10**7, 10**7))\n"
-    )
-    assert out.split() == ["False", "True"]
+def test_numba_is_worth_loading_only_for_big_inputs_whatever_the_process_loaded(monkeypatch):
+    pytest.importorskip("numba")  # loaded in this process: it changes nothing
+    assert not compiled.worth_compiled(10**6, 10**7) and compiled.worth_compiled(10**7, 10**7)
     monkeypatch.setenv("MAGRIG_NO_NUMBA", "1")
     assert not compiled.worth_compiled(10**9, 10**7)
