@@ -1,9 +1,13 @@
 """A 1e6-row CSV (hx,hy,hz,temp,bx,by,bz in shortest exact form, 132 MB) written to a temporary directory:
 
-- reading it as `rig refit` does (calib.csvio.read_csv: the compiled scanner on every core, sha256 of
-  the bytes alongside), and with the columnar pyarrow reader that takes over when the scanner cannot;
+- reading it with the compiled scanner (calib.csvio.read_csv with the compiled paths asked for: the
+  scanner on every core, sha256 of the bytes alongside), and with the columnar pyarrow reader, which
+  calib uses below csvfast.COMPILED_BREAK_EVEN_BYTES (loading numba would cost a new process more than
+  the scanner saves) and wherever the scanner cannot read a file;
 - the reference costs of the same bytes: reading them from the page cache, and hashing them;
-- `rig refit --model t24` end to end, in process, and the read's share of it.
+- `rig refit --model t24` end to end in this process, with the compiled paths and as calib chooses for
+  this size (pyarrow, numpy), and the scanner read's share of the first; as a new process:
+  bench/startup.py.
 
 Wall-clock medians of 5 (3 for the refit). Thread CPU time of the scanner on one core is printed too:
 it does not swing with the machine's load as wall time does.
@@ -20,7 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from timing import median_time
+from timing import compiled_paths, median_time
 
 from calib import csvfast, csvio
 from rig.cli import main as rig_main
@@ -59,12 +63,10 @@ def main(rows: int = ROWS) -> None:
         t_bytes = median_time(path.read_bytes)
         data = path.read_bytes()
         t_hash = median_time(lambda: hashlib.sha256(data).hexdigest())
-        t_read = median_time(lambda: csvio.read_csv(path, extra_columns=False))
+        with compiled_paths():
+            t_read = median_time(lambda: csvio.read_csv(path, extra_columns=False))
         t_cpu = _scanner_cpu_s(path)
-        scanner = csvfast._SCANNER[:]
-        csvfast._SCANNER[:] = [None]  # the columnar reader, as on a machine without numba
-        t_columnar = median_time(lambda: csvio.read_csv(path, extra_columns=False))
-        csvfast._SCANNER[:] = scanner
+        t_columnar = median_time(lambda: csvio.read_csv(path, extra_columns=False))  # calib's choice here
         codes = []
 
         def refit():
@@ -72,19 +74,24 @@ def main(rows: int = ROWS) -> None:
                 args = ["refit", str(path), "--model", "t24", "-o", str(Path(tmp) / "cal.yaml")]
                 codes.append(rig_main(args))
 
-        refit()  # the first call loads the compiled kernels from their cache
-        t_total = median_time(refit, repeat=3)
+        with compiled_paths():
+            refit()  # the first call loads the compiled kernels from their cache
+            t_total = median_time(refit, repeat=3)
+        refit()
+        t_default = median_time(refit, repeat=3)
     if any(codes):
         sys.exit(max(codes))
     print(f"{rows:.0e} CSV rows, {size_mb:.0f} MB ({size_mb * 1e6 / rows:.0f} bytes/row):")
-    print(f"  read as rig refit does (scanner + sha256): {t_read * per_row:.3f} us/row")
-    print(f"  columnar pyarrow reader instead:           {t_columnar * per_row:.3f} us/row")
+    print(f"  read with the scanner (+ sha256):         {t_read * per_row:.3f} us/row")
+    print(f"  columnar pyarrow reader (calib's choice): {t_columnar * per_row:.3f} us/row")
     print(f"  scanner alone on one core, CPU time:       {t_cpu * per_row:.3f} us/row "
           f"({t_cpu / (size_mb * 1e6) * 1e9:.2f} ns/byte)")
     print(f"  the bytes from the page cache:             {t_bytes * per_row:.3f} us/row; "
           f"their sha256 {t_hash * per_row:.3f} us/row")
-    print(f"rig refit --model t24 end to end: {t_total * per_row:.2f} us/row, "
+    print(f"rig refit --model t24 end to end, compiled paths: {t_total * per_row:.2f} us/row, "
           f"of which the read {100 * t_read / t_total:.0f} %")
+    print(f"rig refit --model t24 end to end as calib chooses for {size_mb:.0f} MB (pyarrow, numpy): "
+          f"{t_default * per_row:.2f} us/row")
 
 
 if __name__ == "__main__":

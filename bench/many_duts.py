@@ -1,29 +1,51 @@
-"""Time per point for 1, 2, 4, 8 and 16 simulated DUTs: each DUT read in turn (before) against the
-interleaved reading the campaign does (rig/interleave.py, after).
+"""Many DUTs on one campaign (configs/stations/sim-64.yaml: 60 MMC5983MA behind eight TCA9548A switches
+on one bus, 4 serial magnetometers on two shared lines, a TMP117 beside each; all simulated).
 
-A "point" here is what collect_point does per point: SAMPLES times (every temperature sensor, the coil
-readback, every DUT). The DUTs come from configs/stations/sim-16.yaml (MMC5983MA behind two TCA9548A
-switches, serial magnetometers on one shared line), taken alternately so every N mixes both kinds.
-Prints wall time and simulated time per point.
+1. One point's reading (SAMPLES x every temperature sensor, the coil readback, every DUT) for 1, 4, 16
+   and 64 DUTs: each DUT read in turn against the interleaved reading the campaign does
+   (rig/interleave.py); wall and simulated seconds per point.
+2. A short campaign (the demo plan's 26 fields at two temperatures) on 4 and on 64 DUTs, each in a new
+   process: wall time per point in the engine's run and its parts (device I/O, the point's session
+   transaction, the live fits, everything else), the live view's render, the post-run fits (T24, P12 per
+   DUT), simulated seconds per point, and the process's peak memory (max RSS); then the 64/4 ratios.
+3. Chamber minutes per DUT on sim-64 for the demo and the ramp plan (`rig check`'s estimate / 64).
 
-    .venv/bin/python bench/many_duts.py
+    .venv/bin/python bench/many_duts.py [--skip-campaign]
 """
 
 from __future__ import annotations
 
+import functools
+import io
+import json
+import resource
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
-from rig import config as cfg
-from rig.interleave import read_all
-from rig.station import open_rig
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
 
-STATION = Path(__file__).resolve().parent.parent / "configs" / "stations" / "sim-16.yaml"
+import yaml  # noqa: E402
+from rich.console import Console  # noqa: E402
+
+from rig import config as cfg  # noqa: E402
+from rig.interleave import read_all  # noqa: E402
+from rig.plan import check_campaign  # noqa: E402
+from rig.station import open_rig  # noqa: E402
+
+STATION = REPO / "configs" / "stations" / "sim-64.yaml"
+PLANS = {"demo": REPO / "configs" / "plans" / "demo.yaml",
+         "ramp": REPO / "configs" / "plans" / "ramp-campaign.yaml"}
 SAMPLES = 10
-COUNTS = (1, 2, 4, 8, 16)
+COUNTS = (1, 4, 16, 64)
+CAMPAIGN_COUNTS = (4, 64)
 
 
 def subset(station: cfg.Station, n: int) -> cfg.Station:
+    """n DUTs of the station, the kinds taken alternately while both last, with their sensors."""
     mmcs = [d for d in station.duts if d.device_type == "mmc5983ma"]
     serials = [d for d in station.duts if d.device_type != "mmc5983ma"]
     mixed = [d for pair in zip(mmcs, serials, strict=False) for d in pair]
@@ -52,10 +74,9 @@ def one_point(rig, interleaved: bool) -> tuple[float, float]:
     return time.perf_counter() - wall0, clock.now() - sim0
 
 
-def main() -> None:
-    station = cfg.load_station(STATION)
-    print(f"{SAMPLES} samples per point; seconds per point (median of 3)")
-    print(f"{'DUTs':>4}  {'wall before':>11}  {'wall after':>10}  {'sim before':>10}  {'sim after':>9}")
+def reading_table(station: cfg.Station) -> None:
+    print(f"1. one point's reading, {SAMPLES} samples; seconds per point (median of 3)")
+    print(f"{'DUTs':>6}  {'wall in turn':>12}  {'interleaved':>11}  {'sim in turn':>11}  {'interleaved':>11}")
     for n in COUNTS:
         rig = open_rig(subset(station, n))
         try:
@@ -63,7 +84,147 @@ def main() -> None:
         finally:
             rig.close()
         (wb, sb), (wa, sa) = rows[False], rows[True]
-        print(f"{n:>4}  {wb:>11.3f}  {wa:>10.3f}  {sb:>10.3f}  {sa:>9.3f}")
+        print(f"{n:>6}  {wb:>12.3f}  {wa:>11.3f}  {sb:>11.3f}  {sa:>11.3f}")
+
+
+class Timers:
+    """Wall seconds in wrapped callables, by bucket (a call inside another of its bucket counts once)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self.busy: set[str] = set()
+
+    def wrap(self, owner, name: str, bucket: str) -> None:
+        fn = getattr(owner, name)
+
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            if bucket in self.busy:
+                return fn(*args, **kwargs)
+            self.busy.add(bucket)
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.busy.discard(bucket)
+                self.seconds[bucket] = self.seconds.get(bucket, 0.0) + time.perf_counter() - t0
+
+        setattr(owner, name, timed)
+
+
+def short_plan(tmp: Path) -> Path:
+    plan = yaml.safe_load(PLANS["demo"].read_text())
+    plan["temperatures"]["steps"] = [20, 30]  # two: T24 is identifiable
+    plan["temperatures"]["stability"]["dwell_s"] = 60
+    plan["fit"] = {"models": ["t24", "p12"]}
+    path = tmp / "short.yaml"
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    return path
+
+
+def campaign_figures(n: int) -> dict:
+    """The short campaign on n DUTs of sim-64, in this process (run it in a new one: peak memory)."""
+    from rig import campaign, display, sessionfit
+    from rig.engine import Engine
+    from rig.store import Session
+
+    timers = Timers()
+    timers.wrap(campaign, "read_all", "device I/O")  # every DUT's and sensor's reading of a sample
+    timers.wrap(Session, "record_point", "store")
+    timers.wrap(campaign.CampaignRunner, "_feed_live", "live fits")
+    timers.wrap(sessionfit, "fit_session", "post-run fits")
+    timers.wrap(Engine, "run", "run")
+    renders: list[float] = []
+    reading_sim_s: list[float] = []
+    collect = campaign.CampaignRunner.collect_point
+
+    def instrument(rig) -> None:
+        for dev in rig.devices():
+            if hasattr(dev, "read"):
+                timers.wrap(dev, "read", "device I/O")
+
+        def timed_collect(runner, cmd):  # simulated seconds of a point's reading
+            t0 = rig.clock.now()
+            try:
+                return collect(runner, cmd)
+            finally:
+                reading_sim_s.append(rig.clock.now() - t0)
+
+        campaign.CampaignRunner.collect_point = timed_collect
+
+    def live_view(status, runner):  # the live panel, rendered after every point into a null console
+        view = display.LiveDisplay(status, runner, console=Console(file=io.StringIO(), width=120))
+
+        def render(point_id: str) -> None:
+            t0 = time.perf_counter()
+            view.live.console.print(view.render())
+            renders.append(time.perf_counter() - t0)
+
+        runner.on_point.append(render)
+        return None
+
+    with tempfile.TemporaryDirectory() as tmp:
+        station_path = Path(tmp) / "station.yaml"
+        station = subset(cfg.load_station(STATION), n)
+        station_path.write_text(yaml.safe_dump(station.model_dump(mode="json", exclude_none=True)))
+        camp = cfg.load_campaign(short_plan(Path(tmp)), station_path)
+        outcome = campaign.run_campaign(campaign=camp, session_path=Path(tmp) / "s.session",
+                                        on_rig=instrument, display_factory=live_view)
+    assert outcome.result.status == "completed", outcome.result
+    assert not [f for f in outcome.fits if "error" in f], outcome.fits
+    points = outcome.result.points_done
+    sec = timers.seconds
+    return {
+        "duts": n, "points": points,
+        "run_ms": 1e3 * sec["run"] / points,
+        "io_ms": 1e3 * sec.get("device I/O", 0.0) / points,
+        "store_ms": 1e3 * sec["store"] / points,
+        "live_ms": 1e3 * sec["live fits"] / points,
+        "view_ms": 1e3 * sum(renders) / len(renders),
+        "fits_s": sec["post-run fits"],
+        "sim_s": sum(reading_sim_s) / len(reading_sim_s),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def campaign_table() -> None:
+    print("\n2. short campaign (2 x 26 points, 5 samples, T24 + P12 fits), one new process each")
+    rows = []
+    for n in CAMPAIGN_COUNTS:
+        done = subprocess.run([sys.executable, __file__, "--campaign", str(n)], capture_output=True,
+                              text=True, check=True)
+        rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    print(f"{'DUTs':>5} {'wall/point':>10} {'device I/O':>10} {'store':>7} {'live fits':>9} {'view':>6} "
+          f"{'other':>6} {'sim reading':>11} {'post-run fits':>13} {'peak RSS':>9}")
+    for r in rows:
+        other = r["run_ms"] - r["io_ms"] - r["store_ms"] - r["live_ms"]
+        print(f"{r['duts']:>5} {r['run_ms']:>8.0f}ms {r['io_ms']:>8.0f}ms {r['store_ms']:>5.1f}ms "
+              f"{r['live_ms']:>7.1f}ms {r['view_ms']:>4.1f}ms {other:>4.0f}ms {r['sim_s']:>10.3f}s "
+              f"{r['fits_s']:>12.2f}s {r['peak_mb']:>6.0f} MB")
+    small, big = rows
+    ratio = big["duts"] / small["duts"]
+    print(f"64 / 4 DUTs ({ratio:.0f}x the DUTs): wall per point {big['run_ms'] / small['run_ms']:.1f}x, "
+          f"simulated reading time per point {big['sim_s'] / small['sim_s']:.2f}x, post-run fits "
+          f"{big['fits_s'] / small['fits_s']:.1f}x, peak memory {big['peak_mb'] / small['peak_mb']:.2f}x")
+
+
+def chamber_minutes() -> None:
+    print("\n3. chamber time per DUT on sim-64 (rig check's estimate)")
+    for name, path in PLANS.items():
+        check = check_campaign(cfg.load_campaign(path, STATION))
+        total_min = check.duration_s / 60
+        print(f"  {name}: {total_min:.0f} min for {check.n_duts} DUTs = "
+              f"{total_min / check.n_duts:.2f} min per DUT")
+
+
+def main() -> None:
+    if "--campaign" in sys.argv:
+        print(json.dumps(campaign_figures(int(sys.argv[sys.argv.index("--campaign") + 1]))))
+        return
+    reading_table(cfg.load_station(STATION))
+    if "--skip-campaign" not in sys.argv:
+        campaign_table()
+    chamber_minutes()
 
 
 if __name__ == "__main__":

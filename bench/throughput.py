@@ -1,9 +1,11 @@
 """Throughput of the streaming T24 fit, against the time numpy needs just to sum the same input arrays.
 
-Times are medians of 5 runs (the machine is shared). The main figure is the fit as calib runs it: the
-compiled kernel over one contiguous part of the rows per core (from 2 x 2**18 rows on). The one-core
-figures (wall and thread CPU time) force a single part. The end-to-end `rig refit` of a CSV is
-bench/csv_refit.py.
+Times are medians of 5 runs (the machine is shared). The main figure is the compiled kernel, over one
+contiguous part of the rows per core (from 2 x 2**18 rows on); calib runs it for inputs from
+gram_kernel.COMPILED_BREAK_EVEN_ROWS rows on (below, loading numba costs a new process more than the
+kernel saves, bench/startup.py), so here it is asked for at every size. The one-core figures (wall and
+thread CPU time) force a single part. The numpy path calib takes below the break-even is printed too.
+The end-to-end `rig refit` of a CSV is bench/csv_refit.py.
 """
 
 from __future__ import annotations
@@ -12,9 +14,9 @@ import time
 import tracemalloc
 
 import numpy as np
-from timing import median_time
+from timing import compiled_paths, median_time
 
-from calib import compiled, synthetic
+from calib import compiled, gram_kernel, synthetic
 from calib.gram import GramAccumulator
 
 
@@ -62,6 +64,7 @@ def streaming(n: int) -> None:
         cpu_sum = min(cpu_sum, _thread_time(lambda: (np.sum(h), np.sum(tau), np.sum(ref))))
         cpu_fit = min(cpu_fit, _thread_time(fit_one_core))
     t_one = median_time(fit_one_core)
+    t_plain = median_time(lambda: gram_kernel.gram_numpy(h, tau, ref, None, 20.0))
     tracemalloc.start()
     fit()
     peak = tracemalloc.get_traced_memory()[1]
@@ -74,8 +77,13 @@ def streaming(n: int) -> None:
     print(f"  throughput: {n / t_fit:.3g} samples/s, {t_fit / t_sum:.2f} x np.sum ({cores} cores)")
     print(f"  one core: {n / t_one:.3g} samples/s, {t_one / t_sum:.2f} x np.sum")
     print(f"  one core, thread CPU time, best of 7: {cpu_fit * 1e3:.0f} ms, {cpu_fit / cpu_sum:.2f} x np.sum")
+    print(f"  numpy path (calib's below {gram_kernel.COMPILED_BREAK_EVEN_ROWS} rows): Gram sums "
+          f"{t_plain * 1e3:.0f} ms, {t_plain / t_sum:.2f} x np.sum")
 
 
 if __name__ == "__main__":
-    streaming(1_000_000)
-    streaming(10_000_000)
+    if gram_kernel._compiled() is None:
+        print("no compiled kernel (numba missing or MAGRIG_NO_NUMBA set): the figures are the numpy path's")
+    with compiled_paths():
+        streaming(1_000_000)
+        streaming(10_000_000)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -15,3 +16,17 @@ def median_time(fn, repeat: int = 5) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return float(np.median(times))
+
+
+@contextlib.contextmanager
+def compiled_paths():
+    """The compiled scanner and Gram kernel for every input size while inside (calib takes them only
+    from their break-even sizes on, where they repay loading numba in a new process)."""
+    from calib import csvfast, gram_kernel
+
+    saved = csvfast.COMPILED_BREAK_EVEN_BYTES, gram_kernel.COMPILED_BREAK_EVEN_ROWS
+    csvfast.COMPILED_BREAK_EVEN_BYTES = gram_kernel.COMPILED_BREAK_EVEN_ROWS = 0
+    try:
+        yield
+    finally:
+        csvfast.COMPILED_BREAK_EVEN_BYTES, gram_kernel.COMPILED_BREAK_EVEN_ROWS = saved

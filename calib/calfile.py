@@ -12,6 +12,10 @@ from calib.atomic import atomic_write
 from calib.calibration import Calibration
 from calib.errors import DataError
 
+# libyaml's emitter writes the same text as the pure-Python one, about 5x faster (64 DUTs x 3 models of
+# files at the end of a campaign); the pure-Python one where PyYAML was built without libyaml
+DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
 
 def save(cal: Calibration, path: str | os.PathLike) -> None:
     """Write atomically (temp file + rename), with the permissions any new file gets (umask).
@@ -23,7 +27,7 @@ def save(cal: Calibration, path: str | os.PathLike) -> None:
                 json.dump(d, f, indent=2)
                 f.write("\n")
             else:
-                yaml.safe_dump(d, f, sort_keys=False, default_flow_style=None, width=120)
+                yaml.dump(d, f, Dumper=DUMPER, sort_keys=False, default_flow_style=None, width=120)
     except OSError as err:
         raise DataError(f"{path}: cannot write the calibration file ({err.strerror or err})") from None
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib import models
+from calib.equations import MODELS, OPTIONAL_PARAMS, PARAM_SHAPES, apply
 from calib.errors import DataError
 
 FORMAT_NAME = "magrig-calibration"
@@ -38,7 +38,7 @@ class Calibration:
 
     def apply(self, h_nt: np.ndarray, temp_c: np.ndarray | None = None) -> np.ndarray:
         """Calibrated field B (N,3) in nT for raw readings h (N,3) in nT."""
-        return models.apply(self.model, self.params, np.atleast_2d(h_nt), temp_c, self.temp_ref_c)
+        return apply(self.model, self.params, np.atleast_2d(h_nt), temp_c, self.temp_ref_c)
 
     def to_dict(self) -> dict:
         """Plain python types only (lists, floats, str), so YAML/JSON round-trip exactly."""
@@ -64,8 +64,8 @@ class Calibration:
         if d.get("format", FORMAT_NAME) != FORMAT_NAME:
             raise DataError(f"{where}: key 'format' is {d.get('format')!r}, expected {FORMAT_NAME!r}")
         model = d.get("model")
-        if model not in models.MODELS:
-            raise DataError(f"{where}: key 'model' is {model!r}, expected one of {', '.join(models.MODELS)}")
+        if model not in MODELS:
+            raise DataError(f"{where}: key 'model' is {model!r}, expected one of {', '.join(MODELS)}")
         params = _read_arrays(d, "params", model, where)
         std_errors = _read_arrays(d, "std_errors", model, where, required=set(params))
         temp_ref = d.get("temp_ref_c")
@@ -126,8 +126,8 @@ def _read_arrays(d: dict, section: str, model: str, where: str, required: set | 
     block = d.get(section)
     if not isinstance(block, dict):
         raise DataError(f"{where}: key {section!r} is missing or not a mapping")
-    shapes = {**models.PARAM_SHAPES[model], **models.OPTIONAL_PARAMS[model]}
-    needed = set(models.PARAM_SHAPES[model]) if required is None else required
+    shapes = {**PARAM_SHAPES[model], **OPTIONAL_PARAMS[model]}
+    needed = set(PARAM_SHAPES[model]) if required is None else required
     for name in [k for k in shapes if k in needed]:
         if name not in block:
             raise DataError(f"{where}: key '{section}.{name}' is missing (model {model})")

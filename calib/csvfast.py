@@ -5,7 +5,8 @@ hashes the same bytes. Memory stays bounded by the result plus one block, whatev
 It takes the common shape of a numeric CSV (unquoted numbers, optional spaces around them, LF or CRLF,
 blank lines skipped; values exactly as Python's float() reads them) and returns None for anything
 else: a quote, a text or empty cell, a wrong cell count, no numba (or MAGRIG_NO_NUMBA=1). The columnar
-reader in csvio then reads the file, and names the line and column of any problem.
+reader in csvio then reads the file, and names the line and column of any problem. csvio hands a file
+to it only when the file is large enough to repay loading numba (COMPILED_BREAK_EVEN_BYTES).
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import compiled
+import calib.compiled as compiled
 
+# file size from which the scanner repays loading numba in a new process: it saves ~2 ns/byte over the
+# columnar reader (bench/csv_refit.py), loading costs ~1 s (bench/startup.py)
+COMPILED_BREAK_EVEN_BYTES = 1 << 29
 # bytes read per block
 BLOCK_BYTES = 1 << 22
 # pieces per thread and block: the threads share the block's pieces and its hashing evenly
@@ -36,7 +40,7 @@ def _scanner():
     scanner = None
     if compiled.numba_allowed():
         try:
-            from calib import csvscan
+            import calib.csvscan as csvscan
 
             _parse_piece(csvscan, np.frombuffer(b"1,x\n", np.uint8), 0, 4, np.array([0, -1]), 1, 4)
             scanner = csvscan

@@ -23,7 +23,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from calib import csvfast
+import calib.compiled as compiled
+import calib.csvfast as csvfast
 from calib.atomic import atomic_write
 from calib.dataset import Dataset
 from calib.errors import DataError
@@ -94,18 +95,21 @@ def read_csv(
     mapping = _column_mapping(header, columns, p)
     numeric = [mapping[k] for k in NUMERIC_COLUMNS if k in mapping]
     wanted = header if extra_columns else [h for h in header if h in mapping.values()]
-    # the scanner's table puts hx,hy,hz and bx,by,bz side by side: the blocks below are views of it
+    # both readers' tables put hx,hy,hz and bx,by,bz side by side: the blocks below are views of them
     order = list(dict.fromkeys([mapping[k] for k in (*RAW_COLUMNS, *REF_COLUMNS) if k in mapping] + wanted))
     slot = {name: k for k, name in enumerate(order)}
     table = None
     try:
-        fast = csvfast.read_numeric(p, header, order)
+        fast = None
+        if compiled.worth_compiled(p.stat().st_size, csvfast.COMPILED_BREAK_EVEN_BYTES):
+            fast = csvfast.read_numeric(p, header, order)
         if fast is not None:
             table, sha256 = fast
             cols = {name: table[:, slot[name]] for name in wanted}
         else:
             digest = hashlib.sha256()
-            cols = _read_columnar(p, header, numeric, wanted, digest)
+            by_name, table = _read_columnar(p, header, numeric, order, digest)
+            cols = {name: by_name[name] for name in wanted}  # in the file's order
             sha256 = digest.hexdigest()
     except (pa.ArrowInvalid, UnicodeDecodeError):
         _locate_problem(p, header, numeric)  # raises the DataError naming line and column
@@ -202,30 +206,46 @@ class _HashingReader(io.RawIOBase):
         return n
 
 
-def _read_columnar(p: Path, header: list[str], numeric: list[str], wanted: list[str], digest):
-    """The wanted columns as numpy arrays, parsed by pyarrow block by block (BLOCK_BYTES at a time):
-    the contract's numeric columns as float64, other numeric columns as float64, text as objects."""
+def _read_columnar(p: Path, header: list[str], numeric: list[str], order: list[str], digest):
+    """(columns by name, table): the `order` columns parsed by pyarrow block by block (BLOCK_BYTES at a
+    time); the contract's numeric columns as float64, other numeric columns as float64, text as objects.
+    When every column is numeric they are copied once into one table (N, len(order)) whose columns are
+    contiguous (column-major), and the returned columns are views of it; else table is None."""
     read = pacsv.ReadOptions(column_names=header, skip_rows=1, block_size=BLOCK_BYTES)
     convert = pacsv.ConvertOptions(
-        include_columns=wanted,
+        include_columns=order,
         column_types={name: pa.float64() for name in numeric},
         null_values=[],  # an empty or 'NA' cell in a numeric column is an error, not a silent NaN
         strings_can_be_null=False,
         quoted_strings_can_be_null=False,
     )
-    parts: dict[str, list] = {name: [] for name in wanted}
+    parts: dict[str, list] = {name: [] for name in order}
     with open(p, "rb", buffering=0) as raw, _HashingReader(raw, digest) as f:
         reader = pacsv.open_csv(io.BufferedReader(f, BLOCK_BYTES), read_options=read, convert_options=convert)
         for batch in reader:
             for name, column in zip(batch.schema.names, batch.columns, strict=True):
                 parts[name].append(column)
-    return {name: _to_numpy(pa.chunked_array(chunks) if chunks else None) for name, chunks in parts.items()}
+    if all(chunks and _is_number(chunks[0].type) for chunks in parts.values()):
+        n = sum(len(chunk) for chunk in parts[order[0]])
+        table = np.empty((len(order), n))  # column-major: each column one contiguous copy of its chunks
+        for k, name in enumerate(order):
+            row = 0
+            for chunk in parts[name]:
+                table[k, row : row + len(chunk)] = chunk.to_numpy()
+                row += len(chunk)
+        return {name: table[k] for k, name in enumerate(order)}, table.T
+    cols = {name: _to_numpy(pa.chunked_array(chunks) if chunks else None) for name, chunks in parts.items()}
+    return cols, None
+
+
+def _is_number(arrow_type) -> bool:
+    return pa.types.is_floating(arrow_type) or pa.types.is_integer(arrow_type)
 
 
 def _to_numpy(column) -> np.ndarray:
     if column is None:
         return np.zeros(0)
-    if pa.types.is_floating(column.type) or pa.types.is_integer(column.type):
+    if _is_number(column.type):
         return column.to_numpy().astype(float, copy=False)
     if pa.types.is_binary(column.type) or pa.types.is_large_binary(column.type):
         raise pa.ArrowInvalid("text column is not UTF-8")  # the line scan names the line

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import models
+import calib.models as models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
@@ -28,26 +28,34 @@ def fit(
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
     (default: middle of the data's range). field_norm_nt, temperature_terms, balance_orientations:
-    scalar model only (see calib.scalar.fit_weighted; balance_orientations=None decides from the data).
+    scalar model only (see calib.scalar.fit_weighted); None = chosen by validation inside `ds`
+    (calib/scalar_choice.py), the choice and its scores recorded in stats.
     software_version: recorded in the calibration file (the application passes its own version).
     """
     check_dataset(ds)
     spec = models.spec(model)
     options = models.FitOptions(temp_ref_c, field_norm_nt, temperature_terms, balance_orientations)
+    choice: dict = {}
+    if spec.choose is not None:
+        fit_weighted, choice = spec.choose(ds, options, robust)
+    else:
 
-    def fit_weighted(weights):
-        return spec.fit_weighted(ds, weights, options)
+        def fit_weighted(weights):
+            return spec.fit_weighted(ds, weights, options)
 
     if robust:
-        cal, _, flagged = irls(fit_weighted, len(ds))
+        cal, residuals, flagged = irls(fit_weighted, len(ds))
     else:
-        cal, _ = fit_weighted(None)
+        cal, residuals = fit_weighted(None)
         flagged = np.zeros(len(ds), bool)
     used = ~flagged
-    field = cal.apply(ds.h_nt, ds.temp_c)
-    stats = dict(cal.stats)
+    stats = {**cal.stats, **choice}
     norm = stats.get("field_norm_nt")  # scalar model with one constant |B|
-    stats.update(residual_stats(ds, field, vector=spec.vector, used=used, norm_nt=norm))
+    if spec.residuals_are_field_error:
+        stats.update(residual_stats(ds, None, vector=True, used=used, error_nt=residuals))
+    else:
+        field = cal.apply(ds.h_nt, ds.temp_c)
+        stats.update(residual_stats(ds, field, vector=spec.vector, used=used, norm_nt=norm))
     stats.update(
         {"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust}
     )

@@ -12,7 +12,9 @@ Inputs of more than 2 x PARALLEL_ROWS rows are cut into one contiguous part per 
 the kernel (which runs without the GIL) and the parts added in a fixed order.
 
 numba is optional: without it, or when compiling fails, the numpy path gives the same sums (to
-rounding). Compiled code is cached on disk (cache=True) so only the first run on a machine pays for it.
+rounding). Compiled code is cached on disk (cache=True) so only the first run on a machine pays for it;
+even so, loading numba costs a new process about a second, so the kernel runs only for inputs large
+enough to repay that (COMPILED_BREAK_EVEN_ROWS), whatever the process loaded before.
 """
 
 # ruff: noqa: E702 - the kernel puts short statements side by side so its 60 sums read as a table
@@ -24,8 +26,11 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from calib import compiled
+import calib.compiled as compiled
 
+# rows from which the compiled kernel repays loading numba in a new process: it saves ~40 ns/row over
+# the numpy path (bench/throughput.py), loading costs ~1 s (bench/startup.py)
+COMPILED_BREAK_EVEN_ROWS = 1 << 24
 # rows per kernel call: bounds the copy when an input is not C-contiguous, costs nothing otherwise
 KERNEL_ROWS = 1 << 16
 # rows per core below which one thread does it all: starting threads costs more than it saves
@@ -244,7 +249,8 @@ def _compiled():
 
 
 def gram_sums(h, t, ref, w, temp_ref: float):
-    """(Gram, rows with w > 0, min and max temperature of those rows): compiled when possible."""
-    if _compiled() is not None:
+    """(Gram, rows with w > 0, min and max temperature of those rows): compiled when the input is big
+    enough to repay loading numba (calib.compiled.worth_compiled)."""
+    if compiled.worth_compiled(h.shape[0], COMPILED_BREAK_EVEN_ROWS) and _compiled() is not None:
         return gram_numba(h, t, ref, w, temp_ref)
     return gram_numpy(h, t, ref, w, temp_ref)

@@ -1,19 +1,11 @@
-"""The calibration models: what each one is (the registry), and each as plain functions (parameters in,
-calibrated field out).
+"""The calibration models: what each one is and how it is fitted (the registry).
 
 The registry is the one list of models: the CLI's --model choices, the plan's allowed `fit.models`, the
-campaign's fits and the report's model comparison all read it. Adding a model = its module (fit_weighted,
-and its apply below) + its `ModelSpec` in REGISTRY + its tests.
+campaign's fits and the report's model comparison all read it. Adding a model = its parameters and its
+field in calib/equations.py, its module (fit_weighted) + its `ModelSpec` in REGISTRY + its tests.
 
-Parameter names and shapes are the contract of the calibration file:
-
-- t24 (absolute-tau convention of the paper): B = (S + T K) h + b + T kb, T the DUT temperature in degC.
-- p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
-  row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
-  e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
-- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c. A (and KA) upper-triangular: the field comes
-  out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in the sensor 1-2 plane), which is the
-  true frame up to one unknown rotation. The temperature terms are optional.
+Imports point one way: equations <- calibration <- the model modules (t24, p12, scalar) <- this registry
+<- calib.fit. The equations' names are re-exported here for the callers that know them from here.
 """
 
 from __future__ import annotations
@@ -21,8 +13,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
-
+import calib.p12 as p12
+import calib.scalar as scalar
+import calib.scalar_choice as scalar_choice
+import calib.t24 as t24
+from calib.equations import (  # noqa: F401 - re-exported: callers know them as calib.models.*
+    MODELS,
+    OPTIONAL_PARAMS,
+    PARAM_SHAPES,
+    apply,
+    needs_temperature,
+    p12_angles_from_rows,
+    p12_matrix,
+)
 from calib.errors import DataError
 
 
@@ -45,45 +48,53 @@ class ModelSpec:
     needs_temperature: bool  # every sample must have a temperature
     optional: dict[str, tuple[int, ...]] = field(default_factory=dict)
     options: frozenset[str] = frozenset({"temp_ref_c"})  # the FitOptions it uses
+    # (dataset, FitOptions, robust) -> (fit_weighted(weights), stats recording the choice): decides the
+    # options the caller left open before the fit; None = the model has no open options
+    choose: Callable | None = None
+    # fit_weighted's residuals are the calibrated field minus the reference (T24): the fit statistics take
+    # them as they are instead of applying the calibration again
+    residuals_are_field_error: bool = False
 
 
 def _fit_t24(ds, weights, o: FitOptions):
-    from calib import t24
-
     return t24.fit_weighted(ds, weights, o.temp_ref_c)
 
 
 def _fit_p12(ds, weights, o: FitOptions):
-    from calib import p12
-
     return p12.fit_weighted(ds, weights)
 
 
 def _fit_scalar(ds, weights, o: FitOptions):
-    from calib import scalar
-
+    """The scalar fit with the options as given (None = off); calib.fit decides open ones by validation."""
+    balance = None
+    if o.balance_orientations:
+        first, _ = scalar.fit_weighted(ds, weights, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
+                                       temperature_terms=bool(o.temperature_terms))
+        balance = scalar.orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
     return scalar.fit_weighted(ds, weights, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
-                               temperature_terms=o.temperature_terms,
-                               balance_orientations=o.balance_orientations)
+                               temperature_terms=bool(o.temperature_terms), balance=balance)
+
+
+def _choose_scalar(ds, o: FitOptions, robust: bool):
+    return scalar_choice.choose(ds, robust, temp_ref_c=o.temp_ref_c, field_norm_nt=o.field_norm_nt,
+                                temperature_terms=o.temperature_terms,
+                                balance_orientations=o.balance_orientations)
 
 
 REGISTRY: dict[str, ModelSpec] = {
     spec.name: spec
     for spec in (
-        ModelSpec("t24", {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)}, _fit_t24,
-                  vector=True, needs_temperature=True),
-        ModelSpec("p12", {"k": (3,), "angles_deg": (3,), "b_nt": (3,)}, _fit_p12, vector=True,
-                  needs_temperature=False, options=frozenset()),
-        ModelSpec("scalar", {"A": (3, 3), "c_nt": (3,)}, _fit_scalar, vector=False, needs_temperature=False,
-                  optional={"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
+        ModelSpec("t24", PARAM_SHAPES["t24"], _fit_t24, vector=True, needs_temperature=True,
+                  residuals_are_field_error=True),
+        ModelSpec("p12", PARAM_SHAPES["p12"], _fit_p12, vector=True, needs_temperature=False,
+                  options=frozenset()),
+        ModelSpec("scalar", PARAM_SHAPES["scalar"], _fit_scalar, vector=False, needs_temperature=False,
+                  optional=OPTIONAL_PARAMS["scalar"],
                   options=frozenset({"temp_ref_c", "field_norm_nt", "temperature_terms",
-                                     "balance_orientations"})),
+                                     "balance_orientations"}), choose=_choose_scalar),
     )
 }
-MODELS = tuple(REGISTRY)
 VECTOR_MODELS = tuple(name for name, spec in REGISTRY.items() if spec.vector)
-PARAM_SHAPES = {name: spec.params for name, spec in REGISTRY.items()}
-OPTIONAL_PARAMS = {name: spec.optional for name, spec in REGISTRY.items()}
 
 
 def spec(model: str) -> ModelSpec:
@@ -92,70 +103,3 @@ def spec(model: str) -> ModelSpec:
         return REGISTRY[model]
     except KeyError:
         raise DataError(f"unknown calibration model {model!r} (known: {', '.join(MODELS)})") from None
-
-
-def needs_temperature(model: str, params: dict) -> bool:
-    return model == "t24" or (model == "scalar" and "KA_per_c" in params)
-
-
-def p12_matrix(k: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
-    """M = Q P, the lower-triangular matrix that maps the true field to the raw reading (without offset)."""
-    e1, e2, e3 = np.radians(angles_deg)
-    p = np.array(
-        [
-            [1.0, 0.0, 0.0],
-            [np.sin(e1), np.cos(e1), 0.0],
-            [np.sin(e2) * np.cos(e3), np.sin(e3), np.cos(e2) * np.cos(e3)],
-        ]
-    )
-    return np.asarray(k, float)[:, None] * p
-
-
-def p12_angles_from_rows(p: np.ndarray) -> np.ndarray:
-    """Angles (deg) of a P whose rows 2 and 3 are unit vectors with positive last component."""
-    e1 = np.arctan2(p[1, 0], p[1, 1])
-    e3 = np.arcsin(np.clip(p[2, 1], -1.0, 1.0))
-    e2 = np.arctan2(p[2, 0], p[2, 2])
-    return np.degrees([e1, e2, e3])
-
-
-def _t24_field(h, t, s, k, b, kb) -> np.ndarray:
-    """(S + t K) h + b + t kb, one output column at a time over contiguous copies of the inputs' columns:
-    no (N,3,3) temporary, and no BLAS call, which for an inner size of 3 spends more on waking its
-    threads than on the sums. The result is an (N,3) view of a (3,N) array."""
-    x = np.ascontiguousarray(h.T)
-    t = np.ascontiguousarray(t)
-    out = np.empty_like(x)
-    for i in range(3):
-        col = out[i]
-        np.multiply(x[0], k[i, 0], out=col)
-        col += x[1] * k[i, 1]
-        col += x[2] * k[i, 2]
-        col += kb[i]
-        col *= t
-        col += x[0] * s[i, 0]
-        col += x[1] * s[i, 1]
-        col += x[2] * s[i, 2]
-        col += b[i]
-    return out.T
-
-
-def apply(model: str, params: dict, h_nt: np.ndarray, temp_c: np.ndarray | None, temp_ref_c: float | None):
-    """Calibrated field (N,3) in nT from raw readings (N,3) in nT."""
-    h = np.asarray(h_nt, dtype=float)
-    if needs_temperature(model, params):
-        if temp_c is None:
-            raise DataError(f"a {model} calibration with temperature terms needs a temperature column (temp)")
-        t = np.asarray(temp_c, dtype=float)[:, None]
-    if model == "t24":
-        return _t24_field(h, t[:, 0], params["S"], params["K"], params["b_nt"], params["kb_nt_per_c"])
-    if model == "p12":
-        m = p12_matrix(params["k"], params["angles_deg"])
-        return np.linalg.solve(m, (h - params["b_nt"]).T).T
-    if model == "scalar":
-        if "KA_per_c" not in params:
-            return (h - params["c_nt"]) @ params["A"].T
-        dt = t - (temp_ref_c or 0.0)
-        v = h - params["c_nt"] - dt * params["kc_nt_per_c"]
-        return v @ params["A"].T + dt * (v @ params["KA_per_c"].T)
-    raise DataError(f"unknown calibration model {model!r} (known: {', '.join(MODELS)})")

@@ -13,8 +13,8 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.equations import p12_angles_from_rows, p12_matrix
 from calib.errors import DataError, FitError
-from calib.models import p12_angles_from_rows, p12_matrix
 
 RCOND_SINGULAR = 1e-12
 

@@ -5,8 +5,10 @@ rotation). Optional linear temperature terms: A(t) = A + t KA, c(t) = c + t kc, 
 
 Initial guess: the algebraic ellipsoid fit (linear least squares on the quadric h'Wh - 2u'h + e = |B|^2
 with W = A'A), done on centred and scaled readings. Refinement: Levenberg-Marquardt on the field-domain
-residuals |A(h - c)| - |B|, with analytic Jacobian and column scaling. No scipy. When the orientations
-are covered unevenly (hand-held recordings), samples are weighted by inverse direction density.
+residuals |A(h - c)| - |B|, with analytic Jacobian and column scaling. No scipy. Optionally samples are
+weighted by inverse direction density (orientation balancing, for hand-held recordings that dwell on some
+orientations); whether to balance and whether to fit temperature terms is chosen by validation
+(calib/scalar_choice.py).
 """
 
 from __future__ import annotations
@@ -16,20 +18,21 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError, FitError
-from calib.stats import known_norm
+from calib.stats import default_temp_ref_c, known_norm
 
 MIN_TEMP_SPAN_C = 0.5
 UPPER = np.triu_indices(3)  # the 6 free entries of an upper-triangular matrix
 MAX_ITER = 200
 RCOND_SINGULAR = 1e-13
 MIN_DENSITY_SHARE = 0.1  # density floor, as a share of uniform coverage: caps balance weights at 10x
-UNEVEN_COVERAGE_SHARE = 0.8  # balance by default when its weights leave fewer effective samples than this
+UNEVEN_COVERAGE_SHARE = 0.8  # balancing is a candidate when its weights leave fewer effective samples
 # ...and only from this many samples on: a 20 degree cone then expects >= 20 of them under uniform
 # coverage, so sampling noise alone does not make the coverage look uneven
 MIN_SAMPLES_TO_BALANCE = 700
+BALANCE_CHUNK = 128  # samples per pass of the direction-density count
 
 
-def _field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, str]:
+def field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, str]:
     if field_norm_nt is not None:
         if not field_norm_nt > 0:
             raise DataError(f"field norm must be positive, got {field_norm_nt} nT")
@@ -152,10 +155,19 @@ def orientation_balance_weights(
     """
     u = field_nt / np.linalg.norm(field_nt, axis=1, keepdims=True)
     ref = u[:: max(1, len(u) // max_reference)]
+    ref = ref[np.argsort(ref[:, 2])]
     cos_limit = np.cos(np.radians(angle_deg))
-    counts = np.concatenate(
-        [np.sum(u[lo : lo + 2048] @ ref.T > cos_limit, axis=1) for lo in range(0, len(u), 2048)]
-    )
+    # two directions within angle_deg differ by at most their chord in z: a block of samples sorted by z
+    # is compared with the band of references its z range allows, not with all of them
+    chord = 2 * np.sin(np.radians(angle_deg) / 2)
+    order = np.argsort(u[:, 2])
+    counts = np.empty(len(u), np.int64)
+    for lo in range(0, len(u), BALANCE_CHUNK):
+        rows = order[lo : lo + BALANCE_CHUNK]
+        z = u[rows, 2]
+        first, last = np.searchsorted(ref[:, 2], [z[0] - chord, z[-1] + chord], side="left")
+        band = ref[first : last + 1]
+        counts[rows] = np.count_nonzero(u[rows] @ band.T > cos_limit, axis=1)
     uniform_count = len(ref) * (1 - cos_limit) / 2  # cone area / sphere area
     w = 1.0 / np.maximum(counts, max(1.0, MIN_DENSITY_SHARE * uniform_count))
     return w * (len(w) / w.sum())
@@ -172,33 +184,21 @@ def fit_weighted(
     *,
     temp_ref_c: float | None = None,
     field_norm_nt: float | None = None,
-    temperature_terms: bool | None = None,
-    balance_orientations: bool | None = None,
+    temperature_terms: bool = False,
+    balance: np.ndarray | None = None,
 ):
-    """(Calibration, |B| residuals (N,)) of a weighted scalar fit.
+    """(Calibration, |B| residuals (N,)) of a weighted scalar fit of one variant.
 
     field_norm_nt: one known |B| for every sample; else ref_norm_nt, else |ref_nt|, else unknown (the
-    output is then scaled to the raw readings' mean radius). temperature_terms: None = on when the data
-    has a temperature column spanning at least MIN_TEMP_SPAN_C. balance_orientations: multiply the
-    weights by `orientation_balance_weights` of the field directions of a first, unbalanced fit; None =
-    only when the coverage is uneven (those weights would cut the effective sample size below
-    UNEVEN_COVERAGE_SHARE of N; a uniformly covered sphere stays near 1) and N >= MIN_SAMPLES_TO_BALANCE.
+    output is then scaled to the raw readings' mean radius). temperature_terms: fit KA and kc.
+    balance: orientation balance weights (`orientation_balance_weights`) multiplied into `weights`.
+    calib.fit decides the options a caller leaves open (calib.scalar_choice).
     """
-    options = {
-        "temp_ref_c": temp_ref_c,
-        "field_norm_nt": field_norm_nt,
-        "temperature_terms": temperature_terms,
-    }
-    first, residuals = _fit(ds, weights, **options)
-    if balance_orientations is False or (balance_orientations is None and len(ds) < MIN_SAMPLES_TO_BALANCE):
-        return first, residuals
-    balance = orientation_balance_weights(first.apply(ds.h_nt, ds.temp_c))
-    share = effective_share(balance if weights is None else balance[np.asarray(weights) > 0])
-    first.stats["coverage_effective_share"] = share
-    if balance_orientations is None and share >= UNEVEN_COVERAGE_SHARE:
-        return first, residuals
-    cal, residuals = _fit(ds, balance if weights is None else weights * balance, **options)
-    cal.stats.update({"balance_orientations": True, "coverage_effective_share": share})
+    if balance is not None:
+        weights = balance if weights is None else np.asarray(weights, float) * balance
+    cal, residuals = _fit(ds, weights, temp_ref_c=temp_ref_c, field_norm_nt=field_norm_nt,
+                          temperature_terms=temperature_terms)
+    cal.stats["balance_orientations"] = balance is not None
     return cal, residuals
 
 
@@ -208,13 +208,13 @@ def _fit(
     *,
     temp_ref_c: float | None,
     field_norm_nt: float | None,
-    temperature_terms: bool | None,
+    temperature_terms: bool,
 ):
     n = len(ds)
     w = np.ones(n) if weights is None else np.asarray(weights, float)
-    fn_nt, norm_source = _field_norm(ds, field_norm_nt)
+    fn_nt, norm_source = field_norm(ds, field_norm_nt)
     span = 0.0 if ds.temp_c is None else float(np.ptp(ds.temp_c[w > 0]))
-    temp = span >= MIN_TEMP_SPAN_C if temperature_terms is None else temperature_terms
+    temp = temperature_terms
     if temp and span < MIN_TEMP_SPAN_C:
         raise FitError(
             f"scalar: temperature span {span:.2f} degC: "
@@ -225,11 +225,7 @@ def _fit(
     if np.count_nonzero(w) <= n_params:
         raise FitError(f"scalar: {np.count_nonzero(w)} samples, more than {n_params} needed")
     if temp:
-        ref_c = (
-            round(float(0.5 * (np.min(ds.temp_c) + np.max(ds.temp_c))), 1)
-            if temp_ref_c is None
-            else temp_ref_c
-        )
+        ref_c = default_temp_ref_c(ds.temp_c) if temp_ref_c is None else temp_ref_c
         t = ds.temp_c - ref_c
     else:
         ref_c, t = None, np.zeros(n)

@@ -10,6 +10,11 @@ AXES = "xyz"
 STEP_GAP_C = 1.0  # temperatures further apart than this belong to different steps
 
 
+def default_temp_ref_c(temp_c: np.ndarray) -> float:
+    """Centre of the temperature range, rounded to 0.1 degC so files show a tidy number."""
+    return round(float(0.5 * (np.min(temp_c) + np.max(temp_c))), 1)
+
+
 def temperature_steps(temp_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(step of each sample, numbered from 0 at the coldest; mean temperature of each step): the sorted
     temperatures split where a gap exceeds STEP_GAP_C."""
@@ -55,43 +60,66 @@ def known_norm(ds: Dataset) -> np.ndarray | None:
 
 
 def residual_stats(
-    ds: Dataset, field_nt: np.ndarray, *, vector: bool, used: np.ndarray | None = None, norm_nt=None
+    ds: Dataset,
+    field_nt: np.ndarray | None,
+    *,
+    vector: bool,
+    used: np.ndarray | None = None,
+    norm_nt=None,
+    error_nt: np.ndarray | None = None,
 ) -> dict:
     """RMS before (raw h against the reference) and after calibration, on the rows marked `used`.
 
-    vector=True compares field vectors with ref_nt (T24, P12); otherwise magnitudes with norm_nt
-    (a constant or per-sample array; default: the known |B| of the dataset).
+    vector=True compares field vectors with ref_nt (T24, P12): give field_nt, or error_nt = field - ref_nt
+    when the caller has it already. Otherwise magnitudes of field_nt with norm_nt (a constant or
+    per-sample array; default: the known |B| of the dataset).
     """
     used = np.ones(len(ds), bool) if used is None else np.asarray(used, bool)
     every_row = bool(used.all())
-    if vector:
-        after = field_nt - ds.ref_nt
-        before = ds.h_nt - ds.ref_nt
+
+    def rows(x: np.ndarray) -> np.ndarray:
+        return x if every_row else x[used]
+
+    if vector:  # one axis at a time: 1-D passes whatever the arrays' layouts, one scratch column
+        ref = rows(ds.ref_nt)
+        after = rows(field_nt) - ref if error_nt is None else rows(error_nt)
+        sums = {"before": _square_sums([rows(ds.h_nt)[:, i] - ref[:, i] for i in range(3)]),
+                "after": _square_sums([after[:, i] for i in range(3)])}
     else:
         norm = known_norm(ds) if norm_nt is None else norm_nt
-        after = np.linalg.norm(field_nt, axis=1) - norm
-        before = np.linalg.norm(ds.h_nt, axis=1) - norm
-    # squares of the used rows, once: every statistic below is a sum of them
-    squares = {
-        name: np.square(x if every_row else x[used]) for name, x in (("before", before), ("after", after))
-    }
+        norm = rows(norm) if np.ndim(norm) else norm
+        field = rows(field_nt)
+        sums = {"before": _square_sums([np.linalg.norm(rows(ds.h_nt), axis=1) - norm]),
+                "after": _square_sums([np.linalg.norm(field, axis=1) - norm])}
     n_used = int(used.sum())
-    stats: dict = {f"rms_{name}_nt": _rms(sq.sum(), sq.size) for name, sq in squares.items()}
+    width = 3 if vector else 1
+    stats: dict = {f"rms_{name}_nt": _rms(sum(totals), n_used * width) for name, (totals, _) in sums.items()}
     if vector:
-        per_column = {name: sq.sum(axis=0) for name, sq in squares.items()}
         stats["per_axis"] = {
-            a: {f"rms_{name}_nt": _rms(per_column[name][i], n_used) for name in squares}
-            for i, a in enumerate(AXES)
+            a: {f"rms_{name}_nt": _rms(sums[name][0][i], n_used) for name in sums} for i, a in enumerate(AXES)
         }
     else:
-        mag = np.linalg.norm(field_nt if every_row else field_nt[used], axis=1)
+        mag = np.linalg.norm(field, axis=1)
         stats["norm_spread_pct"] = float(100 * np.std(mag) / np.mean(mag))
     groups = group_codes(ds)
     if groups is not None:
-        row_squares = {name: sq.reshape(n_used, -1).sum(axis=1) for name, sq in squares.items()}
-        width = 1 if before.ndim == 1 else before.shape[1]
+        row_squares = {name: row for name, (_, row) in sums.items()}
         stats["per_group"] = _per_group(ds, groups, used, row_squares, width)
     return stats
+
+
+def _square_sums(columns: list[np.ndarray]) -> tuple[list[float], np.ndarray]:
+    """(sum of squares of each column, per-row sum of squares over the columns). Each column is either a
+    fresh array (squared in place) or a view (squared into one scratch array): no other allocation."""
+    row = np.zeros(len(columns[0]))
+    scratch = np.empty_like(row)
+    totals = []
+    for column in columns:
+        out = column if column.base is None and column.flags.writeable else scratch
+        np.square(column, out=out)
+        totals.append(float(out.sum()))
+        row += out
+    return totals, row
 
 
 def _per_group(ds: Dataset, groups, used: np.ndarray, row_squares: dict, width: int) -> dict:

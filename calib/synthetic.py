@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.models import p12_matrix
+from calib.equations import p12_matrix
 
 DEFAULT_TEMPS_C = tuple(np.linspace(-30.0, 70.0, 6))
 

@@ -8,11 +8,7 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
 from calib.gram import GramAccumulator
-
-
-def default_temp_ref_c(temp_c: np.ndarray) -> float:
-    """Centre of the temperature range, rounded to 0.1 degC so files show a tidy number."""
-    return round(float(0.5 * (np.min(temp_c) + np.max(temp_c))), 1)
+from calib.stats import default_temp_ref_c
 
 
 def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | None):
@@ -25,4 +21,6 @@ def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | No
     acc = GramAccumulator(ref_c)
     acc.add(ds.h_nt, ds.temp_c, ds.ref_nt, weights)
     cal: Calibration = acc.solve()
-    return cal, cal.apply(ds.h_nt, ds.temp_c) - ds.ref_nt
+    residuals = cal.apply(ds.h_nt, ds.temp_c)  # a fresh array: the reference is taken off in place
+    residuals -= ds.ref_nt
+    return cal, residuals

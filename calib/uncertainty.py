@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calib import models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import FitError
@@ -159,3 +160,38 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
 
 def _rms_length(errors: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(errors**2, axis=-1))))
+
+
+def residual_sigma_nt(ds, cal: Calibration) -> np.ndarray:
+    """The scatter of the fit's residuals per axis (vector models) or of |B| (scalar, on every axis)."""
+    used = np.ones(len(ds), bool) if cal.outliers is None else ~cal.outliers
+    out = cal.apply(ds.h_nt[used], None if ds.temp_c is None else ds.temp_c[used])
+    if models.spec(cal.model).vector:
+        return np.sqrt(np.mean((out - ds.ref_nt[used]) ** 2, axis=0))
+    if ds.ref_nt is not None:
+        norm = np.linalg.norm(ds.ref_nt[used], axis=1)
+    elif ds.ref_norm_nt is not None:
+        norm = ds.ref_norm_nt[used]
+    else:  # a constant |B| given to the fit, or the raw readings' radius it scaled to
+        return np.full(3, float(cal.stats.get("sigma_nt", np.nan)))
+    return np.full(3, np.sqrt(np.mean((np.linalg.norm(out, axis=1) - norm) ** 2)))
+
+
+def statistical_only(ds, cal: Calibration) -> dict:
+    """The budget of a calibration fitted to data without a reference chain (a CSV): its statistical part
+    alone, from its standard errors (k = 2), and the field error it leaves on average over the data's own
+    points (sigma sqrt(p / N) per axis: the mean leverage of a least-squares fit is p / N)."""
+    sigma = residual_sigma_nt(ds, cal)
+    p = sum(int(np.size(v)) for v in cal.params.values()) / (3 if models.spec(cal.model).vector else 1)
+    used = len(ds) if cal.outliers is None else int((~cal.outliers).sum())
+    contribution = float(np.sqrt(np.sum(sigma**2) * p / max(used, 1)))
+    k = COVERAGE_FACTOR
+    return {
+        "coverage_factor": k, "method": "standard errors of the fit",
+        "expanded": {name: (k * np.asarray(cal.std_errors[name], float)).tolist() for name in cal.params},
+        "budget": [{"source": "fit (statistical)", "contribution_nt": contribution}],
+        "combined_standard_nt": contribution, "expanded_vector_error_nt": k * contribution,
+        "coverage_probability": COVERAGE_PROBABILITY,
+        "notes": ["no reference chain with these data (a CSV): the reference's own uncertainty is not in "
+                  "this budget"],
+    }

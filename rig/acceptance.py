@@ -125,12 +125,12 @@ def judge(acceptance, ds, cal, *, robust: bool = False) -> tuple[list[str], dict
 def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict]:
     """One verdict per DUT of the station, on the plan's acceptance model (the first fitted model unless
     `acceptance.model` names another)."""
-    from rig.reader import read_dataset
+    from rig.reader import each_dataset
 
     acceptance = plan.acceptance
     model = acceptance.model or plan.fit.models[0]
     out = []
-    for dut in station.duts:
+    for dut, ds in each_dataset(session_path, station.duts):
         v = Verdict(dut.name, model, dut_type=dut.device_type)
         entry = next((f for f in fits if f["dut"] == dut.name and f["model"] == model), None)
         if entry is None or entry.get("calibration") is None:
@@ -139,7 +139,8 @@ def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict
             out.append(v)
             continue
         try:
-            ds = read_dataset(session_path, dut.name)
+            if isinstance(ds, Exception):
+                raise ds  # handled below: the DUT could not be read
             v.samples = len(ds)
             v.failed, v.figures, v.notes = judge(acceptance, ds, entry["calibration"], robust=plan.fit.robust)
         except ERRORS as exc:

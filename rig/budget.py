@@ -36,7 +36,7 @@ import numpy as np
 from calib import models
 from calib.calibration import Calibration
 from calib.tablefit import site_from_home, table_field_nt
-from calib.uncertainty import COVERAGE_FACTOR, Budget, Draw, Source, monte_carlo, statistical
+from calib.uncertainty import Budget, Draw, Source, monte_carlo, residual_sigma_nt, statistical
 from rig import referencechain
 from rig.ambient import AmbientModel
 from rig.events import Reason
@@ -58,16 +58,6 @@ def refit_like(cal: Calibration):
     )
     weights = None if cal.outliers is None or not cal.outliers.any() else (~cal.outliers).astype(float)
     return lambda ds: spec.fit_weighted(ds, weights, options)[0]
-
-
-def residual_sigma_nt(ds, cal: Calibration) -> np.ndarray:
-    """The scatter of the fit's residuals per axis (vector models) or of |B| (scalar, on every axis)."""
-    used = np.ones(len(ds), bool) if cal.outliers is None else ~cal.outliers
-    out = cal.apply(ds.h_nt[used], None if ds.temp_c is None else ds.temp_c[used])
-    if models.spec(cal.model).vector:
-        return np.sqrt(np.mean((out - ds.ref_nt[used]) ** 2, axis=0))
-    norm = np.linalg.norm(ds.ref_nt[used], axis=1) if ds.ref_nt is not None else ds.ref_norm_nt[used]
-    return np.full(3, np.sqrt(np.mean((np.linalg.norm(out, axis=1) - norm) ** 2)))
 
 
 @dataclass
@@ -385,26 +375,6 @@ def _with_home(params: np.ndarray, home_nt: np.ndarray) -> np.ndarray:
     out = params.copy()
     out[:3] = site_from_home(params, home_nt)
     return out
-
-
-def statistical_only(ds, cal: Calibration) -> dict:
-    """The budget of a calibration fitted to data without a reference chain (a CSV): its statistical part
-    alone, from its standard errors (k = 2), and the field error it leaves on average over the data's own
-    points (sigma sqrt(p / N) per axis: the mean leverage of a least-squares fit is p / N)."""
-    sigma = residual_sigma_nt(ds, cal)
-    p = sum(int(np.size(v)) for v in cal.params.values()) / (3 if models.spec(cal.model).vector else 1)
-    used = len(ds) if cal.outliers is None else int((~cal.outliers).sum())
-    contribution = float(np.sqrt(np.sum(sigma**2) * p / max(used, 1)))
-    k = COVERAGE_FACTOR
-    return {
-        "coverage_factor": k, "method": "standard errors of the fit",
-        "expanded": {name: (k * np.asarray(cal.std_errors[name], float)).tolist() for name in cal.params},
-        "budget": [{"source": "fit (statistical)", "contribution_nt": contribution}],
-        "combined_standard_nt": contribution, "expanded_vector_error_nt": k * contribution,
-        "coverage_probability": 0.95,
-        "notes": ["no reference chain with these data (a CSV): the reference's own uncertainty is not in "
-                  "this budget"],
-    }
 
 
 def temperature_rate_c_per_s(ds, window_s: float = RATE_WINDOW_S) -> np.ndarray:

@@ -77,6 +77,7 @@ class LiveFit:
         from calib.gram import GramAccumulator
 
         self.acc = GramAccumulator(temp_ref_c)
+        self.rms_nt: float | None = None  # of the last solve (the live view shows the worst DUTs first)
 
     def add(self, h_nt, temp_c, ref_nt) -> None:
         if len(h_nt):
@@ -92,6 +93,7 @@ class LiveFit:
         except ERRORS:
             return f"n={self.acc.n}: not yet identifiable"
         se = cal.std_errors
+        self.rms_nt = cal.stats["rms_after_nt"]
         return (f"n={self.acc.n}: rms {cal.stats['rms_after_nt']:.1f} nT, largest se: "
                 f"b {np.max(se['b_nt']):.2f} nT, S {np.max(se['S']) * 1e6:.0f} ppm, "
                 f"K {np.max(se['K']) * 1e6:.2f} ppm/C")

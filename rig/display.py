@@ -19,6 +19,32 @@ from rich.text import Text
 
 from rig.engine import RunStatus
 
+# DUT rows the live panel shows; with more DUTs it shows those with the largest live residual and a count
+# (a 64-DUT table fills no screen, and redrawing it four times a second cost a third of a core)
+MAX_DUT_ROWS = 8
+
+
+def temperatures_text(temps_c: dict[str, float]) -> str:
+    """Each DUT's temperature, or their count and range when there are more than MAX_DUT_ROWS."""
+    if len(temps_c) > MAX_DUT_ROWS:
+        values = temps_c.values()
+        return f"{len(temps_c)} DUTs, {min(values):.2f} .. {max(values):.2f} C"
+    return ", ".join(f"{k} {v:.2f} C" for k, v in temps_c.items()) or "-"
+
+
+def fit_rows(summaries: dict[str, str], live: dict) -> list[tuple[str, str]]:
+    """(DUT, live fit text) rows: every DUT, or the MAX_DUT_ROWS with the largest residual and a count."""
+    if len(summaries) <= MAX_DUT_ROWS:
+        return list(summaries.items())
+
+    def rms(dut: str) -> float:
+        value = getattr(live.get(dut), "rms_nt", None)
+        return -1.0 if value is None else value
+
+    worst = sorted(summaries, key=rms, reverse=True)[:MAX_DUT_ROWS]
+    return [(dut, summaries[dut]) for dut in worst] + [
+        (f"+{len(summaries) - MAX_DUT_ROWS} more", "(largest live residual first; every DUT in the session)")]
+
 
 class _Progress:
     """Points done and a wall-clock ETA from the pace of the points taken in this process."""
@@ -53,11 +79,10 @@ class LiveDisplay:
         head.add_row("point", f"{s.point_id or '-'}  ({s.points_done}/{s.points_total} done)",
                      "command", s.command or "-")
         chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f} C"
-        duts = ", ".join(f"{k} {v:.2f} C" for k, v in s.dut_temps_c.items()) or "-"
-        head.add_row("chamber", chamber, "DUTs", duts)
+        head.add_row("chamber", chamber, "DUTs", temperatures_text(s.dut_temps_c))
         head.add_row("settling", s.settling or "-", "ETA", self.progress.eta_text())
         fits = Table("DUT", "live T24 fit", box=None)
-        for dut, text in self.runner.live_summaries.items():
+        for dut, text in fit_rows(self.runner.live_summaries, getattr(self.runner, "live", {})):
             fits.add_row(dut, text)
         events = Text("\n".join(list(s.events)[-6:]) or "-", style="dim")
         return Group(head, fits, Text("recent events:", style="bold"), events)
@@ -94,7 +119,8 @@ class PlainLog:
 
     def point_done(self, point_id: str) -> None:
         s = self.status
-        temps = " ".join(f"{k}={v:.2f}C" for k, v in s.dut_temps_c.items())
+        temps = (temperatures_text(s.dut_temps_c) if len(s.dut_temps_c) > MAX_DUT_ROWS
+                 else " ".join(f"{k}={v:.2f}C" for k, v in s.dut_temps_c.items()))
         chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f}C"
         print(f"{point_id} done ({s.points_done + 1}/{s.points_total}) chamber={chamber} {temps} "
               f"eta={self.progress.eta_text()}", file=self.stream, flush=True)

@@ -37,17 +37,15 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     import calib
     from calib import calfile
     from rig.outputs import calibration_file
-    from rig.reader import read_dataset
+    from rig.reader import each_dataset
 
     out = []
     inputs = run_inputs(session.path)
-    for dut in station.duts:
-        try:
-            ds = read_dataset(session.path, dut.name)
-        except ERRORS as exc:
-            out.append({"dut": dut.name, "model": "-", "error": str(exc)})
+    for dut, ds in each_dataset(session.path, station.duts):
+        if isinstance(ds, Exception):
+            out.append({"dut": dut.name, "model": "-", "error": str(ds)})
             continue
-        ds, ambient = inputs.refined(ds)  # every reference with the run's best ambient (rig/ambient.py)
+        ds, ambient = refined(inputs, ds)  # every reference with the run's best ambient (rig/ambient.py)
         lag = None
         if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
             from rig.lagfit import lag_corrected
@@ -85,18 +83,35 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
 
 
 def run_inputs(session_path):
-    """What the session says of its reference chain (rig/budget.py), read once for its DUTs."""
+    """What the session says of its reference chain (rig/budget.py), read once for its DUTs; None when its
+    recorded plan or station can no longer be read (a session of an older format, a foreign one)."""
     from rig.budget import RunInputs
+    from rig.errors import ConfigError
     from rig.reader import SessionReader
 
     with SessionReader(session_path) as reader:
-        return RunInputs.of_session(reader)
+        try:
+            return RunInputs.of_session(reader)
+        except ConfigError:
+            return None
+
+
+def refined(inputs, ds):
+    """(ds, ambient info): the references made with the run's best ambient, where the session allows."""
+    return (ds, None) if inputs is None else inputs.refined(ds)
 
 
 def state_uncertainty(inputs, dut: str, ds, cal) -> None:
-    """The calibration's uncertainty budget; a budget that cannot be made is a warning in its stats, never
-    a lost calibration."""
+    """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
+    budget that cannot be made is a warning in its stats, never a lost calibration."""
+    from calib.uncertainty import statistical_only
+
     try:
-        cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
+        if inputs is None:
+            cal.uncertainty = statistical_only(ds, cal)
+            cal.uncertainty["notes"] = ["the session's recorded plan or station cannot be read: the "
+                                        "reference's own uncertainty is not in this budget"]
+        else:
+            cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
     except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]

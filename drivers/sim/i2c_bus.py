@@ -70,6 +70,10 @@ class I2CSwitchSim:
 
     def visible(self, address: int) -> list[I2CChip]:
         """The chips at `address` on the enabled channels."""
+        control = self.control
+        if control & (control - 1) == 0:  # one channel or none: the usual case, looked up directly
+            chips = self.channels[control.bit_length() - 1] if control else {}
+            return [chips[address]] if address in chips else []
         return [
             chips[address] for n, chips in enumerate(self.channels)
             if self.control >> n & 1 and address in chips
@@ -173,16 +177,20 @@ class FakeSMBus:
         self.bus = bus
         self.force = force
         self.chips: dict[int, I2CChip] = {}
+        self._switches: list[I2CSwitchSim] = []  # the chips that are switches, looked at on every transfer
         self._nacks: dict[int, int | None] = {}  # address -> transfers left to NACK (None: all)
         self._faults: dict[int, Any] = {}  # address -> fault schedule, drawn once per transfer
 
     # --- wiring and fault hooks -------------------------------------------------------------------
     def attach(self, address: int, chip: I2CChip) -> None:
         self.chips[address] = chip
+        self._switches = [c for c in self.chips.values() if isinstance(c, I2CSwitchSim)]
 
     def detach(self, address: int) -> I2CChip | None:
         """Unplug the chip (returned, so a test can plug the same one back in)."""
-        return self.chips.pop(address, None)
+        chip = self.chips.pop(address, None)
+        self._switches = [c for c in self.chips.values() if isinstance(c, I2CSwitchSim)]
+        return chip
 
     def nack(self, address: int, count: int | None = None) -> None:
         """NACK the next `count` transfers to `address`; None NACKs all of them; 0 heals."""
@@ -215,9 +223,9 @@ class FakeSMBus:
     def _answering(self, address: int) -> list:
         """Every chip that ACKs `address`: on the main bus, and behind enabled switch channels."""
         found = [self.chips[address]] if address in self.chips else []
-        for chip in self.chips.values():
-            if isinstance(chip, I2CSwitchSim):
-                found += chip.visible(address)
+        for switch in self._switches:
+            if switch.control:  # a switch with every channel off hides everything behind it
+                found += switch.visible(address)
         return found
 
     def add_switch(self, address: int) -> I2CSwitchSim:

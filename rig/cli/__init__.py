@@ -1,4 +1,6 @@
-"""The `rig` command. Each family of subcommands lives in its own module and registers itself here.
+"""The `rig` command. Each family of subcommands lives in its own module and registers itself; a module
+is imported only when one of its commands runs (or `rig --help` lists them), so `rig --version` and a
+`rig refit` do not pay for the imports of `rig run` or `rig report`.
 
 Errors of the project's family print as one line (`error: ...`) with exit code 2; a traceback only
 with --debug. A bad option or argument value (a folder given for a file) is one line too. Ctrl-C exits 130.
@@ -12,6 +14,7 @@ import os
 # (a robust scalar fit ran 10x slower with the default). Must be set before numpy is imported.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import importlib  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
 
@@ -20,8 +23,31 @@ import click
 from rig import __version__
 from rig.errors import ERRORS
 
+# command name -> the module of rig.cli whose register() adds it (tests/unit/rig/test_cli_startup.py)
+COMMAND_MODULES = {
+    "refit": "calib_cmds", "apply": "calib_cmds",
+    "devices": "device_cmds",
+    "check": "store_cmds", "export": "store_cmds",
+    "run": "campaign_cmds",
+    "commission": "commission_cmds",
+    "report": "report_cmds", "export-cal": "report_cmds", "sessions": "report_cmds",
+    "push": "fleet_cmds", "fleet": "fleet_cmds", "refit-all": "fleet_cmds",
+}
 
-@click.group()
+
+class LazyGroup(click.Group):
+    """Imports a command's module when the command is asked for."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMAND_MODULES)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in self.commands and name in COMMAND_MODULES:
+            importlib.import_module(f"rig.cli.{COMMAND_MODULES[name]}").register(self)
+        return self.commands.get(name)
+
+
+@click.group(cls=LazyGroup)
 @click.version_option(__version__, prog_name="magrig")
 @click.option("--debug", is_flag=True, help="Show tracebacks and debug logs (raw frames).")
 @click.pass_context
@@ -35,19 +61,6 @@ def cli(ctx: click.Context, debug: bool) -> None:
     )
     # pymodbus logs every timeout as ERROR with frame dumps; our transport retries and reports them itself.
     logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
-
-
-def _register_all() -> None:
-    from rig.cli import calib_cmds, campaign_cmds, commission_cmds, device_cmds, report_cmds, store_cmds
-
-    for module in (calib_cmds, device_cmds, store_cmds, campaign_cmds, commission_cmds, report_cmds):
-        module.register(cli)
-    from rig.cli import fleet_cmds
-
-    fleet_cmds.register(cli)
-
-
-_register_all()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,7 @@ import numpy as np
 
 from calib.models import MODELS, REGISTRY
 from rig import __version__
+from rig.sessionfile import looks_like_session
 
 MODEL_CHOICE = click.Choice(MODELS)
 
@@ -39,13 +40,13 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     (extra_columns: keep the columns outside the CSV contract; a fit does not need them)."""
     from calib import csvio
     from rig.errors import DataError
-    from rig.reader import read_dataset
-    from rig.sessionfile import looks_like_session
 
     p = Path(path)
     if not p.is_file():
         raise DataError(f"{p}: no such file")
     if looks_like_session(p):
+        from rig.reader import read_dataset
+
         return read_dataset(p, dut)
     if dut is not None:
         raise DataError(f"{p}: --dut applies to session files; this is a CSV file")
@@ -72,7 +73,7 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     "--balance-orientations/--no-balance-orientations",
     default=None,
     help="Scalar model: weight samples so over-visited orientations do not dominate "
-    "(default: decided from the data's direction coverage).",
+    "(default: chosen by cross-validation inside the data when the coverage is uneven).",
 )
 @click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
 @click.option("--lag/--no-lag", default=True, show_default=True,
@@ -116,14 +117,15 @@ def refit(
         takers = [m for m, spec in REGISTRY.items() if set(unused) <= spec.options]
         raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
                                f"--model {' or '.join(takers)} only")
-    from rig import sessionfit
+    session = ds.source.get("kind") == "session"
+    inputs, ambient = None, None
+    if session:  # every reference with the run's best ambient, as the run's own fits
+        from rig import sessionfit
 
-    inputs = sessionfit.run_inputs(data) if ds.source.get("kind") == "session" else None
-    ambient = None
-    if inputs is not None:  # every reference with the run's best ambient, as the campaign's own fits
-        ds, ambient = inputs.refined(ds)
+        inputs = sessionfit.run_inputs(data)
+        ds, ambient = sessionfit.refined(inputs, ds)
     lag_info = None
-    if lag:
+    if lag and session:  # a CSV has no ramp: rig.lagfit is not imported for it
         from rig.lagfit import lag_corrected, session_is_ramp
 
         if session_is_ramp(data):
@@ -142,12 +144,12 @@ def refit(
 
         annotate(cal, lag_info)
         click.echo(lag_info["message"])
-    if inputs is not None:
+    if session:
         if ambient is not None:
             cal.stats["ambient"] = ambient
         sessionfit.state_uncertainty(inputs, ds.source["dut"], ds, cal)
     else:
-        from rig.budget import statistical_only
+        from calib.uncertainty import statistical_only
 
         cal.uncertainty = statistical_only(ds, cal)
     calfile.save(cal, output)
@@ -235,6 +237,11 @@ def print_summary(cal) -> None:
             f"|B| spread after calibration: {st['norm_spread_pct']:.3f} % (std/mean); "
             f"field norm: {st.get('field_norm')}"
         )
+    if "validation" in st:
+        v = st["validation"]
+        means = ", ".join(f"{name} {pct:.3f} %" for name, pct in v.get("mean_pct", {}).items())
+        console.print(f"variant: {v['chosen']}, chosen by {v['method']}" + (f" (held-out |B| error: {means})"
+                                                                            if means else ""))
     if st.get("robust"):
         console.print(
             f"robust: {st['n_outliers']} rows flagged as outliers and left out of the fit"

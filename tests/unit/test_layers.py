@@ -1,5 +1,6 @@
-"""The layers hold: calib imports neither rig nor drivers, drivers import no rig, only rig/simstation.py
-imports drivers.sim, and nothing in rig/ asks which concrete device or field source it holds."""
+"""The layers hold: calib imports neither rig nor drivers, and its own imports point one way; drivers
+import no rig, only rig/simstation.py imports drivers.sim, and nothing in rig/ asks which concrete device
+or field source it holds."""
 
 from __future__ import annotations
 
@@ -47,6 +48,42 @@ def test_calib_and_drivers_import_no_rig():
 
 def test_calib_imports_no_drivers():
     assert offenders(sources("calib"), "drivers") == []
+
+
+def _calib_graph() -> dict[str, set[str]]:
+    """calib's modules -> the calib modules their import statements name (`from calib import x` names the
+    package, whose __init__ names calib.fitting and the rest: a module doing so closes a circle)."""
+    modules = {".".join(p.relative_to(REPO).with_suffix("").parts).removesuffix(".__init__"): p
+               for p in sources("calib")}
+    graph = {}
+    for name, path in modules.items():
+        named = set()
+        for m in imported_modules(path):
+            while m and m not in modules:
+                m = m.rpartition(".")[0]
+            if m and m != name:
+                named.add(m)
+        graph[name] = named
+    return graph
+
+
+def test_calib_imports_point_one_way():
+    graph, done, path = _calib_graph(), set(), []
+
+    def visit(module: str) -> None:
+        if module in path:
+            raise AssertionError("import circle: " + " -> ".join(path[path.index(module):] + [module]))
+        if module in done:
+            return
+        path.append(module)
+        for dep in sorted(graph[module]):
+            visit(dep)
+        path.pop()
+        done.add(module)
+
+    for module in sorted(graph):
+        visit(module)
+    assert {"calib.calibration", "calib.models", "calib.equations"} <= done
 
 
 def test_only_the_station_builder_imports_the_simulators():

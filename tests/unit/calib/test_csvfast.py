@@ -75,7 +75,9 @@ def _numeric_file(tmp_path, rows: int = 3000, crlf: bool = False):
 @pytest.mark.parametrize("crlf", [False, True])
 def test_the_scanner_and_the_columnar_reader_give_the_same_dataset(tmp_path, monkeypatch, crlf):
     path = _numeric_file(tmp_path, crlf=crlf)
+    scanned = _scanner_asked(monkeypatch)
     fast = csvio.read_csv(path)
+    assert scanned == [True]  # the scanner read it
     monkeypatch.setattr(csvfast, "_SCANNER", [None])  # as without numba
     columnar = csvio.read_csv(path)
     assert len(fast) == len(columnar) == 3000
@@ -83,6 +85,31 @@ def test_the_scanner_and_the_columnar_reader_give_the_same_dataset(tmp_path, mon
         np.testing.assert_array_equal(fast.columns[name], columnar.columns[name])
     np.testing.assert_array_equal(fast.h_nt, columnar.h_nt)
     assert fast.source["sha256"] == columnar.source["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _scanner_asked(monkeypatch) -> list[bool]:
+    """Files of any size handed to the scanner; the list records whether each read took it."""
+    monkeypatch.setattr(csvfast, "COMPILED_BREAK_EVEN_BYTES", 0)
+    read_numeric, taken = csvfast.read_numeric, []
+
+    def recording(*args):
+        result = read_numeric(*args)
+        taken.append(result is not None)
+        return result
+
+    monkeypatch.setattr(csvfast, "read_numeric", recording)
+    return taken
+
+
+def test_a_file_below_the_break_even_is_read_without_loading_the_scanner(tmp_path, monkeypatch):
+    path = _numeric_file(tmp_path, rows=200)
+    assert path.stat().st_size < csvfast.COMPILED_BREAK_EVEN_BYTES
+
+    def refuse(*args):
+        raise AssertionError("the scanner was asked for a small file")
+
+    monkeypatch.setattr(csvfast, "read_numeric", refuse)
+    assert len(csvio.read_csv(path)) == 200
 
 
 def test_blocks_and_pieces_of_any_size_give_the_same_columns(tmp_path, monkeypatch):
@@ -132,8 +159,10 @@ def test_the_reader_still_names_line_and_column_of_a_bad_cell_deep_in_a_file(tmp
     rows = ["hx,hy,hz"] + [f"{i}.5,{i + 1},{i + 2}" for i in range(5000)]
     rows[4321] = "1,2,3x"
     monkeypatch.setattr(csvfast, "BLOCK_BYTES", 2048)
+    scanned = _scanner_asked(monkeypatch)
     with pytest.raises(DataError, match="line 4322, column 'hz': '3x' is not a number"):
         csvio.read_csv(_write(tmp_path, "\n".join(rows) + "\n"))
+    assert scanned == [False]  # the scanner handed the file over
 
 
 def test_a_header_without_data_rows_is_refused(tmp_path):

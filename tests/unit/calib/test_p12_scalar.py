@@ -161,20 +161,18 @@ def test_robust_on_clean_data_flags_almost_nothing():
     assert calib.fit(ds, "t24", robust=True).stats["n_outliers"] <= 2
 
 
-def test_scalar_balances_orientations_only_when_coverage_is_uneven():
+def test_explicit_balancing_reweights_and_is_recorded():
     ds, truth = synthetic.scalar_dataset(np.random.default_rng(10), n=3000)
-    even = calib.fit(ds, "scalar")
-    assert not even.stats["balance_orientations"] and even.stats["coverage_effective_share"] > 0.9
-    # dwell on the upper hemisphere: keep one lower-hemisphere sample in eight
-    up = truth.apply(ds.h_nt)[:, 2] > 0
+    up = truth.apply(ds.h_nt)[:, 2] > 0  # dwell on the upper hemisphere
     uneven_ds = ds.subset(up | (np.arange(len(ds)) % 8 == 0))
-    uneven = calib.fit(uneven_ds, "scalar")
-    assert uneven.stats["balance_orientations"] and uneven.stats["coverage_effective_share"] < 0.8
-    z_c = (uneven.params["c_nt"] - truth.params["c_nt"]) / uneven.std_errors["c_nt"]
-    assert np.max(np.abs(z_c)) < 4.5
+    on = calib.fit(uneven_ds, "scalar", balance_orientations=True)
     off = calib.fit(uneven_ds, "scalar", balance_orientations=False)
-    assert not off.stats["balance_orientations"]
-    assert not np.allclose(off.params["A"], uneven.params["A"], rtol=1e-9, atol=0)
+    assert on.stats["balance_orientations"] and not off.stats["balance_orientations"]
+    assert on.stats["coverage_effective_share"] < 0.8
+    assert "validation" not in on.stats  # nothing left open, nothing to choose
+    z_c = (on.params["c_nt"] - truth.params["c_nt"]) / on.std_errors["c_nt"]
+    assert np.max(np.abs(z_c)) < 4.5
+    assert not np.allclose(off.params["A"], on.params["A"], rtol=1e-9, atol=0)
 
 
 def test_balance_weights_of_isolated_samples_are_capped():

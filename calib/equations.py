@@ -1,0 +1,99 @@
+"""The calibration models as equations: each model's parameters (names and shapes, the contract of the
+calibration file) and the calibrated field they give (parameters in, field out). No fitting here: the
+fits (calib/t24.py, p12.py, scalar.py) and the registry that ties a model to its fit (calib/models.py) sit
+above this module, and calib/calibration.py uses it to apply and validate a calibration.
+
+- t24 (absolute-tau convention of the paper): B = (S + T K) h + b + T kb, T the DUT temperature in degC.
+- p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
+  row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
+  e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
+- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c. A (and KA) upper-triangular: the field comes
+  out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in the sensor 1-2 plane), which is the
+  true frame up to one unknown rotation. The temperature terms are optional.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.errors import DataError
+
+# required parameters of each model and their shapes, in the order models are listed everywhere
+PARAM_SHAPES: dict[str, dict[str, tuple[int, ...]]] = {
+    "t24": {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)},
+    "p12": {"k": (3,), "angles_deg": (3,), "b_nt": (3,)},
+    "scalar": {"A": (3, 3), "c_nt": (3,)},
+}
+OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
+    "t24": {},
+    "p12": {},
+    "scalar": {"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
+}
+MODELS = tuple(PARAM_SHAPES)
+
+
+def needs_temperature(model: str, params: dict) -> bool:
+    return model == "t24" or (model == "scalar" and "KA_per_c" in params)
+
+
+def p12_matrix(k: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
+    """M = Q P, the lower-triangular matrix that maps the true field to the raw reading (without offset)."""
+    e1, e2, e3 = np.radians(angles_deg)
+    p = np.array(
+        [
+            [1.0, 0.0, 0.0],
+            [np.sin(e1), np.cos(e1), 0.0],
+            [np.sin(e2) * np.cos(e3), np.sin(e3), np.cos(e2) * np.cos(e3)],
+        ]
+    )
+    return np.asarray(k, float)[:, None] * p
+
+
+def p12_angles_from_rows(p: np.ndarray) -> np.ndarray:
+    """Angles (deg) of a P whose rows 2 and 3 are unit vectors with positive last component."""
+    e1 = np.arctan2(p[1, 0], p[1, 1])
+    e3 = np.arcsin(np.clip(p[2, 1], -1.0, 1.0))
+    e2 = np.arctan2(p[2, 0], p[2, 2])
+    return np.degrees([e1, e2, e3])
+
+
+def _t24_field(h, t, s, k, b, kb) -> np.ndarray:
+    """(S + t K) h + b + t kb, one output column at a time over contiguous copies of the inputs' columns:
+    no (N,3,3) temporary, and no BLAS call, which for an inner size of 3 spends more on waking its
+    threads than on the sums. The result is an (N,3) view of a (3,N) array."""
+    x = np.ascontiguousarray(h.T)
+    t = np.ascontiguousarray(t)
+    out = np.empty_like(x)
+    for i in range(3):
+        col = out[i]
+        np.multiply(x[0], k[i, 0], out=col)
+        col += x[1] * k[i, 1]
+        col += x[2] * k[i, 2]
+        col += kb[i]
+        col *= t
+        col += x[0] * s[i, 0]
+        col += x[1] * s[i, 1]
+        col += x[2] * s[i, 2]
+        col += b[i]
+    return out.T
+
+
+def apply(model: str, params: dict, h_nt: np.ndarray, temp_c: np.ndarray | None, temp_ref_c: float | None):
+    """Calibrated field (N,3) in nT from raw readings (N,3) in nT."""
+    h = np.asarray(h_nt, dtype=float)
+    if needs_temperature(model, params):
+        if temp_c is None:
+            raise DataError(f"a {model} calibration with temperature terms needs a temperature column (temp)")
+        t = np.asarray(temp_c, dtype=float)[:, None]
+    if model == "t24":
+        return _t24_field(h, t[:, 0], params["S"], params["K"], params["b_nt"], params["kb_nt_per_c"])
+    if model == "p12":
+        m = p12_matrix(params["k"], params["angles_deg"])
+        return np.linalg.solve(m, (h - params["b_nt"]).T).T
+    if model == "scalar":
+        if "KA_per_c" not in params:
+            return (h - params["c_nt"]) @ params["A"].T
+        dt = t - (temp_ref_c or 0.0)
+        v = h - params["c_nt"] - dt * params["kc_nt_per_c"]
+        return v @ params["A"].T + dt * (v @ params["KA_per_c"].T)
+    raise DataError(f"unknown calibration model {model!r} (known: {', '.join(MODELS)})")
