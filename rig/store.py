@@ -10,6 +10,7 @@
     s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
     s.record_snapshot(device, describe_dict)
     s.record_fit(dut, model, calibration: dict, residual_rms_nt=None)
+    s.record_temperatures(t, setpoint_c, closed_loop_c, air_c, {dut: temp_c})   # the cockpit's plot
     s.finish(status, reason, code=Reason.X)      # ended, exit status, reason and code, completed flag
     s.close()
 
@@ -94,6 +95,9 @@ class SampleRow:
 def _opt_float(value) -> float | None:
     return None if value is None else float(value)
 
+
+TEMPERATURES_TABLE = ("CREATE TABLE IF NOT EXISTS temperatures (t REAL NOT NULL, setpoint_c REAL, "
+                      "closed_loop_c REAL, air_c REAL, duts_json TEXT NOT NULL DEFAULT '{}')")
 
 _INSERT_SAMPLE = (
     "INSERT INTO samples (point_id, dut, t, hx, hy, hz, cx, cy, cz, ox, oy, oz, temp_c, ref_temp_c, "
@@ -372,6 +376,17 @@ class Session:
                 "lag_s, notes) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 [(self.clock.now(), r["dut"], r["model"], r["passed"], r["verdict"], r["failed"],
                   r["heldout_rms_nt"], r["fit_rms_nt"], r["lag_s"], r["notes"]) for r in rows])
+
+    def record_temperatures(self, t: float, setpoint_c: float | None, closed_loop_c: float | None,
+                            air_c: float | None, dut_temps_c: dict[str, float | None]) -> None:
+        """One row of table `temperatures` (made when first needed): the chamber's set point (and its
+        instantaneous one during a ramp), its air and each DUT's temperature, for the cockpit's plot."""
+        with self._transaction() as conn:
+            conn.execute(TEMPERATURES_TABLE)
+            conn.execute("INSERT INTO temperatures (t, setpoint_c, closed_loop_c, air_c, duts_json) "
+                         "VALUES (?, ?, ?, ?, ?)", (float(t), _opt_float(setpoint_c),
+                                                    _opt_float(closed_loop_c), _opt_float(air_c),
+                                                    json.dumps(dut_temps_c, default=_json_default)))
 
     def finish(self, status: str, reason: str = "", completed: bool | None = None,
                code: Reason | None = None) -> None:
