@@ -23,7 +23,7 @@ import yaml
 import calib
 from rig.campaign import run_campaign
 from rig.config import load_campaign
-from rig.ramp import lag_corrected
+from rig.lagfit import lag_corrected
 from rig.reader import SessionReader, read_dataset
 from rig.simstation import dut_truths
 

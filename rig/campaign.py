@@ -55,9 +55,10 @@ from rig.inbox import Inbox
 from rig.interleave import read_all
 from rig.livefit import LiveFit
 from rig.lock import SessionLock
-from rig.plan import Point, check_campaign
+from rig.plan import check_campaign
+from rig.points import Point
 from rig.reference import reference_for
-from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector
+from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector, criteria_of
 from rig.station import Rig, open_rig
 from rig.store import SampleRow
 from rig.telemetry import TemperatureLog
@@ -72,9 +73,6 @@ def poll_interval_s(criteria: SettleCriteria) -> float:
     return min(30.0, max(2.0, criteria.dwell_s / 8.0))
 
 
-def criteria_of(stability: cfg.Stability) -> SettleCriteria:
-    return SettleCriteria(band_c=stability.band_c, max_rate_c_per_min=stability.rate_c_per_min,
-                          dwell_s=stability.dwell_s, max_wait_s=stability.max_wait_s)
 
 
 class CampaignRunner:

@@ -19,20 +19,16 @@ Only the engine pauses, holds, retakes and ends safe; these handlers raise Hold 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
 from collections.abc import Generator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from rig.engine import Checkpoint, CollectPoint, Hold, MoveField, SetChamber, Settle, Task, WaitStable
-from rig.errors import ERRORS
 from rig.events import Kind, Reason
-from rig.rampplan import RampPoint
+from rig.points import RampPoint
+from rig.settle import criteria_of
 
 log = logging.getLogger("magrig.ramp")
 
@@ -90,8 +86,6 @@ class RampMode:
         return {StartRamp: self.start_ramp, AwaitAir: self.await_air}
 
     def point_commands(self, point: RampPoint, retake: bool) -> Generator[Any, Any, None]:
-        from rig.campaign import criteria_of
-
         if retake or self.leg != point.leg:
             self.leg = None
             if point.index == 0:  # the plan's start: the DUTs begin the first leg at its start
@@ -183,51 +177,3 @@ def attach(runner) -> RampMode | None:
     if runner.plan.stop_when:
         runner.on_point.append(StopWhen(runner))
     return RampMode(runner) if runner.plan.ramp is not None else None
-
-
-# --- the lag-corrected fit -----------------------------------------------------------------------------
-def lag_corrected(ds) -> tuple[Any, dict]:
-    """The dataset in time order with its temperature column moved to the element's (calib/lag.py), and
-    what was estimated (JSON-ready, for the calibration's stats)."""
-    from calib.lag import estimate_lag
-
-    ds = ds.subset(np.argsort(ds.columns["t"], kind="stable"))
-    try:
-        res = estimate_lag(ds.columns["t"], ds.h_nt, ds.temp_c, ds.ref_nt, direction="auto")
-    except ERRORS as exc:
-        return ds, {"applied": False, "message": f"thermal lag not estimated: {exc}", "warnings": []}
-    info = {"applied": res.identifiable, "direction": res.direction, "tau_s": _num(res.tau_s),
-            "tau_se_s": _num(res.tau_se_s), "updown_before_nt": _num(res.updown_before_nt),
-            "updown_after_nt": _num(res.updown_after_nt), "message": res.message,
-            "warnings": list(res.warnings)}
-    if res.identifiable:
-        ds = dataclasses.replace(ds, temp_c=res.temp_element_c)
-    return ds, info
-
-
-def annotate(cal, info: dict) -> None:
-    """Record the lag estimate in the calibration's stats; its warnings join the fit's."""
-    cal.stats["thermal_lag"] = {k: v for k, v in info.items() if k != "warnings"}
-    if info["warnings"]:
-        cal.stats["warnings"] = [*cal.stats.get("warnings", []), *info["warnings"]]
-
-
-def session_is_ramp(path: str | Path) -> bool:
-    """Whether a session file recorded a continuous-ramp plan (its lag is then estimated and applied)."""
-    from rig.config import Plan
-    from rig.reader import SessionReader
-    from rig.sessionfile import looks_like_session
-    from rig.yamlload import load_model
-
-    if not looks_like_session(Path(path)):
-        return False
-    with SessionReader(path) as reader:
-        text = reader.info()["plan_text"]
-    try:
-        return load_model(Plan, f"{path} (recorded plan)", text).ramp is not None
-    except ERRORS:
-        return False
-
-
-def _num(value) -> float | None:
-    return None if value is None else float(value)

@@ -45,7 +45,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             continue
         lag = None
         if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
-            from rig.ramp import lag_corrected
+            from rig.lagfit import lag_corrected
 
             ds, lag = lag_corrected(ds)
         for model in plan.fit.models:
@@ -59,7 +59,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 out.append(entry)
                 continue
             if lag is not None:
-                from rig.ramp import annotate
+                from rig.lagfit import annotate
 
                 annotate(cal, lag)
             try:

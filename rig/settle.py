@@ -28,6 +28,12 @@ class SettleCriteria:
     max_wait_s: float = 4 * 3600.0
 
 
+def criteria_of(stability) -> SettleCriteria:
+    """The criteria of a plan's `stability:` (rig.config.plan.Stability)."""
+    return SettleCriteria(band_c=stability.band_c, max_rate_c_per_min=stability.rate_c_per_min,
+                          dwell_s=stability.dwell_s, max_wait_s=stability.max_wait_s)
+
+
 def slope_per_s(samples: list[tuple[float, float]]) -> float:
     """Least-squares slope of temp against time; 0 for fewer than two distinct times."""
     n = len(samples)

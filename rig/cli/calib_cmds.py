@@ -118,7 +118,7 @@ def refit(
                                f"--model {' or '.join(takers)} only")
     lag_info = None
     if lag:
-        from rig.ramp import lag_corrected, session_is_ramp
+        from rig.lagfit import lag_corrected, session_is_ramp
 
         if session_is_ramp(data):
             ds, lag_info = lag_corrected(ds)
@@ -132,7 +132,7 @@ def refit(
         software_version=__version__,
     )
     if lag_info is not None:
-        from rig.ramp import annotate
+        from rig.lagfit import annotate
 
         annotate(cal, lag_info)
         click.echo(lag_info["message"])

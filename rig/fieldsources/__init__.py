@@ -11,18 +11,13 @@ from typing import Annotated, Union
 
 from pydantic import Field
 
-from rig.fieldsources.base import FieldSourceConfig
+from rig.fieldsources.base import FieldSourceConfig, makers_of
 from rig.fieldsources.coils import Coils
 from rig.fieldsources.turntable import SiteFromModel, SiteFromReference, SiteFromVector, Turntable
 
 KINDS: tuple[type[FieldSourceConfig], ...] = (Coils, Turntable)
 
 FieldSource = Annotated[Union[KINDS], Field(discriminator="kind")]  # noqa: UP007 - built from KINDS
-
-
-def makers_of(field_kind: str) -> str:
-    """Which field sources make a plan's `fields.kind`, for messages ("coils", "a turntable")."""
-    return " or ".join(k.described for k in KINDS if field_kind in k.field_kinds) or "no field source"
 
 
 __all__ = ["KINDS", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",

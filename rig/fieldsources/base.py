@@ -37,7 +37,7 @@ from rig.yamlload import blamed
 
 if TYPE_CHECKING:
     from rig.config.sim import SimWorld
-    from rig.plan import Point
+    from rig.points import Point
 
 SETTLE_TIMEOUT_S = 5.0  # readbacks reach their setpoints well within this; movers add their travel
 DRIFT_MAX_NT = 200.0  # a lab's ambient moves a few tens of nT in hours; more means something changed
@@ -77,8 +77,6 @@ class FieldSourceConfig(DeviceConfig):
         """The targets of the plan's field set, in plan order; ConfigError if this source cannot make
         that kind of field set."""
         if fields.kind not in self.field_kinds:
-            from rig.fieldsources import makers_of
-
             what = (f"{fields.kind!r} needs {makers_of(fields.kind)}; station {station_name} has "
                     f"{self.described} (use one of {', '.join(sorted(self.field_kinds))})")
             raise blamed(ConfigError(f"plan {plan_name}: fields.kind: {what}"), ("fields", "kind"), what)
@@ -141,6 +139,12 @@ class FieldSourceConfig(DeviceConfig):
 
     def world_field(self, sim: SimWorld) -> dict:
         raise NotImplementedError
+
+
+def makers_of(field_kind: str) -> str:
+    """Which field sources make a plan's `fields.kind`, for messages ("coils", "a turntable")."""
+    kinds = FieldSourceConfig.__subclasses__()  # one per kind (rig/fieldsources/__init__.py KINDS)
+    return " or ".join(k.described for k in kinds if field_kind in k.field_kinds) or "no field source"
 
 
 def only_reference(reference_names: Sequence[str]) -> str | None:
