@@ -73,8 +73,6 @@ def poll_interval_s(criteria: SettleCriteria) -> float:
     return min(30.0, max(2.0, criteria.dwell_s / 8.0))
 
 
-
-
 class CampaignRunner:
     def __init__(self, rig: Rig, plan: cfg.Plan, points: list[Point], session,
                  status: RunStatus | None = None):

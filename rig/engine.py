@@ -381,8 +381,7 @@ class Engine:
         if answer != "resume" or self._abort_reason is not None:
             if self._abort_reason is None and self.prompt is None and source:
                 raise _Abort(f"paused at {point_id} at the request of {source}; nobody here to answer "
-                             "resume or abort, so the run ends: continue it with rig run --resume",
-                             Reason.OPERATOR_PAUSE)
+                             "resume or abort, so the run ends here", Reason.OPERATOR_PAUSE)
             raise _Abort(self._abort_reason or f"operator aborted while paused at {point_id}",
                          self._abort_code)
         self._pause_requested.clear()

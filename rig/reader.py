@@ -132,13 +132,14 @@ class SessionReader:
     def snapshots(self) -> list[dict]:
         return self._rows("SELECT * FROM snapshots ORDER BY id")
 
-    def temperatures(self, after_t: float | None = None) -> list[dict]:
+    def temperatures(self, after_row: int = 0) -> list[dict]:
         """The chamber's set point and air and the DUT temperatures the run logged (rig/telemetry.py), in
-        time order, `duts` parsed; with `after_t`, only rows after that time; [] in a session without."""
+        the order written, `duts` parsed, `row` numbering them; with `after_row`, only the rows after that
+        one (a live view); [] in a session without."""
         if not self._has_table("temperatures"):
             return []
-        rows = self._rows("SELECT t, setpoint_c, closed_loop_c, air_c, duts_json FROM temperatures "
-                          "WHERE t > ? ORDER BY rowid", float("-inf") if after_t is None else after_t)
+        rows = self._rows("SELECT rowid AS row, t, setpoint_c, closed_loop_c, air_c, duts_json "
+                          "FROM temperatures WHERE rowid > ? ORDER BY rowid", after_row)
         for r in rows:
             r["duts"] = json.loads(r.pop("duts_json") or "{}")
         return rows

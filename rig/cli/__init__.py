@@ -42,9 +42,10 @@ def _register_all() -> None:
 
     for module in (calib_cmds, device_cmds, store_cmds, campaign_cmds, report_cmds):
         module.register(cli)
-    from rig.cli import fleet_cmds
+    from rig.cli import fleet_cmds, serve_cmds
 
     fleet_cmds.register(cli)
+    serve_cmds.register(cli)
 
 
 _register_all()
