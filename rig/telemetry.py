@@ -12,6 +12,7 @@ would notice; a row that cannot be written is left out (said once), never the en
 from __future__ import annotations
 
 import logging
+import sqlite3
 
 from rig.errors import SessionError
 
@@ -35,7 +36,7 @@ class TemperatureLog:
         try:
             self.session.record_temperatures(reading.t, reading.setpoint_c, reading.closed_loop_c,
                                              reading.air_c, dict(dut_temps_c))
-        except SessionError as exc:
+        except (SessionError, sqlite3.Error) as exc:
             self.lost += 1
             if self.lost == 1:
                 log.warning("could not record temperatures for the cockpit: %s", exc)
