@@ -138,8 +138,8 @@ class SessionReader:
         one (a live view); [] in a session without."""
         if not self._has_table("temperatures"):
             return []
-        rows = self._rows("SELECT rowid AS row, t, setpoint_c, closed_loop_c, air_c, duts_json "
-                          "FROM temperatures WHERE rowid > ? ORDER BY rowid", after_row)
+        rows = self._rows("SELECT id AS row, t, setpoint_c, closed_loop_c, air_c, duts_json "
+                          "FROM temperatures WHERE id > ? ORDER BY id", after_row)
         for r in rows:
             r["duts"] = json.loads(r.pop("duts_json") or "{}")
         return rows

@@ -96,8 +96,9 @@ def _opt_float(value) -> float | None:
     return None if value is None else float(value)
 
 
-TEMPERATURES_TABLE = ("CREATE TABLE IF NOT EXISTS temperatures (t REAL NOT NULL, setpoint_c REAL, "
-                      "closed_loop_c REAL, air_c REAL, duts_json TEXT NOT NULL DEFAULT '{}')")
+TEMPERATURES_TABLE = ("CREATE TABLE IF NOT EXISTS temperatures (id INTEGER PRIMARY KEY, "
+                      "t REAL NOT NULL, setpoint_c REAL, closed_loop_c REAL, air_c REAL, "
+                      "duts_json TEXT NOT NULL DEFAULT '{}')")
 
 _INSERT_SAMPLE = (
     "INSERT INTO samples (point_id, dut, t, hx, hy, hz, cx, cy, cz, ox, oy, oz, temp_c, ref_temp_c, "

@@ -165,11 +165,15 @@ class LiveSession:
         }
 
     def _dut(self, name: str, temp_c, verdict: str | None) -> dict:
+        """A recorded verdict, or before it (the run judges at its end) what the running fit says: its
+        RMS beyond the plan's fit limit, or beyond its held-out limit (a held-out RMS is seldom below the
+        fit's own), is a FAIL coming."""
         figures = self.fits[name].figures() if name in self.fits else {"n": 0, "rms_nt": None}
-        limit = self.static["max_rms_nt"]
-        if verdict is None and limit is not None:
-            over = figures["rms_nt"] is not None and figures["rms_nt"] > limit
-            verdict = f"over the {limit:g} nT fit limit so far" if over else "pending"
+        if verdict is None and self.static["acceptance"]:
+            rms = figures["rms_nt"]
+            over = [f"{rms:.1f} nT > {limit:g} nT {what} limit" for what, limit in self.static["limits_nt"]
+                    if rms is not None and rms > limit]
+            verdict = f"likely FAIL: running fit RMS {over[0]}" if over else "pending (judged at the end)"
         return {"name": name, "temp_c": temp_c, "n": figures["n"], "rms_nt": figures["rms_nt"],
                 "verdict": verdict or "-"}
 
@@ -202,18 +206,22 @@ class LiveSession:
 
 def _static(info: dict, points: list[dict]) -> dict:
     """What never changes during a run: the DUTs, the live fit's reference temperature (as the run's own
-    live display takes it) and the plan's acceptance limit on the fit RMS, if any."""
+    live display takes it) and the plan's acceptance limits on the fit and held-out RMS, if any."""
     from rig import config as cfg
     from rig.yamlload import load_model
 
-    limit, duts = None, []
+    acceptance, limits, duts = False, [], []
     with contextlib.suppress(*ERRORS, ValueError):
         plan = load_model(cfg.Plan, "recorded plan", info["plan_text"])
-        limit = plan.acceptance.max_rms_nt if plan.acceptance is not None else None
+        if plan.acceptance is not None:
+            acceptance = True
+            limits = [(what, limit) for what, limit in (("fit", plan.acceptance.max_rms_nt),
+                                                        ("held-out", plan.acceptance.max_heldout_rms_nt))
+                      if limit is not None]
     with contextlib.suppress(*ERRORS, ValueError):
         duts = [d.name for d in load_model(cfg.Station, "recorded station", info["station_text"]).duts]
     temps = [p["setpoint_c"] for p in points] or [25.0]
-    return {"temp_ref_c": float(np.mean(temps)), "max_rms_nt": limit, "duts": duts}
+    return {"temp_ref_c": float(np.mean(temps)), "acceptance": acceptance, "limits_nt": limits, "duts": duts}
 
 
 def _run_state(info: dict, pid: int | None) -> dict:

@@ -136,7 +136,8 @@ def session_page(app, ref: SessionRef) -> str:
     summary = [
         ["plan", s["plan"]], ["station", s["station"]], ["started", _utc(s["wall_started"])],
         ["ended", _utc(s["wall_ended"]) if s["wall_ended"] else "-"],
-        ["state", state + (f" ({s['exit_code']})" if s["exit_code"] and not running else "")],
+        ["state", state + (f" ({s['exit_code']})" if s["exit_code"] not in (None, state) and not running
+                           else "")],
         ["exit reason", s["exit_reason"] or "-"],
         ["points done", f"{s['points_done']} of {s['points_planned']}" +
          (f" ({s['points_failed']} failed)" if s["points_failed"] else "")],
@@ -180,7 +181,8 @@ def session_page(app, ref: SessionRef) -> str:
             for e in reversed(shown)]
     note = (f'<p class="muted">the newest {len(shown)} of {len(events)} events</p>'
             if len(events) > len(shown) else "")
-    listing = table(["time", "kind", "code", "point", "device", "message"], rows, cls="events")
+    header = ["time (run clock, UTC)", "kind", "code", "point", "device", "message"]
+    listing = table(header, rows, cls="events")
     parts.append(f"<section><h2>Events</h2>{note}{listing}</section>")
     return layout(app, ref.name, "".join(parts), page="session")
 
@@ -303,8 +305,8 @@ def verdict_chart(rows: list[dict], width: int = 720, height: int = 200) -> str:
     left, bottom, pad = 36, 24, 8
     plot_w, plot_h = width - left - pad, height - bottom - pad
     bar_w = max(plot_w / span * 0.8, 1.0)
-    parts = [f'<svg class="verdicts" viewBox="0 0 {width} {height}" role="img" '
-             f'aria-label="sessions per day by verdict, {esc(first)} to {esc(last)}">']
+    parts = [f'<svg class="verdicts" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
+             f'role="img" aria-label="sessions per day by verdict, {esc(first)} to {esc(last)}">']
     for frac in (0.0, 0.5, 1.0):
         y = pad + plot_h * (1 - frac)
         parts.append(f'<line class="grid" x1="{left}" x2="{width - pad}" y1="{y:.1f}" y2="{y:.1f}"/>'
