@@ -230,7 +230,8 @@ class CampaignRunner:
                                                         ref_temp_c=other_c))
                 self.status.dut_temps_c[dut] = temp_c
         self._check_chamber()
-        self.session.record_point(point.id, rows, self._settle_stats, started=started)
+        self.session.record_point(point.id, rows, self._settle_stats, started=started,
+                                  temperatures=self.temperatures.take())
         self._feed_live(rows)
 
     def _feed_live(self, rows: list[SampleRow]) -> None:

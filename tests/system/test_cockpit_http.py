@@ -20,7 +20,7 @@ from rig.config import load_campaign
 from rig.errors import ConfigError, MagrigError
 from rig.events import Kind, Reason
 from rig.inbox import request_path
-from rig.store import SampleRow, Session
+from rig.store import SampleRow, Session, TemperatureRow
 from rig.web.server import Cockpit, make_server
 from tests.system.campaign_helpers import SIM_STATION, small_plan
 
@@ -38,9 +38,9 @@ def tiny_session(path: Path, *, plan_name: str = "tiny", station_name: str = "be
     with Session.create(path, plan_text="name: x\n", station_text="name: y\n", plan_name=plan_name,
                         station_name=station_name, points=points, simulated={"chamber": True},
                         clock=SimClock()) as s:
-        s.record_point("T01-F01", [SampleRow(dut, 1.0, (1.0, 2.0, 3.0), (1.0, 2.0, 3.0), 25.0)])
+        s.record_point("T01-F01", [SampleRow(dut, 1.0, (1.0, 2.0, 3.0), (1.0, 2.0, 3.0), 25.0)],
+                       temperatures=[TemperatureRow(1.0, 25.0, None, 25.1, {dut: 25.0})])
         s.log_event(Kind.HOLD, message, code=Reason.DEVICE_FAULT, point_id="T01-F01", device=dut)
-        s.record_temperatures(1.0, 25.0, None, 25.1, {dut: 25.0})
     return path
 
 

@@ -182,7 +182,7 @@ def test_new_columns_and_tables_arrive_without_code_changes(tmp_path, fleet_db):
 def test_the_runs_acceptance_and_temperature_tables_are_pushed_whole(tmp_path, fleet_db):
     """Tables the store makes when first needed, several rows per session: acceptance (no key of its
     own) and the cockpit's temperatures."""
-    from rig.store import Session
+    from rig.store import Session, TemperatureRow
 
     path = write_session(tmp_path / "s.session", Spec(seed=3, duts=("dut1", "dut2")))
     with Session.open(path) as s:
@@ -190,8 +190,8 @@ def test_the_runs_acceptance_and_temperature_tables_are_pushed_whole(tmp_path, f
                               "failed": "" if v == "PASS" else "fit_rms 30 nT > 20", "heldout_rms_nt": 25.0,
                               "fit_rms_nt": 20.0 + i * 10, "lag_s": None, "notes": ""}
                              for i, (d, v) in enumerate((("dut1", "PASS"), ("dut2", "FAIL")))])
-        for i in range(3):
-            s.record_temperatures(100.0 * i, 25.0, None, 24.0 + i, {"dut1": 23.0 + i, "dut2": None})
+        s.record_temperatures([TemperatureRow(100.0 * i, 25.0, None, 24.0 + i,
+                                              {"dut1": 23.0 + i, "dut2": None}) for i in range(3)])
     assert main(["push", str(path), "--db", fleet_db]) == 0
     uid = session_snapshot(path).uid
     with psycopg.connect(fleet_db) as pg:

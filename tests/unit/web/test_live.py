@@ -15,7 +15,7 @@ from drivers.chamber import ChamberReading
 from drivers.clock import SimClock
 from rig.events import Kind, Reason
 from rig.livefit import LiveFit
-from rig.store import SampleRow, Session
+from rig.store import SampleRow, Session, TemperatureRow
 from rig.web.live import Cursor, LiveSession
 
 REPO = Path(__file__).resolve().parents[3]
@@ -43,8 +43,8 @@ def writer(tmp_path):
             clock.sleep(60.0)
             rows = [SampleRow("mmc0", clock.now(), tuple(ds.h_nt[i]), tuple(ds.ref_nt[i]),
                               float(ds.temp_c[i])) for i in range(p.index * 4, p.index * 4 + 4)]
-            session.record_point(p.id, rows)
-            session.record_temperatures(clock.now(), p.setpoint_c, None, p.setpoint_c + 0.3, {"mmc0": 1.0})
+            session.record_point(p.id, rows, temperatures=[
+                TemperatureRow(clock.now(), p.setpoint_c, None, p.setpoint_c + 0.3, {"mmc0": 1.0})])
 
     session.take, session.ds = take, ds
     yield session
@@ -109,7 +109,8 @@ def test_a_chamber_reading_row_is_what_the_plot_gets(writer):
     from rig.telemetry import TemperatureLog
 
     live = LiveSession(writer.path)
-    TemperatureLog(writer).note(ChamberReading(5.0, 21.5, 40.0, False, False, closed_loop_c=22.0),
-                                {"mmc0": 20.9})
+    log = TemperatureLog(writer)
+    log.note(ChamberReading(5.0, 21.5, 40.0, False, False, closed_loop_c=22.0), {"mmc0": 20.9})
+    log.flush()
     live.refresh()
     assert live.message(Cursor())["telemetry"] == [[5.0, 40.0, 22.0, 21.5, {"mmc0": 20.9}]]
