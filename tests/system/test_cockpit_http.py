@@ -264,3 +264,55 @@ def test_session_report_and_live_pages(server):
     assert state["summary"]["progress"]["done"] == state["summary"]["progress"]["planned"] == 12
     assert state["summary"]["run"]["state"] == "completed" and state["telemetry"]
     assert {d["name"] for d in state["summary"]["duts"]} == {"mmc0", "serial0"}
+
+
+# --- fleet ------------------------------------------------------------------------------------------------
+def test_the_fleet_page_lists_and_filters_as_rig_fleet_list_does(fleet_db, tmp_path, capsys):
+    import datetime as dt
+
+    from rig.fleet.push import push_snapshot
+    from rig.fleet.schema import connect
+    from rig.fleet.source import session_snapshot
+    from tests.fleet_sessions import Spec, write_session
+
+    specs = {"a": ("rig-a", None, 2), "b": ("rig-a", "FAIL", 3), "c": ("<i>rig-b</i>", "PASS", 4)}
+    with connect(fleet_db) as conn:
+        for seed, (name, (station, verdict, day)) in enumerate(specs.items(), start=1):
+            path = write_session(tmp_path / f"{name}.session",
+                                 Spec(seed=seed, station=station, day=dt.date(2026, 3, day)))
+            if verdict:
+                with Session.open(path) as s:
+                    s.record_acceptance([{"dut": "dut1", "model": "t24", "passed": int(verdict == "PASS"),
+                                          "verdict": verdict, "failed": "", "heldout_rms_nt": 1.0,
+                                          "fit_rms_nt": 1.0, "lag_s": None, "notes": ""}])
+            push_snapshot(conn, session_snapshot(path))
+    srv = start(Cockpit(roots=[tmp_path], db_url=fleet_db))
+    try:
+        def listed(query: str) -> list[str]:
+            got = request(srv, "GET", f"/fleet{query}")
+            assert got.status == 200 and "<i>" not in got.body
+            return sorted(n for n in specs if f"{n}.session" in got.body)
+
+        assert listed("") == ["a", "b", "c"]
+        page = request(srv, "GET", "/fleet").body
+        assert "&lt;i&gt;rig-b&lt;/i&gt;" in page and '<svg class="verdicts"' in page
+        assert listed("?station=rig-a") == ["a", "b"]
+        assert listed("?verdict=fail") == ["b"]
+        assert listed("?since=2026-03-03&until=2026-03-04") == ["b"]
+        assert listed("?dut=dut1&verdict=PASS") == ["c"]
+        for query, complaint in (("?since=yesterday", "since: &#x27;yesterday&#x27; is not a date"),
+                                 ("?verdict=MAYBE", "verdict: &#x27;MAYBE&#x27; is not PASS or FAIL")):
+            got = request(srv, "GET", f"/fleet{query}")
+            assert got.status == 200 and complaint in got.body and "Traceback" not in got.body
+        assert main(["fleet", "list", "--db", fleet_db, "--station", "rig-a"]) == 0
+        cli = capsys.readouterr().out  # the CLI's listing holds the same sessions
+        assert "a.session" in cli and "b.session" in cli and "c.session" not in cli
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    no_db = start(Cockpit(roots=[tmp_path]))
+    try:
+        assert request(no_db, "GET", "/fleet").status == 404
+    finally:
+        no_db.shutdown()
+        no_db.server_close()
