@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 from pathlib import Path
 
@@ -11,6 +12,7 @@ from rig.cli.fleet_cmds import DB_OPTION
 from rig.errors import SessionError
 
 DEFAULT_DIR = Path("sessions")
+NICENESS = 10  # the cockpit yields the CPU to a campaign running on the same machine
 
 
 def _stop(signum, frame):
@@ -48,6 +50,7 @@ def serve_cmd(sessions_dirs: tuple[Path, ...], db_url: str | None, host: str, po
                    + ("; open it once with ?token=YOUR_TOKEN" if token else "") + "; Ctrl-C stops it")
 
     signal.signal(signal.SIGTERM, _stop)
+    os.nice(NICENESS)
     serve(app, host, port, ready=ready)
 
 

@@ -33,7 +33,7 @@ from rig.reader import SessionReader
 
 log = logging.getLogger("magrig.web")
 
-POLL_S = 0.25  # how often a watched session's files are looked at (a stat each)
+POLL_S = 0.5  # how often a watched session's files are looked at (a stat each)
 FIRST_EVENTS = 300  # events a new page gets; it keeps the newest as more arrive
 IDLE_STOP_S = 5.0  # a watcher with no page left stops after this
 
@@ -252,6 +252,17 @@ def _event(e) -> dict:
             "message": e.message, "point": e.point_id, "device": e.device}
 
 
+def warm_up() -> None:
+    """What a first live view needs that is slow the first time in a process (the plan models, the
+    compiled Gram kernel of the running fit: about a second): done ahead, so the first points a page
+    waits for are not late by it."""
+    from rig import config  # noqa: F401 - imported for its cost only
+
+    fit = LiveFit(20.0)
+    fit.add(np.eye(3) * 5e4, np.array([10.0, 20.0, 30.0]), np.eye(3) * 5e4)
+    fit.figures()
+
+
 class Hub:
     """One LiveSession per watched file, shared by every page watching it; a thread per file polls it."""
 
@@ -260,6 +271,7 @@ class Hub:
         self.lock = threading.Lock()
         self.sessions: dict[Path, LiveSession] = {}
         self.stopping = threading.Event()
+        threading.Thread(target=warm_up, daemon=True, name="warm up").start()
 
     def subscribe(self, path: Path) -> LiveSession:
         with self.lock:

@@ -16,15 +16,17 @@
     const $ = (id) => document.getElementById(id);
     const st = { summary: null, telemetry: [], events: [] };
     window.cockpit.state = st;
-    let drawPending = false;
-    let lastDraw = 0;
+    // Drawing is what costs the machine: the text at most every TEXT_MS, the plot at most every PLOT_MS.
+    const TEXT_MS = 1000, PLOT_MS = 2000;
+    const pending = { events: [] }; // events received, not drawn yet
+    let textTimer = null, plotTimer = null, lastPlot = 0;
     let awaiting = null; // the action asked for, until the run records it
 
     const source = new EventSource(body.dataset.events);
     source.addEventListener("state", (ev) => onMessage(JSON.parse(ev.data)));
     source.addEventListener("open", () => setNote(""));
     source.addEventListener("error", () => setNote("connection to the server lost; reconnecting..."));
-    window.addEventListener("resize", scheduleDraw);
+    window.addEventListener("resize", () => schedulePlot());
     setUpActions();
 
     function onMessage(msg) {
@@ -38,41 +40,51 @@
       if (msg.reset) {
         st.telemetry = [];
         st.events = [];
+        pending.events = [];
         $("events").replaceChildren();
       }
       st.summary = msg.summary;
       st.telemetry.push(...msg.telemetry);
       st.events.push(...msg.events);
       if (st.events.length > 1000) st.events.splice(0, st.events.length - 1000);
+      pending.events.push(...msg.events);
       if (msg.error) setNote("the session could not be read just now (" + msg.error + "); trying again");
-      renderSummary(msg.summary);
-      renderEvents(msg.events);
-      if (msg.telemetry.length || msg.reset) scheduleDraw();
+      scheduleText();
+      if (msg.telemetry.length || msg.reset) schedulePlot();
+    }
+
+    function scheduleText() {
+      if (textTimer !== null) return;
+      textTimer = setTimeout(() => {
+        textTimer = null;
+        renderSummary(st.summary);
+        renderEvents(pending.events.splice(0));
+      }, window.cockpit.messages === 1 ? 0 : TEXT_MS); // the first state at once
     }
 
     // --- summary ----------------------------------------------------------------------------------
     function renderSummary(s) {
       if (!s || !s.run) return;
-      $("meta").textContent = "plan " + s.plan + " on station " + s.station +
-        (s.simulated ? " (simulated: times are the simulation's)" : "");
+      setText($("meta"), "plan " + s.plan + " on station " + s.station +
+        (s.simulated ? " (simulated: times are the simulation's)" : ""));
       const badge = $("run-state");
-      badge.textContent = s.run.state;
+      setText(badge, s.run.state);
       badge.className = "badge state-" + s.run.state.replace(/[^a-z]+/g, "-");
       const p = s.progress;
       $("progress").max = Math.max(p.planned, 1);
       $("progress").value = p.done;
-      $("progress-text").textContent = p.done + " of " + p.planned + " points" +
-        (p.failed ? " (" + p.failed + " failed)" : "");
+      setText($("progress-text"), p.done + " of " + p.planned + " points" +
+        (p.failed ? " (" + p.failed + " failed)" : ""));
       const eta = [];
       if (p.eta_run_s !== null) eta.push("about " + duration(p.eta_run_s) + " left on the run's clock");
       if (p.eta_wall_s !== null) eta.push(duration(p.eta_wall_s) + " at the pace seen here");
-      $("eta").textContent = eta.join("; ");
+      setText($("eta"), eta.join("; "));
       if (p.current) {
-        $("current").textContent = "point " + p.current.id + " at " + num(p.current.setpoint_c, 1) + " \u00b0C";
-        $("target").textContent = target(p.current.target);
+        setText($("current"), "point " + p.current.id + " at " + num(p.current.setpoint_c, 1) + " \u00b0C");
+        setText($("target"), target(p.current.target));
       } else {
-        $("current").textContent = s.run.state === "running" ? "-" : "no point being taken";
-        $("target").textContent = "";
+        setText($("current"), s.run.state === "running" ? "-" : "no point being taken");
+        setText($("target"), "");
       }
       const running = s.run.state === "running";
       $("actions").hidden = !running;
@@ -84,7 +96,11 @@
       renderDuts(s.duts);
     }
 
+    let dutsShown = "";
     function renderDuts(duts) {
+      const shown = JSON.stringify(duts);
+      if (shown === dutsShown) return; // unchanged: no work for the page
+      dutsShown = shown;
       const rows = duts.map((d) => {
         const tr = document.createElement("tr");
         const verdict = String(d.verdict);
@@ -93,7 +109,7 @@
           td.textContent = text;
           tr.appendChild(td);
         }
-        const cls = verdict.startsWith("PASS") ? "pass" : verdict.startsWith("FAIL") || verdict.startsWith("over") ? "fail" : "";
+        const cls = verdict.startsWith("PASS") ? "pass" : verdict.startsWith("FAIL") || verdict.startsWith("likely FAIL") ? "fail" : "";
         if (cls) tr.lastChild.className = cls;
         return tr;
       });
@@ -129,15 +145,13 @@
     }
 
     // --- the plot ---------------------------------------------------------------------------------
-    function scheduleDraw() {
-      if (drawPending) return;
-      drawPending = true;
-      const wait = Math.max(0, 300 - (Date.now() - lastDraw)); // at most a few drawings a second
-      setTimeout(() => requestAnimationFrame(() => {
-        drawPending = false;
-        lastDraw = Date.now();
+    function schedulePlot() {
+      if (plotTimer !== null) return;
+      plotTimer = setTimeout(() => requestAnimationFrame(() => {
+        plotTimer = null;
+        lastPlot = Date.now();
         draw();
-      }), wait);
+      }), Math.max(0, PLOT_MS - (Date.now() - lastPlot)));
     }
 
     function series() {
@@ -265,8 +279,13 @@
     }
 
     // --- small helpers ----------------------------------------------------------------------------
-    function setStatus(t) { $("action-status").textContent = t; }
-    function setNote(t) { $("stream-note").textContent = t; }
+    function setStatus(t) { setText($("action-status"), t); }
+    function setNote(t) { setText($("stream-note"), t); }
+  }
+
+  // Writes text only when it changed: an unchanged page costs the browser nothing.
+  function setText(node, t) {
+    if (node.textContent !== t) node.textContent = t;
   }
 
   function el(name, attrs) {
