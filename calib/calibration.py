@@ -30,6 +30,9 @@ class Calibration:
     source: dict = field(default_factory=dict)
     software_version: str = "unknown"  # the caller states it: calib does not know who packaged it
     created_utc: str = field(default_factory=_utc_now)
+    # the uncertainty budget (calib/uncertainty.py Budget.as_dict): expanded uncertainties with the keys and
+    # shapes of `params`, and each input's contribution; None when it was not evaluated
+    uncertainty: dict | None = None
     # per-row flags of a robust fit (True = flagged as outlier); not saved in the calibration file
     outliers: np.ndarray | None = field(default=None, repr=False, compare=False)
 
@@ -50,6 +53,7 @@ class Calibration:
             "source": to_plain(self.source),
             "software_version": self.software_version,
             "created_utc": self.created_utc,
+            **({} if self.uncertainty is None else {"uncertainty": to_plain(self.uncertainty)}),
         }
 
     @classmethod
@@ -79,7 +83,39 @@ class Calibration:
             source=d.get("source", {}),
             software_version=str(d.get("software_version", "unknown")),
             created_utc=str(d.get("created_utc", "")),
+            uncertainty=_read_uncertainty(d, params, where),
         )
+
+
+def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
+    """The `uncertainty` section, checked: a coverage factor, `expanded` with the keys and shapes of
+    `params` (finite, not negative), a `budget` list of {source, contribution_nt}."""
+    block = d.get("uncertainty")
+    if block is None:
+        return None
+    if not isinstance(block, dict):
+        raise DataError(f"{where}: key 'uncertainty' must be a mapping")
+    if not _is_number(block.get("coverage_factor")) or block["coverage_factor"] <= 0:
+        raise DataError(f"{where}: key 'uncertainty.coverage_factor' must be a positive number")
+    expanded = block.get("expanded")
+    if not isinstance(expanded, dict):
+        raise DataError(f"{where}: key 'uncertainty.expanded' is missing or not a mapping")
+    for name, value in params.items():
+        if name not in expanded:
+            raise DataError(f"{where}: key 'uncertainty.expanded.{name}' is missing")
+        try:
+            arr = np.array(expanded[name], dtype=float)
+        except (TypeError, ValueError):
+            raise DataError(f"{where}: key 'uncertainty.expanded.{name}' is not numeric") from None
+        if arr.shape != np.shape(value) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+            raise DataError(f"{where}: key 'uncertainty.expanded.{name}' must have shape {np.shape(value)} "
+                            "and finite, non-negative values")
+    budget = block.get("budget", [])
+    if not isinstance(budget, list) or not all(
+            isinstance(b, dict) and isinstance(b.get("source"), str) and _is_number(b.get("contribution_nt"))
+            for b in budget):
+        raise DataError(f"{where}: key 'uncertainty.budget' must be a list of {{source, contribution_nt}}")
+    return block
 
 
 def _is_number(x: object) -> bool:

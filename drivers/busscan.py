@@ -1,5 +1,5 @@
-"""Bus and port scans for commissioning: which I2C addresses answer, on the bus and behind each channel of
-each TCA9548A/PCA9548A switch, and which serial devices answer on a line, each with what it is.
+"""Bus and port scans for setting up a station: which I2C addresses answer, on the bus and behind each
+channel of each TCA9548A/PCA9548A switch, and which serial devices answer on a line, each with what it is.
 
     scan = scan_i2c(bus)              # an smbus2.SMBus, or a simulated bus with the same methods
     scan.found -> [Found(address, switch, channel, what)]; scan.notes -> ["0x70: ..."]

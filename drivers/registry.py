@@ -193,6 +193,7 @@ class DeviceSpec:
     build: Builder
     simulator: str  # "drivers.sim.<module>:<function>", function(SimRequest) -> SimModbus|SimI2c|SimSerial
     has_temperature: bool = False
+    temperature_accuracy_c: float | None = None  # +- over its range, where its datasheet states one
     sample_time: Callable[[Any, bool], float] | None = None  # (options, set_reset_pair) -> s per reading
     rates_hz: tuple[float, ...] = ()
     probe: I2cProbe | SerialProbe | None = None  # how `rig devices scan` recognises it

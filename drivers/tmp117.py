@@ -203,4 +203,5 @@ def identify(bus: SMBusLike, address: int) -> str | None:
 registry.register(registry.DeviceSpec(
     role="temperature", type="tmp117", options=registry.NoOptions, transports=("i2c",), build=_build,
     simulator="drivers.sim.tmp117:simulate", has_temperature=True,
+    temperature_accuracy_c=0.15,  # TI datasheet: +-0.1 degC from -20 to 50 degC, +-0.15 from -55 to 150
     probe=registry.I2cProbe(ADDRESSES, identify)))

@@ -8,6 +8,8 @@ Criteria (each only when the plan gives it; names as they appear in `failed`):
     heldout_rms        RMS error on held-out points (k-fold over whole points, rig/report/analysis.py):
                        vector error for vector models, |B| error for scalar ones
     fit_rms            RMS residual of the full fit
+    uncertainty        the calibration's expanded vector uncertainty (its budget, rig/budget.py); a
+                       calibration without a budget fails it
     std_error.<name>   largest standard error of parameter <name>
     bounds.<name>      every element of parameter <name> within [low, high]
     lag                thermal lag time constant (calib/lag.py); data with no lag information (step and
@@ -30,7 +32,7 @@ from rig.errors import ERRORS
 
 PASS, FAIL = "PASS", "FAIL"
 CSV_COLUMNS = ("session", "station", "dut", "type", "model", "verdict", "failed", "heldout_rms_nt",
-               "fit_rms_nt", "lag_s", "samples", "notes")
+               "fit_rms_nt", "expanded_uncertainty_nt", "lag_s", "samples", "notes")
 
 
 @dataclass
@@ -88,8 +90,11 @@ def judge(acceptance, ds, cal, *, robust: bool = False) -> tuple[list[str], dict
     notes: list[str] = []
     figures: dict[str, float | None] = {"fit_rms_nt": _finite(cal.stats.get("rms_after_nt"))}
     figures["heldout_rms_nt"] = heldout_rms_nt(ds, cal.model, robust)
+    figures["expanded_uncertainty_nt"] = _finite((cal.uncertainty or {}).get("expanded_vector_error_nt"))
     for name, limit, figure in (("heldout_rms", acceptance.max_heldout_rms_nt, "heldout_rms_nt"),
-                                ("fit_rms", acceptance.max_rms_nt, "fit_rms_nt")):
+                                ("fit_rms", acceptance.max_rms_nt, "fit_rms_nt"),
+                                ("uncertainty", acceptance.max_expanded_uncertainty_nt,
+                                 "expanded_uncertainty_nt")):
         if limit is None:
             continue
         value = figures[figure]
@@ -165,10 +170,10 @@ def write_summary_csv(path: Path, session: str, station: str, verdicts: list[Ver
         writer.writerow(CSV_COLUMNS)
         for v in verdicts:
             fig = {k: ("" if v.figures.get(k) is None else f"{v.figures[k]:.6g}")
-                   for k in ("heldout_rms_nt", "fit_rms_nt", "lag_s")}
+                   for k in ("heldout_rms_nt", "fit_rms_nt", "expanded_uncertainty_nt", "lag_s")}
             writer.writerow([session, station, v.dut, v.dut_type, v.model, v.verdict, "; ".join(v.failed),
-                             fig["heldout_rms_nt"], fig["fit_rms_nt"], fig["lag_s"], v.samples,
-                             "; ".join(v.notes)])
+                             fig["heldout_rms_nt"], fig["fit_rms_nt"], fig["expanded_uncertainty_nt"],
+                             fig["lag_s"], v.samples, "; ".join(v.notes)])
     return path
 
 

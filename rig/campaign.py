@@ -32,7 +32,7 @@ import numpy as np
 
 from drivers.clock import Clock
 from rig import config as cfg
-from rig import sessionfit, sitefield
+from rig import referencechain, sessionfit, sitefield
 from rig.engine import (
     COMPLETED,
     Checkpoint,
@@ -175,6 +175,7 @@ class CampaignRunner:
                                   code=Reason.STABLE, temps=temps)
                 if self.site is not None:  # the step's first point: ambient re-checked, Hold on drift
                     self.site.recheck(self.engine.event, cmd.target_c)
+                    self.reference = reference_for(self.rig.station, self.site.in_use.vector_nt)
                 return {"target_c": cmd.target_c, "waited_s": waited,
                         "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
                                        "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
@@ -199,9 +200,11 @@ class CampaignRunner:
         self.rig.field_source.wait_settled(self.source.settle_timeout_s())
         self.engine.wait(cmd.seconds, max(cmd.seconds, 1e-3))
 
-    def _reference_now(self) -> np.ndarray:
-        """The reference field from what the field source reports now (readback currents / angles)."""
-        return self.reference.field_nt(self.reference.readback(self.rig.field_source.read()))
+    def _reference_now(self) -> dict[str, np.ndarray]:
+        """{DUT: the reference field where it sits}, from what the field source reports now (readback
+        currents / angles)."""
+        setting = self.reference.readback(self.rig.field_source.read())
+        return {dut: self.reference.field_nt(setting, dut) for dut in self.rig.duts}
 
     def collect_point(self, cmd: CollectPoint) -> None:
         point: Point = cmd.point
@@ -226,11 +229,12 @@ class CampaignRunner:
                     raise Hold(f"{dut} temperature {temp_c:.2f} degC left {point.setpoint_c:g} +- "
                                f"{cmd.temp_band_c:g} degC during point {point.id}",
                                code=Reason.TEMP_OUT_OF_BAND, device=dut)
-                rows.append(SampleRow.from_field_sample(dut, sample, ref_nt, temp_c=temp_c,
+                rows.append(SampleRow.from_field_sample(dut, sample, ref_nt[dut], temp_c=temp_c,
                                                         ref_temp_c=other_c))
                 self.status.dut_temps_c[dut] = temp_c
         self._check_chamber()
-        self.session.record_point(point.id, rows, self._settle_stats, started=started,
+        stats = {**self._settle_stats, "reference": self.reference.record()}
+        self.session.record_point(point.id, rows, stats, started=started,
                                   temperatures=self.temperatures.take())
         self._feed_live(rows)
 
@@ -273,22 +277,19 @@ class RunOutcome:
 
 
 def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.Plan, cfg.Station]:
-    """The plan and the station exactly as the session recorded them (a resume never rereads files).
-    Refused when the plan or station file at its recorded path no longer matches the recorded text:
-    the operator edited it and would expect the edit to apply."""
+    """The plan and the station exactly as the session recorded them, with the commissioning its run
+    started with (a resume never rereads files). Refused when the plan or station file at its recorded
+    path no longer matches the recorded text: the operator edited it and would expect the edit to apply."""
     from rig.reader import SessionReader, recorded_files_changed
-    from rig.yamlload import load_model
 
-    if info is None:
-        with SessionReader(path) as reader:
-            info = reader.info()
+    with SessionReader(path) as reader:
+        info = reader.info() if info is None else info
+        chain = reader.snapshot(referencechain.SNAPSHOT)
     changed = recorded_files_changed(info)
     if changed:
         raise SessionError(f"{path}: cannot resume: {'; '.join(changed)}. A resume runs the recorded plan "
                            "and station: restore the file(s), or start a new session")
-    plan = load_model(cfg.Plan, f"{path} (recorded plan)", info["plan_text"])
-    station = load_model(cfg.Station, f"{path} (recorded station)", info["station_text"])
-    return plan, station
+    return referencechain.recorded_plan_and_station(path, info, chain)
 
 
 def recorded_campaign(path: str | Path, info: dict) -> cfg.Campaign:
@@ -411,6 +412,7 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
                       simulated=rig.simulated)
     for dev in rig.devices():
         session.record_snapshot(dev.name, dev.describe())
+    session.record_snapshot(referencechain.SNAPSHOT, referencechain.record(rig.station, calibrations))
     status = RunStatus()
     runner = CampaignRunner(rig, plan, points, session, status)
     if runner.source.needs_measurement():
@@ -427,6 +429,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
         engine.prompt = display.suspended(prompt)  # no live panel redrawing over the question
     with display or contextlib.nullcontext():
         result = engine.run(runner.tasks(), done_ids=done)
+    if runner.site is not None and result.status == COMPLETED:  # the field source is at its safe setting
+        runner.site.check_at_end(session.log_event)
     record_final_state(rig, session)
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
     if result.status == COMPLETED:

@@ -34,6 +34,7 @@ from rig import __version__, names
 from rig.errors import DataError
 
 FORMATS = ("c-header", "json", "csv")
+MAX_BUDGET_LINES = 16
 
 
 # ---------------------------------------------------------------------------------------------- samples
@@ -150,10 +151,48 @@ def _c_array(name: str, a: np.ndarray) -> str:
     return f"static const MAGRIG_REAL {name}[3][3] = {{\n    {rows}\n}};"
 
 
+def uncertainty_comment(uncertainty: dict | None) -> list[str]:
+    """Comment lines of a calibration's uncertainty (calib/uncertainty.py), every text made safe."""
+    if not uncertainty:
+        return [" * Uncertainty: not stated."]
+
+    def num(x: object) -> str:
+        try:
+            value = float(x)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return "?"
+        return f"{value:.3g}" if math.isfinite(value) else "?"
+
+    k = num(uncertainty.get("coverage_factor"))
+    within = num(uncertainty.get("expanded_vector_error_nt"))
+    lines = [f" * Uncertainty (k = {k}): calibrated field within {within} nT (95 %) over the plan's fields",
+             " * and temperatures.",
+             " * Budget, standard uncertainty of the calibrated field (nT):"]
+    for item in (uncertainty.get("budget") or [])[:MAX_BUDGET_LINES]:
+        if isinstance(item, dict):
+            source = c_comment_text(item.get("source", "?"))
+            lines.append(f" *   {source}: {num(item.get('contribution_nt'))}")
+    expanded = uncertainty.get("expanded") or {}
+    largest = [f"{c_comment_text(key)} {num(np.max(np.abs(np.asarray(value, float))))}"
+               for key, value in expanded.items() if _numeric(value)]
+    if largest:
+        lines.append(" * Largest expanded uncertainty per parameter: " + ", ".join(largest) + ".")
+    return lines
+
+
+def _numeric(value: object) -> bool:
+    try:
+        return bool(np.all(np.isfinite(np.asarray(value, float))))
+    except (TypeError, ValueError):
+        return False
+
+
 def c_header(
-    form: FlightForm, *, name: str, source_sha256: str = "", version: str = __version__, description: str = ""
+    form: FlightForm, *, name: str, source_sha256: str = "", version: str = __version__,
+    description: str = "", uncertainty: dict | None = None,
 ) -> str:
-    """A self-contained C99 header: the constants plus `static inline void <name>_apply(...)`."""
+    """A self-contained C99 header: the constants plus `static inline void <name>_apply(...)`; the
+    calibration's uncertainty budget, when it has one, in its opening comment."""
     ident = c_identifier(name)
     macro = ident.upper()
     guard = names.header_guard(name)
@@ -171,6 +210,7 @@ def c_header(
     ]
     if not (has_t_m or has_t_o):
         lines.append(" * This model has no temperature terms: temp_c is ignored.")
+    lines += uncertainty_comment(uncertainty)
     lines += [
         " * MAGRIG_REAL is double by default (the export is checked against the host fit to 1e-6 relative",
         " * in double); define it as float before including this file on a single-precision target.",
@@ -264,21 +304,24 @@ def json_export(form: FlightForm, params: dict, std_errors: dict, extra: dict) -
     return json.dumps(doc, indent=2, sort_keys=False) + "\n"
 
 
-def csv_export(params: dict, std_errors: dict) -> str:
-    """One row per scalar parameter: `parameter,value,std_error` with indices, e.g. S[0][1]."""
+def csv_export(params: dict, std_errors: dict, expanded: dict | None = None) -> str:
+    """One row per scalar parameter: `parameter,value,std_error,expanded_uncertainty` with indices, e.g.
+    S[0][1] (the last column empty without an uncertainty budget)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(["parameter", "value", "std_error"])
+    writer.writerow(["parameter", "value", "std_error", "expanded_uncertainty"])
+
+    def cell(table: dict | None, key: str, index: tuple, shape: tuple) -> str:
+        arr = np.asarray((table or {}).get(key, np.nan), dtype=float)
+        value = arr[index] if arr.shape == shape else np.nan
+        return "" if not np.isfinite(value) else repr(float(value))
+
     for key, value in params.items():
         values = np.asarray(value, dtype=float)
-        errors = std_errors.get(key)
-        errors = np.full(values.shape, np.nan) if errors is None else np.asarray(errors, dtype=float)
         for index in np.ndindex(values.shape):
             label = key + "".join(f"[{i}]" for i in index)
-            err = errors[index] if errors.shape == values.shape else np.nan
-            writer.writerow(
-                [label, repr(float(values[index])), "" if not np.isfinite(err) else repr(float(err))]
-            )
+            writer.writerow([label, repr(float(values[index])), cell(std_errors, key, index, values.shape),
+                             cell(expanded, key, index, values.shape)])
     return buf.getvalue()
 
 
@@ -312,6 +355,7 @@ def export_calibration(cal, fmt: str, name: str) -> str:
             source_sha256=str(source.get("sha256", "")),
             version=cal.software_version,
             description=f"fitted {cal.created_utc}" if cal.created_utc else "",
+            uncertainty=cal.uncertainty,
         )
     if fmt == "json":
         extra = {
@@ -321,8 +365,9 @@ def export_calibration(cal, fmt: str, name: str) -> str:
             "source": source,
             "fitted_with": f"magrig {cal.software_version}",
             "created_utc": cal.created_utc,
+            "uncertainty": cal.uncertainty,
         }
         return json_export(form, cal.params, cal.std_errors, extra)
     if fmt == "csv":
-        return csv_export(cal.params, cal.std_errors)
+        return csv_export(cal.params, cal.std_errors, (cal.uncertainty or {}).get("expanded"))
     raise DataError(f"unknown export format {fmt!r} (known: {', '.join(FORMATS)})")

@@ -8,7 +8,8 @@ The plan's temperature schedule is one of (SCHEDULES, chosen by the plan's `temp
 - steps (rig/stepplan.py): every field at each stable setpoint; `T03-F07`, `T03-O07`;
 - a continuous ramp (rig/rampplan.py): legs x sweeps x fields; `R1U-S003-F07`.
 The plan check asks the schedule once for its points, limits and duration, then applies what every plan
-shares (rig/plancheck.py): the field source's limits, the T24 design, the duration bound, stop_when.
+shares (rig/plancheck.py): the field source's limits, the T24 design, the duration bound, stop_when; and
+the reference chain's (rig/referencecheck.py): commissioning, non-uniformity at the DUT positions.
 For coils the target is the total field (lab frame, nT) the coils must make, ambient included; for a
 turntable it is (az_deg, el_deg).
 """
@@ -35,6 +36,7 @@ from rig.plancheck import (
 )
 from rig.points import Point, RampPoint, point_id
 from rig.rampplan import RampSchedule
+from rig.referencecheck import reference_lines
 from rig.stepplan import StepSchedule
 
 SCHEDULES = {Temperatures: StepSchedule, RampTemperatures: RampSchedule}
@@ -70,7 +72,7 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
             warnings.append(problem)
     check_duration(plan, own.breakdown_s, own.duration_keys)
     duration_s = sum(own.breakdown_s.values())
-    lines = [*own.lines, *source_lines]
+    lines = [*own.lines, *source_lines, *reference_lines(plan, station, warnings)]
     if plan.stop_when:
         lines.append(stop_when_line(plan, duration_s))
     return PlanCheck(

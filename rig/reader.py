@@ -156,6 +156,21 @@ class SessionReader:
                 "ORDER BY id", *chunk)
         return out
 
+    def snapshot(self, device: str) -> dict | None:
+        """The latest snapshot recorded under `device` (e.g. "reference chain"), or None."""
+        rows = self._rows("SELECT describe_json FROM snapshots WHERE device = ? ORDER BY id DESC LIMIT 1",
+                          device)
+        return json.loads(rows[0]["describe_json"]) if rows else None
+
+    def point_references(self) -> dict[str, dict]:
+        """{point id: the reference it was taken with} of the done points (rig/reference.py `record`)."""
+        out = {}
+        for r in self._rows("SELECT id, settle_json FROM points WHERE state = 'done'"):
+            stats = json.loads(r["settle_json"] or "{}")
+            if "reference" in stats:
+                out[r["id"]] = stats["reference"]
+        return out
+
     def duts(self) -> list[str]:
         return [r["dut"] for r in self._rows("SELECT DISTINCT dut FROM samples ORDER BY dut")]
 

@@ -1,10 +1,12 @@
 """The true field at the DUT, from what the rig commands: the maths every field source uses.
 
 Coils (lab frame):      B = C @ I + ambient        C: coil constants 3x3 (nT/A), I: currents (A)
-                        I = C^-1 (B - ambient)     (`currents_for_field`)
-Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.turntable.rotation_deg,
-                        which the simulated world uses too); the table's home pose has x north, y east,
-                        z down, so B_site is NED.
+                        I = C^-1 (B - ambient)     (`currents_for_field`, with C at the centre)
+                        a DUT off the centre sees B = C(r) @ I + ambient, C(r) from the coil geometry
+                        (rig/fieldsources/coils.py, coilgeometry.py)
+Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.turntable.rotation_deg);
+                        the table's home pose has x north, y east, z down, so B_site is NED. A
+                        commissioned table (calib/tablefit.py) adds its axes' tilt and zero offsets.
 Site field: a vector given in the station, measured by a reference magnetometer, or the World Magnetic
 Model (WMM-2025, pygeomag) at the site's latitude, longitude, altitude and date, in nT north/east/down.
 
@@ -62,14 +64,21 @@ def site_field_ned_nt(lat_deg: float, lon_deg: float, alt_km: float, date: dt.da
 
 
 class CoilReference:
-    """Targets are total fields (lab frame); the device's setting is three currents."""
+    """Targets are total fields at the centre (lab frame); the device's setting is three currents.
+    `matrices` ({DUT name: coil matrix where it sits}) gives each DUT the field at its own position."""
 
-    def __init__(self, coil_constants_nt_per_a, ambient_nt):
+    def __init__(self, coil_constants_nt_per_a, ambient_nt, matrices: dict[str, np.ndarray] | None = None):
         self.coil_constants = np.asarray(coil_constants_nt_per_a, float)
         self.ambient_nt = np.asarray(ambient_nt, float)
+        self.matrices = matrices or {}
 
-    def field_nt(self, currents_a) -> np.ndarray:
-        return coil_field_nt(self.coil_constants, currents_a, self.ambient_nt)
+    def field_nt(self, currents_a, where: str | None = None) -> np.ndarray:
+        """The field at DUT `where` (at the centre for None or a DUT without a matrix of its own)."""
+        return coil_field_nt(self.matrices.get(where, self.coil_constants), currents_a, self.ambient_nt)
+
+    def record(self) -> dict:
+        """What a point stores of the reference it was taken with (the ambient in use)."""
+        return {"ambient_nt": [float(v) for v in self.ambient_nt]}
 
     def currents_for(self, target_nt) -> np.ndarray:
         return currents_for_field(target_nt, self.coil_constants, self.ambient_nt)
@@ -83,14 +92,29 @@ class CoilReference:
 
 
 class TableReference:
-    """Targets are (az, el) orientations, which are also the device's setting."""
+    """Targets are (az, el) orientations, which are also the device's setting. The table is calib.tablefit's
+    seven parameters: the ideal table in `site_field_nt` (`ideal`), or a commissioned one."""
 
-    def __init__(self, site_field_nt):
-        self.site_field_nt = np.asarray(site_field_nt, float)
+    def __init__(self, params):
+        self.params = np.asarray(params, float)
 
-    def field_nt(self, angles_deg) -> np.ndarray:
-        az_deg, el_deg = angles_deg
-        return table_field_nt(self.site_field_nt, az_deg, el_deg)
+    @classmethod
+    def ideal(cls, site_field_nt) -> TableReference:
+        return cls(np.concatenate([np.asarray(site_field_nt, float), np.zeros(4)]))
+
+    @property
+    def site_field_nt(self) -> np.ndarray:
+        return self.params[:3]
+
+    def record(self) -> dict:
+        """What a point stores of the reference it was taken with (the table's parameters in use)."""
+        return {"table_params": [float(v) for v in self.params]}
+
+    def field_nt(self, angles_deg, where: str | None = None) -> np.ndarray:
+        """The field on the table at (az, el); the same for every DUT on it (a uniform site field)."""
+        from calib.tablefit import table_field_nt as fitted_field
+
+        return fitted_field(self.params, [angles_deg])[0]
 
     @staticmethod
     def command(target) -> tuple[float, ...]:
@@ -105,6 +129,6 @@ def reference_for(station, measured_nt=None):
     """The station's reference. `measured_nt` (the ambient for coils, the site field for a turntable)
     must be given when the station says to measure it; when given, it overrides the station's value."""
     try:
-        return station.field_source.reference(measured_nt)
+        return station.field_source.reference(measured_nt, station.positions_mm())
     except ConfigError as exc:
         raise ConfigError(f"station {station.name}: {exc}") from None

@@ -1,9 +1,12 @@
-"""After a completed run: fit every model of the plan for every DUT from the session's own data, write
-the calibration files beside the session, and judge each DUT against the plan's acceptance limits."""
+"""After a completed run: fit every model of the plan for every DUT from the session's own data, state
+each calibration's uncertainty (rig/budget.py), write the calibration files beside the session, and judge
+each DUT against the plan's acceptance limits."""
 
 from __future__ import annotations
 
 from typing import Any
+
+import numpy as np
 
 from rig import __version__
 from rig import config as cfg
@@ -37,12 +40,14 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     from rig.reader import read_dataset
 
     out = []
+    inputs = run_inputs(session.path)
     for dut in station.duts:
         try:
             ds = read_dataset(session.path, dut.name)
         except ERRORS as exc:
             out.append({"dut": dut.name, "model": "-", "error": str(exc)})
             continue
+        ds, ambient = inputs.refined(ds)  # every reference with the run's best ambient (rig/ambient.py)
         lag = None
         if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
             from rig.lagfit import lag_corrected
@@ -62,6 +67,9 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 from rig.lagfit import annotate
 
                 annotate(cal, lag)
+            if ambient is not None:
+                cal.stats["ambient"] = ambient
+            state_uncertainty(inputs, dut.name, ds, cal)
             try:
                 path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:
@@ -74,3 +82,21 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
             out.append(entry)
     return out
+
+
+def run_inputs(session_path):
+    """What the session says of its reference chain (rig/budget.py), read once for its DUTs."""
+    from rig.budget import RunInputs
+    from rig.reader import SessionReader
+
+    with SessionReader(session_path) as reader:
+        return RunInputs.of_session(reader)
+
+
+def state_uncertainty(inputs, dut: str, ds, cal) -> None:
+    """The calibration's uncertainty budget; a budget that cannot be made is a warning in its stats, never
+    a lost calibration."""
+    try:
+        cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
+    except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
+        cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]

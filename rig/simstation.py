@@ -50,11 +50,20 @@ def dut_truths(station) -> dict[str, DutTruth]:
         spec = station.sim.duts.get(dut.name)
         if spec is None:
             out[dut.name] = dut_truth(station.sim.seed, position)
-            continue
-        truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
-        out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
-        out[dut.name].sensor_lag_s = spec.sensor_lag_s
+        else:
+            truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
+            out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
+            out[dut.name].sensor_lag_s = spec.sensor_lag_s
+        out[dut.name].position_m = true_position_m(station, dut)
     return out
+
+
+def true_position_m(station, device) -> np.ndarray:
+    """Where a simulated sensor really sits (m): its stated position_mm plus sim.duts' position_error_mm."""
+    stated = np.zeros(3) if device.position_mm is None else np.asarray(device.position_mm, float)
+    spec = station.sim.duts.get(device.name)
+    error = np.zeros(3) if spec is None else np.asarray(spec.position_error_mm, float)
+    return (stated + error) / 1000.0
 
 
 def reference_truths(station) -> dict[str, DutTruth]:
@@ -73,6 +82,7 @@ def reference_truths(station) -> dict[str, DutTruth]:
         else:
             out[ref.name] = dut_truth(station.sim.seed, 0, spec.truth.model_dump(), spec.noise_nt,
                                       spec.thermal_lag_s)
+        out[ref.name].position_m = true_position_m(station, ref)
     return out
 
 

@@ -6,12 +6,17 @@ field source's own field off (coils at 0 A) or at its home pose (table at home: 
     first = monitor.measure_at_start(session.log_event, plan.name, points)   # recorded; limits re-checked
     reference = reference_for(station, first.vector_nt)                     # used for every point
     monitor.recheck(engine.event, step_c)                                    # each step; Hold on drift
+    reference = reference_for(station, monitor.in_use.vector_nt)            # that step's points
+    monitor.check_at_end(session.log_event)                                  # after the last point
 
 A reference magnetometer is a station device (`reference_magnetometers`), never a DUT: it is not fitted and
 not in the outputs. Its calibration file is applied to every reading, with its temperature source's
 temperature when the calibration has temperature terms. The start value is used for every reference
-vector of the run; at each temperature step the field is measured again, the change recorded, and the run
-held (Reason.SITE_FIELD_DRIFT) when it moved more than the field source's drift limit.
+vector until a later measurement differs from it by more than its noise (SIGNIFICANT standard errors):
+the later one is then used from that temperature step on. At each temperature step the field is measured
+again, the change recorded, and the run held (Reason.SITE_FIELD_DRIFT) when it moved more than the field
+source's drift limit; once more after the last point, so that the drift over the whole run is on record
+(the uncertainty budget reads these measurements, rig/budget.py).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from rig.events import Kind, Reason, code_of, device_of
 from rig.yamlload import locate_in_text
 
 MIN_GOOD_SAMPLES = 2  # a standard error needs two readings
+SIGNIFICANT = 3.0  # a re-measured field replaces the one in use when they differ by this many standard errors
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,63 @@ def load_reference_calibrations(station, station_path: str | Path, station_text:
     return out
 
 
+class ReferenceReader:
+    """A reference magnetometer as a measuring instrument: the mean of `samples` calibrated readings
+    (its calibration applied with its temperature source's temperature when it has temperature terms)."""
+
+    def __init__(self, rig, config, calibration: Calibration):
+        self.rig = rig
+        self.config = config
+        self.device = rig.built.devices[config.name]
+        self.calibration = calibration
+        source = config.temp_source
+        self.temp_device = (None if source is None else self.device if source == "self"
+                            else rig.temp_sensors[source])
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    def read_mean(self, what: str, *, flagged_is_fault: bool = False) -> FieldMeasurement:
+        """Read now. A flagged reading (overflow, saturation) is left out, or with `flagged_is_fault` is a
+        DeviceFault naming `what` was being measured; fewer than two usable readings is one too."""
+        raw, temps = [], []
+        for _ in range(self.config.samples):
+            sample = self.device.read()
+            if sample.flags:  # overflow, saturation: not a reading of the field
+                if flagged_is_fault:
+                    raise DeviceFault(self.name, what, f"reading {', '.join(sorted(sample.flags))}: the "
+                                      "field is beyond its range")
+                continue
+            temp = None
+            if self.temp_device is self.device:
+                temp = sample.temp_c
+            elif self.temp_device is not None:
+                temp = self.temp_device.read().temp_c
+            raw.append(sample.field_nt)
+            temps.append(np.nan if temp is None else temp)
+        if len(raw) < MIN_GOOD_SAMPLES:
+            raise DeviceFault(self.name, what,
+                              f"only {len(raw)} of {self.config.samples} readings were usable")
+        temp_c = np.array(temps, float)
+        needs_temp = models.needs_temperature(self.calibration.model, self.calibration.params)
+        if needs_temp and np.isnan(temp_c).any():
+            raise DeviceFault(self.name, what, "its temperature source gave no temperature")
+        field = self.calibration.apply(np.array(raw, float), temp_c if needs_temp else None)
+        se = field.std(axis=0, ddof=1) / np.sqrt(len(field))
+        mean_temp = None if np.isnan(temp_c).all() else float(np.nanmean(temp_c))
+        return FieldMeasurement(field.mean(axis=0), se, len(field), mean_temp)
+
+
+def settle_at(rig, source, setting, settle_s: float) -> None:
+    """Drive the field source to `setting` (currents or table angles) and let it settle."""
+    mover = rig.field_source
+    mover.set(setting)
+    mover.wait_settled(source.settle_timeout_s())
+    if settle_s > 0:
+        rig.clock.sleep(settle_s)
+
+
 class SiteFieldMonitor:
     """Measures the field source's ambient / site field with its reference magnetometer."""
 
@@ -97,57 +160,26 @@ class SiteFieldMonitor:
         if name not in refs:  # the station model refuses this already; a guard for hand-built stations
             raise ConfigError(f"station {station.name}: the {self.source.measured_name} must be measured, "
                               "but no reference magnetometer is named for it")
-        self.config = refs[name]
-        self.device = rig.built.devices[name]
-        self.calibration = calibrations[name]
+        self.reader = ReferenceReader(rig, refs[name], calibrations[name])
         self.settle_s = settle_s
-        source = self.config.temp_source
-        self.temp_device = (None if source is None else self.device if source == "self"
-                            else rig.temp_sensors[source])
         self.start: FieldMeasurement | None = None
+        self.in_use: FieldMeasurement | None = None  # the value the references are made with
 
     @property
     def name(self) -> str:
-        return self.config.name
+        return self.reader.name
 
     def measure(self) -> FieldMeasurement:
         """Field source to its measurement setting, settled; then the mean of `samples` calibrated
         readings."""
-        mover = self.rig.field_source
-        mover.set(self.source.measurement_setting())
-        mover.wait_settled(self.source.settle_timeout_s())
-        if self.settle_s > 0:
-            self.rig.clock.sleep(self.settle_s)
-        raw, temps = [], []
-        for _ in range(self.config.samples):
-            sample = self.device.read()
-            if sample.flags:  # overflow, saturation: not a reading of the field
-                continue
-            temp = None
-            if self.temp_device is self.device:
-                temp = sample.temp_c
-            elif self.temp_device is not None:
-                temp = self.temp_device.read().temp_c
-            raw.append(sample.field_nt)
-            temps.append(np.nan if temp is None else temp)
-        if len(raw) < MIN_GOOD_SAMPLES:
-            raise DeviceFault(self.name, "measure the " + self.source.measured_name,
-                              f"only {len(raw)} of {self.config.samples} readings were usable")
-        temp_c = np.array(temps, float)
-        needs_temp = models.needs_temperature(self.calibration.model, self.calibration.params)
-        if needs_temp and np.isnan(temp_c).any():
-            raise DeviceFault(self.name, "measure the " + self.source.measured_name,
-                              "its temperature source gave no temperature")
-        field = self.calibration.apply(np.array(raw, float), temp_c if needs_temp else None)
-        se = field.std(axis=0, ddof=1) / np.sqrt(len(field))
-        mean_temp = None if np.isnan(temp_c).all() else float(np.nanmean(temp_c))
-        return FieldMeasurement(field.mean(axis=0), se, len(field), mean_temp)
+        settle_at(self.rig, self.source, self.source.measurement_setting(), self.settle_s)
+        return self.reader.read_mean("measure the " + self.source.measured_name)
 
     def measure_at_start(self, log_event: Callable, plan_name: str, points) -> FieldMeasurement:
         """The value every reference of the run uses: measured, recorded, and the plan's limits checked
         with it (LimitError before the first field is set)."""
         m = self.measure()
-        self.start = m
+        self.start = self.in_use = m
         what = self.source.measured_name
         log_event(Kind.SITE_FIELD, f"{what} measured by {self.name}: {_fmt(m.vector_nt)} nT "
                   f"+- {_fmt(m.std_error_nt)} nT (standard error, {m.n} readings)",
@@ -171,6 +203,33 @@ class SiteFieldMonitor:
         if drifted:
             raise Hold(f"{message}: the references of this run would be off by that much",
                        code=Reason.SITE_FIELD_DRIFT, device=self.name)
+        self._use_if_significant(m)
+        return m
+
+    def _use_if_significant(self, m: FieldMeasurement) -> None:
+        """Keep the value in use unless `m` differs from it by more than their noise: averaging away nothing
+        real, re-using a value also keeps each step's reference free of fresh measurement noise."""
+        noise = np.sqrt(np.square(m.std_error_nt) + np.square(self.in_use.std_error_nt))
+        if np.any(np.abs(m.vector_nt - self.in_use.vector_nt) > SIGNIFICANT * noise):
+            self.in_use = m
+
+    def check_at_end(self, log_event: Callable) -> FieldMeasurement | None:
+        """After the last point (the field source already at its safe setting): one more measurement, so
+        the drift over the whole run is on record. Never holds: the run is over; a fault is logged."""
+        try:
+            m = self.measure()
+        except ERRORS as exc:
+            log_event(Kind.SITE_FIELD, f"{self.source.measured_name} not measured at the end: {exc}",
+                      code=Reason.SITE_FIELD_CHECKED, device=self.name, level="WARNING")
+            return None
+        finally:
+            self.rig.field_source.safe_state()  # back where the engine left it
+        change = m.vector_nt - self.start.vector_nt
+        log_event(Kind.SITE_FIELD, f"{self.source.measured_name} at the end moved "
+                  f"{float(np.linalg.norm(change)):.1f} nT since the start {_fmt(change)} nT",
+                  code=Reason.SITE_FIELD_CHECKED, device=self.name,
+                  change_nt=[float(c) for c in change], change_size_nt=float(np.linalg.norm(change)),
+                  **m.as_data())
         return m
 
 

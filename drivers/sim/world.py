@@ -1,8 +1,10 @@
 """The simulated physical truth that every simulator reads and every Modbus write drives.
 
-- Field in the lab frame: coil constants (3x3, nT/A) x coil currents + ambient field, when the coils are
-  the field source; or the site field rotated into the table frame by the turntable angles. Either may
-  drift slowly and steadily (`ambient_drift_nt_per_s`), as a lab's field does when something nearby moves.
+- Field in the lab frame: coil matrix x coil currents + ambient field, when the coils are the field source;
+  the coil matrix is the true one (3x3, nT/A) at the centre and, with a coil geometry, the true one at
+  each DUT's own position (drivers/sim/coilfield.py). Or the site field rotated into the table frame by
+  the turntable angles, through the table's true axes (tilts, zero offsets: TableAxes). Either may drift
+  slowly and steadily (`ambient_drift_nt_per_s`), as a lab's field does when something nearby moves.
 - Chamber air follows its setpoint at a limited ramp rate; each DUT's element temperature lags the air
   with its own time constant (first order). What the DUT's temperature sensors report (the TMP117 beside
   it, its own die sensor) lags the element by `sensor_lag_s` (first order, as a probe glued on the board
@@ -24,6 +26,7 @@ import numpy as np
 
 from calib.synthetic import random_t24_params
 from drivers.clock import Clock
+from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
 from drivers.turntable import rotation_deg
 
 MAX_THERMAL_STEP_S = 2.0  # integration sub-step; the lag model is exact within a step of constant air
@@ -43,6 +46,7 @@ class DutTruth:
     thermal_lag_s: float = 600.0  # DUT temperature time constant against the chamber air
     mount: np.ndarray = field(default_factory=lambda: np.eye(3))  # lab frame -> sensor frame rotation
     sensor_lag_s: float = 0.0  # the reported temperature lags the element's by this time constant
+    position_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # where it sits in the coil set
 
     def field_from_raw(self, h_nt: np.ndarray, temp_c: float) -> np.ndarray:
         """The T24 model itself: true field from a raw reading."""
@@ -72,6 +76,32 @@ class DutTruth:
         )
 
 
+@dataclass(frozen=True)
+class TableAxes:
+    """How a real two-axis table differs from its drawing: its azimuth axis tilted (about x, then y), its
+    elevation axis tilted towards the azimuth axis (about x), and the zero offsets of its encoders."""
+
+    az_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    el_tilt_deg: float = 0.0
+    zero_offsets_deg: tuple[float, float] = (0.0, 0.0)
+
+    def rotation(self, az_deg: float, el_deg: float) -> np.ndarray:
+        """Table frame -> lab frame at the commanded angles (the ideal table: rotation_deg)."""
+        tilt = _rx(self.az_tilt_deg[0]) @ _ry(self.az_tilt_deg[1])
+        el_axis = _rx(self.el_tilt_deg)
+        turned = rotation_deg(az_deg + self.zero_offsets_deg[0], 0.0)
+        return tilt @ turned @ el_axis @ _ry(el_deg + self.zero_offsets_deg[1]) @ el_axis.T
+
+
+def _rx(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(deg: float) -> np.ndarray:
+    return rotation_deg(0.0, deg)
+
+
 @dataclass
 class _Dut:
     truth: DutTruth
@@ -93,6 +123,9 @@ class World:
         field_source: str = "coils",  # "coils" or "turntable"
         ambient_nt=(0.0, 0.0, 0.0),
         coil_constants_nt_per_a=None,
+        coil_geometry: CoilGeometry | tuple | None = None,  # or (shape, size_m, spacing_m)
+        turntable_axes: TableAxes | tuple | None = None,  # or (az_tilt_deg, el_tilt_deg, zero_offsets_deg)
+        coil_nonlinearity_per_a=(0.0, 0.0, 0.0),
         site_field_nt=(19148.0, 894.0, 45587.0),
         air_c: float = 22.0,
         ramp_c_per_min: float = 3.0,
@@ -108,6 +141,15 @@ class World:
             if coil_constants_nt_per_a is None
             else np.asarray(coil_constants_nt_per_a, float)
         )
+        if isinstance(coil_geometry, tuple):
+            coil_geometry = CoilGeometry(*coil_geometry)
+        self.coil_geometry = coil_geometry
+        # a coil whose field is not linear in its current: B_j = M_j I_j (1 + n_j |I_j|) (saturation, heat)
+        self.coil_nonlinearity_per_a = np.asarray(coil_nonlinearity_per_a, float)
+        if isinstance(turntable_axes, tuple):
+            turntable_axes = TableAxes(*turntable_axes)
+        self.turntable_axes = turntable_axes or TableAxes()
+        self._coil_matrix: dict[str, np.ndarray] = {}  # the true coil matrix at each DUT's position
         self.site_field_nt = np.asarray(site_field_nt, float)
         self.ambient_drift_nt_per_s = np.asarray(ambient_drift_nt_per_s, float)
         self._t0 = clock.now()  # the drift counts from here
@@ -184,6 +226,8 @@ class World:
         with self._lock:
             self._advance()
             self.duts[name] = _Dut(truth, self.air_c if temp_c is None else temp_c)
+            self._coil_matrix[name] = coil_matrix_at(self.coil_constants, self.coil_geometry,
+                                                     truth.position_m)
 
     def dut_temp_c(self, name: str) -> float:
         """What the DUT's temperature sensors report (its element's, unless sensor_lag_s > 0)."""
@@ -201,7 +245,7 @@ class World:
         """True field in the DUT's sensor frame, nT."""
         with self._lock:
             self._advance()
-            return self.duts[dut].truth.mount @ self.lab_field_nt()
+            return self.duts[dut].truth.mount @ self.lab_field_nt(dut)
 
     def dut_raw_nt(self, dut: str, polarity: int = 1, noisy: bool = True) -> np.ndarray:
         """What the DUT's bridges output, in nT: polarity x h + bridge offset + noise.
@@ -211,7 +255,7 @@ class World:
         with self._lock:
             self._advance()
             d = self.duts[dut]
-            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(), d.temp_c)
+            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(dut), d.temp_c)
             out = polarity * h + d.truth.bridge_offset_at(d.temp_c)
             if noisy and d.truth.noise_nt > 0:
                 out = out + self.rng.normal(0, d.truth.noise_nt, 3)
@@ -223,13 +267,16 @@ class World:
         with self._lock:
             return self.ambient_drift_nt_per_s * (self.clock.now() - self._t0)
 
-    def lab_field_nt(self) -> np.ndarray:
+    def lab_field_nt(self, dut: str | None = None) -> np.ndarray:
+        """The field where `dut` sits (lab frame; for a turntable, the table frame), or at the centre."""
         with self._lock:
             self._advance()
             if self.field_source == "coils":
                 currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
-                return self.coil_constants @ currents + self.ambient_nt + self.drift_nt()
-            return rotation_deg(*self.table_deg).T @ (self.site_field_nt + self.drift_nt())
+                currents = currents * (1.0 + self.coil_nonlinearity_per_a * np.abs(currents))
+                matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
+                return matrix @ currents + self.ambient_nt + self.drift_nt()
+            return self.turntable_axes.rotation(*self.table_deg).T @ (self.site_field_nt + self.drift_nt())
 
     def set_coil_currents(self, currents_a, enabled: bool = True) -> None:
         with self._lock:

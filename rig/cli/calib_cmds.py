@@ -116,6 +116,12 @@ def refit(
         takers = [m for m, spec in REGISTRY.items() if set(unused) <= spec.options]
         raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
                                f"--model {' or '.join(takers)} only")
+    from rig import sessionfit
+
+    inputs = sessionfit.run_inputs(data) if ds.source.get("kind") == "session" else None
+    ambient = None
+    if inputs is not None:  # every reference with the run's best ambient, as the campaign's own fits
+        ds, ambient = inputs.refined(ds)
     lag_info = None
     if lag:
         from rig.lagfit import lag_corrected, session_is_ramp
@@ -136,6 +142,14 @@ def refit(
 
         annotate(cal, lag_info)
         click.echo(lag_info["message"])
+    if inputs is not None:
+        if ambient is not None:
+            cal.stats["ambient"] = ambient
+        sessionfit.state_uncertainty(inputs, ds.source["dut"], ds, cal)
+    else:
+        from rig.budget import statistical_only
+
+        cal.uncertainty = statistical_only(ds, cal)
     calfile.save(cal, output)
     print_summary(cal)
     click.echo(f"wrote {output}")

@@ -46,11 +46,15 @@ def _print_summary(outcome) -> None:
     if not outcome.fits:
         return
     table = Table(title="calibrations")
-    for col in ("DUT", "model", "samples", "rms after (nT)", "file / error"):
+    for col in ("DUT", "model", "samples", "rms after (nT)", "uncertainty (nT, k=2)", "file / error"):
         table.add_column(col, overflow="fold")  # paths are copied by operators: never truncate
     for f in outcome.fits:
         rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
-        table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, str(f.get("path") or f.get("error")))
+        budget = getattr(f.get("calibration"), "uncertainty", None) or {}
+        big_u = budget.get("expanded_vector_error_nt")
+        shown_u = "-" if big_u is None else f"{big_u:.1f}"
+        table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, shown_u,
+                      str(f.get("path") or f.get("error")))
     console.print(table)
     if outcome.verdicts:
         from rig.acceptance import summary_csv_path

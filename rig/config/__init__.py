@@ -85,11 +85,15 @@ def resolve_station_path(plan: Plan, plan_path: str | Path, station_path: str | 
 
 
 def load_campaign(plan_path: str | Path, station_path: str | Path | None = None) -> Campaign:
+    """The plan and its station, the station's commissioning file (if it names one) checked and applied."""
+    from rig import commissioning
+
     plan_text = read_text(plan_path)
     plan = load_model(Plan, plan_path, plan_text)
     resolved = resolve_station_path(plan, plan_path, station_path)
     station_text = read_text(resolved)
     station = load_model(Station, resolved, station_text)
+    station = commissioning.apply(station, commissioning.load_for_station(station, resolved, station_text))
     return Campaign(plan, station, Path(plan_path), resolved, plan_text, station_text)
 
 

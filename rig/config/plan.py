@@ -250,6 +250,9 @@ class Acceptance(Strict):
     model: Literal[CALIBRATION_MODELS] | None = None
     max_heldout_rms_nt: NT | None = Field(None, description="RMS error on held-out points")
     max_rms_nt: NT | None = Field(None, description="RMS residual of the full fit")
+    max_expanded_uncertainty_nt: NT | None = Field(
+        None, description="the calibration's expanded (k = 2) vector uncertainty over the plan's fields and "
+        "temperatures (its uncertainty budget, rig/budget.py)")
     max_std_error: dict[str, bounded(gt=0)] = Field({}, description="largest standard error per parameter")
     bounds: dict[str, tuple[bounded(), bounded()]] = Field({}, description="[low, high] of every element")
     max_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="thermal lag (ramp data only)")
@@ -291,6 +294,9 @@ class Plan(Strict):
     fit: Fit = Fit()
     acceptance: Acceptance | None = Field(None, description="per-DUT PASS/FAIL limits (rig/acceptance.py)")
     outputs: Outputs = Outputs()
+    accuracy_ppm: bounded(gt=0, hi=1e6) | None = Field(
+        None, description="the reference field's accuracy target, relative to the field: `rig check` refuses "
+        "a DUT position where the coil field's non-uniformity exceeds it")
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
         "them (calib/targets.py)")

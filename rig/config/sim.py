@@ -11,7 +11,8 @@ from typing import Literal
 from pydantic import Field
 
 from rig.configbase import Strict
-from rig.numbers import DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
+from rig.fieldsources.coilgeometry import CoilGeometry
+from rig.numbers import ANGLE_DEG, DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
 
 Row = bounded_vec3(100.0)  # a row of S (scale: 1 is nominal)
 KRow = bounded_vec3(1.0)  # a row of K (per degC)
@@ -34,6 +35,16 @@ class SimDut(Strict):
     thermal_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="default: the simulator's")
     sensor_lag_s: bounded(lo=0, hi=DAY_S) = Field(0.0, description="its temperature sensors lag the element "
                                                    "by this time constant (s); 0: they read the element")
+    position_error_mm: bounded_vec3(100.0) = Field(
+        (0.0, 0.0, 0.0), description="where it really sits, relative to its stated position_mm")
+
+
+class TableAxesSpec(Strict):
+    """How the simulated turntable differs from its drawing (drivers/sim/world.py TableAxes)."""
+
+    az_tilt_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (0.0, 0.0)
+    el_tilt_deg: ANGLE_DEG = 0.0
+    zero_offsets_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (0.0, 0.0)
 
 
 class SimWorld(Strict):
@@ -43,4 +54,12 @@ class SimWorld(Strict):
     ambient_drift_nt_per_h: NT_VEC | None = Field(
         None, description="slow drift of the ambient (coils) or the site field (turntable); default none")
     air_c: TEMP_C | None = Field(None, description="chamber air at the start; default: the simulator's")
+    coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC] | None = Field(
+        None, description="the simulated coils' true matrix at the centre; default: the field source's")
+    coil_nonlinearity_per_a: bounded_vec3(1.0) = Field(
+        (0.0, 0.0, 0.0), description="each coil's field off linear by this share per ampere (a fault)")
+    coil_geometry: CoilGeometry | None = Field(
+        None, description="the simulated coils' true geometry; default: the field source's (none: uniform)")
+    turntable_axes: TableAxesSpec | None = Field(
+        None, description="the simulated turntable's true axes; default: the ideal table")
     duts: dict[str, SimDut] = {}

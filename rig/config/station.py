@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal, Union
 
+import numpy as np
 from pydantic import Field, create_model, model_validator
 
 from drivers import registry
@@ -27,7 +28,7 @@ from rig.configbase import DeviceConfig, Strict, transport_type
 from rig.errors import ConfigError
 from rig.fieldsources import FieldSource
 from rig.names import SafeName
-from rig.numbers import MODBUS_UNIT, Count
+from rig.numbers import MODBUS_UNIT, Count, bounded, bounded_vec3
 from rig.yamlload import KeyPathError
 
 
@@ -48,11 +49,25 @@ class ChamberConfig(DeviceConfig):
         return registry.SimRequest(world, self.name, self.device_type, self.device_options, unit=self.unit)
 
 
+POSITION_MM = bounded_vec3(10_000.0)
+SAME_PLACE_MM = 1.0  # two sensors closer than this would overlap: a mistake in the station file
+DEFAULT_GRADIENT_C_PER_C = 0.002  # a probe glued beside the DUT: 0.1 degC apart at 50 degC from 25
+
+
 class DutConfig(DeviceConfig):
     role: ClassVar[str] = "magnetometer"
 
     name: SafeName
     temp_source: str = Field(description='a temperature sensor\'s name, or "self" (the chip\'s own sensor)')
+    position_mm: POSITION_MM | None = Field(
+        None, description="where its sensing element sits in the coil set (x, y, z mm); default: the centre")
+    position_tolerance_mm: bounded(lo=0, hi=1000.0) = Field(
+        1.0, description="how well position_mm is known (+-, mm): the budget's 'position'")
+    temp_accuracy_c: bounded(lo=0, hi=100.0) | None = Field(
+        None, description="accuracy (+-) of its temperature source; default: the datasheet's")
+    temp_gradient_c_per_c: bounded(lo=0, hi=1.0) = Field(
+        DEFAULT_GRADIENT_C_PER_C, description="how far (+-) the element may differ from its temperature "
+        "source, per degC away from 25 degC")
 
     @model_validator(mode="before")
     @classmethod
@@ -172,6 +187,36 @@ class Station(Strict):
             raise KeyPathError(path, message)
         return self
 
+    @model_validator(mode="after")
+    def _positions(self):
+        """Every stated position inside the coil set (declared and simulated geometry) and no two
+        sensors at one place."""
+        geometries = [g for g in (getattr(self.field_source, "geometry", None), self.sim.coil_geometry)
+                      if g is not None]
+        placed: list[tuple[tuple, str, np.ndarray]] = []
+        for path, dev in self._named_devices():
+            position = getattr(dev, "position_mm", None)
+            if position is None:
+                continue
+            for geometry in geometries:
+                if not geometry.encloses(position):
+                    simulated = geometry is self.sim.coil_geometry
+                    where = "sim.coil_geometry" if simulated else "field_source.geometry"
+                    raise KeyPathError((*path, "position_mm"), f"{_fmt_mm(position)} is outside the coil set "
+                                       f"({where}: {geometry.shape}, size_m {list(geometry.size_m)}, "
+                                       f"spacing_m {list(geometry.spacing_m)})")
+            here = np.asarray(position, float)
+            for _, other, there in placed:
+                if np.linalg.norm(here - there) < SAME_PLACE_MM:
+                    raise KeyPathError((*path, "position_mm"), f"{_fmt_mm(position)} is where {other} sits "
+                                       f"(two sensors closer than {SAME_PLACE_MM:g} mm)")
+            placed.append((path, dev.name, here))
+        return self
+
+    def positions_mm(self) -> dict[str, tuple[float, float, float] | None]:
+        """{DUT or reference magnetometer name: its stated position (None: the centre)}."""
+        return {d.name: d.position_mm for d in (*self.duts, *self.reference_magnetometers)}
+
     def _named_devices(self):
         yield ("chamber",), self.chamber
         yield ("field_source",), self.field_source
@@ -194,3 +239,7 @@ class Station(Strict):
             if d.name == name:
                 return d
         raise ConfigError(f"station {self.name}: no DUT named {name!r}")
+
+
+def _fmt_mm(position) -> str:
+    return "position (" + ", ".join(f"{x:g}" for x in position) + ") mm"

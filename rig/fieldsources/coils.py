@@ -4,14 +4,19 @@
 (the station's `reference_magnetometers`, never a DUT) measures it with the coils at 0 A at the start of
 the campaign and again at each temperature step (rig/sitefield.py). Until then `rig check` allows for any
 ambient up to `ambient_max_nt`; `rig run` checks the plan's currents again with the measured ambient.
+
+The coil matrix C at the centre is the declared `coil_constants_nt_per_a`, or the one `rig commission`
+measured (`commissioning: FILE`, rig/commissioning.py), which replaces it. With a `geometry`, the field at
+each DUT's `position_mm` is the coil field there (rig/fieldsources/coilgeometry.py), scaled and turned to
+match C at the centre; without one the field is taken as uniform.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, Tag, model_validator
+from pydantic import Discriminator, Field, PrivateAttr, Tag, model_validator
 
 from drivers.coils import CoilOptions
 from rig import fieldsets
@@ -23,6 +28,7 @@ from rig.fieldsources.base import (
     only_reference,
     point_limit_error,
 )
+from rig.fieldsources.coilgeometry import CoilGeometry
 from rig.names import SafeName
 from rig.numbers import A_MAX, NT, NT_VEC, bounded
 from rig.reference import TYPICAL_FIELD_NT, CoilReference, currents_for_field
@@ -37,6 +43,15 @@ AmbientNt = Annotated[
 ]
 
 
+DECLARED_UNCERTAINTY_PPM = 10_000.0  # real sets differ from their design by 0.5-2 % and tenths of a degree
+
+
+class DeclaredGeometry(CoilGeometry):
+    tolerance_mm: bounded(lo=0, hi=1000.0) = Field(
+        1.0, description="how well the loops' sizes and spacings are known (+-, mm): the budget's "
+        "'coil geometry'")
+
+
 class Coils(FieldSourceConfig, CoilOptions):
     field_kinds: ClassVar[frozenset[str]] = VECTOR_FIELD_KINDS
     point_letter: ClassVar[str] = "F"
@@ -46,7 +61,17 @@ class Coils(FieldSourceConfig, CoilOptions):
     kind: Literal["coils"]
     name: SafeName = "coils"
     max_current_a: bounded(gt=0, hi=A_MAX)
-    coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC]
+    coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC] | None = Field(
+        None, description="the design matrix (rows = lab axes); replaced by `commissioning` when given")
+    commissioning: str | None = Field(
+        None, description="`rig commission`'s file (relative to the station file): the measured matrix")
+    max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
+        180.0, description="`rig run` refuses a commissioning file older than this")
+    constants_uncertainty_ppm: bounded(lo=0, hi=1e6) = Field(
+        DECLARED_UNCERTAINTY_PPM, description="standard uncertainty of each declared matrix element, "
+        "relative to its column (used while the coils are not commissioned)")
+    geometry: DeclaredGeometry | None = Field(
+        None, description="the coil set's shape and size: the field at each DUT's position")
     ambient_nt: AmbientNt
     ambient_max_nt: NT = Field(
         70_000.0, description="bound on |ambient| used to check currents while ambient is 'measure'"
@@ -56,15 +81,51 @@ class Coils(FieldSourceConfig, CoilOptions):
     ambient_drift_max_nt: NT = Field(
         DRIFT_MAX_NT, description="a measured ambient that moves more than this between steps holds the run")
 
+    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded
+
     @model_validator(mode="after")
     def _invertible(self):
-        if np.linalg.cond(self.constants) > 1e6:
+        if self.coil_constants_nt_per_a is None:
+            if self.commissioning is None:
+                raise KeyPathError(("coil_constants_nt_per_a",), "give the coil matrix, or `commissioning:` "
+                                   "naming the file `rig commission` wrote")
+        elif np.linalg.cond(self.declared_constants) > 1e6:
             raise KeyPathError(("coil_constants_nt_per_a",), "matrix is singular (coil axes not independent)")
         return self
 
     @property
+    def declared_constants(self) -> np.ndarray | None:
+        c = self.coil_constants_nt_per_a
+        return None if c is None else np.asarray(c, float)
+
+    @property
     def constants(self) -> np.ndarray:
-        return np.asarray(self.coil_constants_nt_per_a, float)
+        """The coil matrix at the centre the rig uses: the commissioned one, else the declared one."""
+        if self._commissioned is not None:
+            return self._commissioned.matrix_nt_per_a
+        if self.coil_constants_nt_per_a is None:
+            raise ConfigError(f"field_source.commissioning {self.commissioning!r} has not been loaded")
+        return self.declared_constants
+
+    def with_commissioning(self, commissioned) -> Coils:
+        """A copy that uses `commissioned` (rig.commissioning.Commissioning) as its matrix."""
+        copy = self.model_copy()
+        copy._commissioned = commissioned
+        return copy
+
+    @property
+    def commissioned(self):
+        return self._commissioned
+
+    def matrices_at(self, positions_mm: dict[str, tuple | None]) -> dict[str, np.ndarray]:
+        """{device name: the coil matrix where it sits} (the centre's without a geometry or position)."""
+        centre = self.constants
+        stated = {name: p for name, p in positions_mm.items() if p is not None and any(p)}
+        out = {name: centre for name in positions_mm}
+        if self.geometry is not None and stated:
+            matrices = self.geometry.matrices_at(centre, list(stated.values()))
+            out.update(zip(stated, matrices, strict=True))
+        return out
 
     # --- plan ---------------------------------------------------------------------------------------
     def record(self, target) -> dict:
@@ -109,12 +170,13 @@ class Coils(FieldSourceConfig, CoilOptions):
         return largest
 
     # --- run ----------------------------------------------------------------------------------------
-    def reference(self, measured_nt=None) -> CoilReference:
-        """`measured_nt`: the ambient field measured at the start (needed when ambient_nt is 'measure')."""
+    def reference(self, measured_nt=None, positions_mm=None) -> CoilReference:
+        """`measured_nt`: the ambient field measured at the start (needed when ambient_nt is 'measure');
+        `positions_mm`: {DUT name: position} for the field where each DUT sits."""
         ambient = measured_nt if measured_nt is not None else self.ambient_nt
         if isinstance(ambient, str):
             raise ConfigError("field_source.ambient_nt is 'measure': measure it first")
-        return CoilReference(self.constants, ambient)
+        return CoilReference(self.constants, ambient, self.matrices_at(positions_mm or {}))
 
     # --- a measured ambient -------------------------------------------------------------------------
     def needs_measurement(self) -> bool:
@@ -151,9 +213,18 @@ class Coils(FieldSourceConfig, CoilOptions):
         return []
 
     def world_field(self, sim) -> dict:
+        """The simulated coils: sim.coil_constants_nt_per_a and sim.coil_geometry, else what the station
+        declares (the declared matrix, else the commissioned one; the declared geometry, else none)."""
         stated = None if self.ambient_nt == "measure" else self.ambient_nt
         ambient = next(v for v in (sim.ambient_nt, stated, TYPICAL_FIELD_NT) if v is not None)
-        return {"field_source": "coils", "coil_constants_nt_per_a": self.constants,
+        matrix = sim.coil_constants_nt_per_a
+        if matrix is None:
+            matrix = self.constants if self.coil_constants_nt_per_a is None else self.coil_constants_nt_per_a
+        geometry = sim.coil_geometry or self.geometry
+        return {"field_source": "coils", "coil_constants_nt_per_a": np.asarray(matrix, float),
+                "coil_nonlinearity_per_a": np.asarray(sim.coil_nonlinearity_per_a, float),
+                "coil_geometry": None if geometry is None else
+                (geometry.shape, tuple(geometry.size_m), tuple(geometry.spacing_m)),
                 "ambient_nt": np.asarray(ambient, float), **drift_keywords(sim)}
 
 

@@ -4,6 +4,11 @@ Home pose (az = el = 0): table x north, y east, z down, so the site field (NED) 
 home. Sensor-frame field = R^T B_site, R = Rz(az) @ Ry(el) (drivers.turntable.rotation_deg). The site
 field is a vector given in the station, the World Magnetic Model at the site, or measured by a reference
 magnetometer at the start of the campaign.
+
+A commissioned table (`commissioning: FILE`, written by `rig commission`; calib/tablefit.py) adds how its
+axes differ from the drawing: the elevation axis' tilt, the encoders' zero offsets and the reference's
+mount. Its site field is then the one the commissioning measured, or, when the site field is measured at
+the start of a run, that measurement carried through the commissioned axes.
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ import datetime as dt
 from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, Discriminator, Field, Tag
+from pydantic import BaseModel, Discriminator, Field, PrivateAttr, Tag
 
 from drivers.turntable import TurntableOptions
 from rig.configbase import Strict
@@ -100,6 +105,20 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     el_limits_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (-180.0, 180.0)
     rate_deg_s: bounded(gt=0, hi=1_000.0) = Field(10.0, description="slew rate, for move-time estimates")
     site_field: SiteField
+    commissioning: str | None = Field(
+        None, description="`rig commission`'s file (relative to the station file): the table's axes")
+    max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
+        180.0, description="`rig run` refuses a commissioning file older than this")
+    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded
+
+    def with_commissioning(self, commissioned) -> Turntable:
+        copy = self.model_copy()
+        copy._commissioned = commissioned
+        return copy
+
+    @property
+    def commissioned(self):
+        return self._commissioned
 
     def stated_site_field_nt(self) -> np.ndarray | None:
         """The site field the station file states (None when a reference magnetometer must measure it)."""
@@ -128,12 +147,22 @@ class Turntable(FieldSourceConfig, TurntableOptions):
         return float(np.abs(np.diff(angles, axis=0)).max(axis=1).sum()) / self.rate_deg_s
 
     # --- run ----------------------------------------------------------------------------------------
-    def reference(self, measured_nt=None) -> TableReference:
-        """`measured_nt`: the site field measured at the start (needed with a reference magnetometer)."""
-        site = measured_nt if measured_nt is not None else self.stated_site_field_nt()
+    def reference(self, measured_nt=None, positions_mm=None) -> TableReference:
+        """`measured_nt`: the site field measured at the start (needed with a reference magnetometer).
+        The field is uniform: every DUT on the table sees the same, whatever its position."""
+        axes = None if self._commissioned is None else self._commissioned.table_params
+        if measured_nt is not None:
+            if axes is None:
+                return TableReference.ideal(measured_nt)
+            from calib.tablefit import site_from_home
+
+            return TableReference(np.concatenate([site_from_home(axes, measured_nt), axes[3:]]))
+        if axes is not None:
+            return TableReference(axes)
+        site = self.stated_site_field_nt()
         if site is None:
             raise ConfigError("the site field must be measured by the reference magnetometer first")
-        return TableReference(site)
+        return TableReference.ideal(site)
 
     def settle_timeout_s(self) -> float:
         return SETTLE_TIMEOUT_S + MOVE_TRAVEL_DEG / self.rate_deg_s
@@ -171,5 +200,8 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     def world_field(self, sim) -> dict:
         site = next(v for v in (sim.site_field_nt, self.stated_site_field_nt(), TYPICAL_FIELD_NT)
                     if v is not None)
+        axes = sim.turntable_axes
         return {"field_source": "turntable", "site_field_nt": np.asarray(site, float),
-                "turntable_rate_deg_s": self.rate_deg_s, **drift_keywords(sim)}
+                "turntable_rate_deg_s": self.rate_deg_s, **drift_keywords(sim),
+                "turntable_axes": None if axes is None else
+                (tuple(axes.az_tilt_deg), axes.el_tilt_deg, tuple(axes.zero_offsets_deg))}

@@ -26,6 +26,8 @@ class DutResult:
     warnings: list[str]
     given: bool  # main came from a calibration file, not from a fit made here
     outliers: np.ndarray  # rows left out of the residuals shown (see analysis.outlier_rows)
+    uncertainty: dict | None = None  # the budget to show (DutInput.uncertainty)
+    uncertainty_of: str = ""
 
 
 def fit_model(ds, model: str):
@@ -79,6 +81,8 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
         warnings=warnings,
         given=d.calibration is not None,
         outliers=outliers,
+        uncertainty=d.uncertainty,
+        uncertainty_of=d.uncertainty_of,
     )
 
 

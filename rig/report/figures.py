@@ -284,3 +284,24 @@ def step_rms(
     ax.grid(alpha=0.3)
     ax.set_title(title or "residual per temperature step")
     return fig
+
+
+def uncertainty_budget(sources: list[str], contributions_nt: list[float], combined_nt: float,
+                       expanded_nt: float, title: str = "") -> Figure:
+    """The budget as bars: each input's standard contribution to the calibrated field's error, the
+    combined standard uncertainty and the expanded (95 %) vector error, nT (log scale)."""
+    labels = [*sources, "combined (standard)", "expanded (95 %)"]
+    values = [*contributions_nt, combined_nt, expanded_nt]
+    fig = new_figure(6.5, 0.35 * len(labels) + 1.2)
+    ax = fig.subplots()
+    y = np.arange(len(labels))[::-1]
+    colours = [BEFORE_COLOUR] * len(sources) + [AFTER_COLOUR, AFTER_COLOUR]
+    ax.barh(y, [max(v, 1e-3) for v in values], color=colours)
+    for yi, v in zip(y, values, strict=True):
+        ax.text(max(v, 1e-3) * 1.1, yi, f"{v:.3g}", va="center", fontsize=8)
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("nT")
+    ax.grid(alpha=0.3, axis="x")
+    ax.set_title(title or "uncertainty budget")
+    return fig

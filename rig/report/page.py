@@ -131,6 +131,17 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
             f"{r.name}: error RMS of each model on its fitted points and on held-out points",
             f"{tag}_model_comparison.png",
         )
+    budget = _budget_rows(r.uncertainty)
+    if budget:
+        out["budget"] = _image(
+            figures.uncertainty_budget([b[0] for b in budget], [b[1] for b in budget],
+                                       _number(r.uncertainty.get("combined_standard_nt")),
+                                       _number(r.uncertainty.get("expanded_vector_error_nt")),
+                                       f"{r.name}: uncertainty budget ({r.uncertainty_of})"),
+            f"{r.name}: what each input adds to the calibrated field's error (standard uncertainties), "
+            "and the expanded uncertainty",
+            f"{tag}_uncertainty_budget.png",
+        )
     if len(r.steps) > 1 and ds.temp_c is not None:
         out["steps"] = _image(
             figures.step_rms(
@@ -166,8 +177,44 @@ def dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]
             [step_table(r.steps, steps_info), *[img[k] for k in ("steps",) if k in img]],
             level=3,
         ),
+        Section("Uncertainty", [*_uncertainty_blocks(r), *[img[k] for k in ("budget",) if k in img]],
+                level=3),
         Section("Parameters", [_params_table(name, cal) for name, cal in _param_sets(r)], level=3),
     ]
+
+
+def _number(x: object) -> float:
+    try:
+        value = float(x)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return float("nan")
+    return value if np.isfinite(value) else float("nan")
+
+
+def _budget_rows(uncertainty: dict | None) -> list[tuple[str, float, str]]:
+    """[(source, contribution nT, note)] of a budget; [] without one."""
+    if not uncertainty:
+        return []
+    return [(str(b.get("source", "?")), _number(b.get("contribution_nt")), str(b.get("note", "")))
+            for b in uncertainty.get("budget") or [] if isinstance(b, dict)]
+
+
+def _uncertainty_blocks(r: DutResult) -> list:
+    """The budget table (and its notes), or why there is none."""
+    rows = _budget_rows(r.uncertainty)
+    if not rows:
+        return ["No uncertainty budget: the calibration states none (calibrations from a campaign carry "
+                "one; see rig/budget.py)."]
+    u = r.uncertainty
+    k = _number(u.get("coverage_factor"))
+    table = Table(["input", "standard uncertainty of the field (nT)", "how it was drawn"],
+                  [[name, _fmt(value, 3), note] for name, value, note in rows]
+                  + [["combined", _fmt(_number(u.get("combined_standard_nt")), 3), str(u.get("method", ""))],
+                     [f"expanded (k = {_fmt(k, 2)})", _fmt(_number(u.get("expanded_vector_error_nt")), 3),
+                      "95 % of the calibrated field's error lengths, plan's fields and temperatures"]],
+                  f"Uncertainty budget of {r.uncertainty_of}")
+    notes = [f"Note: {n}" for n in u.get("notes") or []]
+    return [table, *notes]
 
 
 def _comparison_table(scores: list[analysis.ModelScore]) -> Table:
@@ -259,17 +306,20 @@ def _param_sets(r: DutResult) -> list[tuple[str, object]]:
 
 def _params_table(title: str, cal) -> Table:
     rows = []
+    expanded = (getattr(cal, "uncertainty", None) or {}).get("expanded") or {}
     for key, value in cal.params.items():
         values = np.asarray(value, dtype=float)
         errors = np.asarray(cal.std_errors.get(key, np.full(values.shape, np.nan)), dtype=float)
+        big_u = np.asarray(expanded.get(key, np.full(values.shape, np.nan)), dtype=float)
         unit = PARAM_UNITS.get(key, "")
         for index in np.ndindex(values.shape):
             label = key + "".join(f"[{i + 1}]" for i in index)
             se = errors[index] if errors.shape == values.shape else np.nan
-            rows.append([label, f"{values[index]:.8g}", _fmt(se, 3), unit])
+            u = big_u[index] if big_u.shape == values.shape else np.nan
+            rows.append([label, f"{values[index]:.8g}", _fmt(se, 3), _fmt(u, 3), unit])
     stats = cal.stats if isinstance(cal.stats, dict) else {}
     tref = "" if cal.temp_ref_c is None else f", internal reference temperature {cal.temp_ref_c:.4g} °C"
     caption = (
         f"{cal.model.upper()}: {title}; RMS after {_fmt(stats.get('rms_after_nt', float('nan')))} nT{tref}"
     )
-    return Table(["parameter", "value", "std error", "unit"], rows, caption)
+    return Table(["parameter", "value", "std error", "expanded uncertainty (k = 2)", "unit"], rows, caption)

@@ -44,6 +44,10 @@ class DutInput:
     calibration: object | None = None  # a given calib.Calibration (from a file); None: fit here
     flagged: dict[str, list[str]] = field(default_factory=dict)  # flag -> point ids of flagged samples
     flagged_rows: Counter = field(default_factory=Counter)  # flag -> number of samples
+    # the uncertainty budget to show (calib/uncertainty.py) and whose it is: the given calibration's, or
+    # that of the session's own calibration of this DUT
+    uncertainty: dict | None = None
+    uncertainty_of: str = ""
 
 
 @dataclass
@@ -89,12 +93,15 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
             raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
         info, points, events, snapshots = reader.info(), reader.points(), reader.events(), reader.snapshots()
         acceptance = [r for r in reader.acceptance() if r["dut"] in names]
+        budgets = _recorded_budgets(reader.fits())
         duts = []
         for name in names:
             ds = reader.dataset(name)
             _, rows = reader.sample_rows(name)
             flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
-            duts.append(DutInput(name, ds, None, flagged, flagged_rows))
+            model, budget = budgets.get(name, (None, None))
+            duts.append(DutInput(name, ds, None, flagged, flagged_rows, budget,
+                                 f"the session's {model.upper()} calibration" if model else ""))
     steps = _steps(points, events)
     warnings = _session_warnings(summary, points, events, steps)
     started = utc(info.get("wall_started") or info["started"])
@@ -128,6 +135,19 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     ]
     title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
     return ReportInputs(title, duts, steps, warnings, provenance, acceptance)
+
+
+def _recorded_budgets(fits: list[dict]) -> dict[str, tuple[str, dict]]:
+    """{DUT: (model, uncertainty)} of the session's own latest calibrations, T24 preferred."""
+    out: dict[str, tuple[str, dict]] = {}
+    for fit in fits:
+        try:
+            uncertainty = json.loads(fit["calibration_json"]).get("uncertainty")
+        except (ValueError, AttributeError):
+            continue
+        if uncertainty and (fit["dut"] not in out or fit["model"] == "t24" or out[fit["dut"]][0] != "t24"):
+            out[fit["dut"]] = (fit["model"], uncertainty)
+    return out
 
 
 def _devices(snapshots: list[dict]) -> list[tuple[str, str]]:
@@ -267,7 +287,8 @@ def from_calibration(
         ("report made with", f"magrig {__version__}"),
     ]
     title = f"Calibration report: {name} ({cal_path.name} on {data_path.name})"
-    return ReportInputs(title, [DutInput(name, ds, cal, flagged, flagged_rows)], {}, warnings, provenance)
+    return ReportInputs(title, [DutInput(name, ds, cal, flagged, flagged_rows, cal.uncertainty,
+                                         "the calibration file's")], {}, warnings, provenance)
 
 
 def _drop_flagged(ds):

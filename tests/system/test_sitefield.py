@@ -61,7 +61,7 @@ def test_demo_with_a_measured_ambient_recovers_every_dut_within_three_sigma(tmp_
     assert station.field_source.ambient_nt == "measure"
     measured = site_events(session)
     codes = [code for code, _, _ in measured]
-    assert codes == [Reason.SITE_FIELD_MEASURED] + [Reason.SITE_FIELD_CHECKED] * 4  # start + every step
+    assert codes == [Reason.SITE_FIELD_MEASURED] + [Reason.SITE_FIELD_CHECKED] * 5  # start, every step, end
     first = measured[0][1]
     se = np.asarray(first["std_error_nt"])
     assert first["n"] == 100 and np.all(se > 0) and np.all(se < 5)
@@ -143,7 +143,7 @@ def test_a_turntable_with_a_reference_magnetometer_measures_the_site_field(tmp_p
     outcome = run_campaign(campaign=campaign, session_path=session)
     assert outcome.result.status == "completed", outcome.result.reason
     measured = site_events(session)
-    assert [c for c, _, _ in measured] == [Reason.SITE_FIELD_MEASURED] + [Reason.SITE_FIELD_CHECKED] * 2
+    assert [c for c, _, _ in measured] == [Reason.SITE_FIELD_MEASURED] + [Reason.SITE_FIELD_CHECKED] * 3
     first = measured[0][1]
     assert "site field" in measured[0][2]
     error = np.abs(np.asarray(first["vector_nt"]) - site_truth)

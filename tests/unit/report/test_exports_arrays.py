@@ -96,9 +96,9 @@ def test_json_and_csv_round_trip_values():
     np.testing.assert_array_equal(np.array(doc["params"]["S"]), S)
     assert doc["std_errors"]["b_nt"] == [1.0, 2.0, None]
     assert doc["flight_form"]["equation"] == "B = M(tau) h + o(tau)"
-    rows = csv_export(params, errors).splitlines()
-    assert rows[0] == "parameter,value,std_error"
+    rows = csv_export(params, errors, {"S": np.full((3, 3), 4e-5)}).splitlines()
+    assert rows[0] == "parameter,value,std_error,expanded_uncertainty"
     assert len(rows) == 1 + 9 + 9 + 3 + 3
     s01 = next(r for r in rows if r.startswith("S[0][1],")).split(",")
-    assert float(s01[1]) == S[0, 1] and float(s01[2]) == 1e-5
-    assert next(r for r in rows if r.startswith("K[2][2],")).endswith(",")  # no std error given
+    assert float(s01[1]) == S[0, 1] and float(s01[2]) == 1e-5 and float(s01[3]) == 4e-5
+    assert next(r for r in rows if r.startswith("K[2][2],")).endswith(",,")  # no std error, no budget

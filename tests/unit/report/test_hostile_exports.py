@@ -84,7 +84,8 @@ def test_json_and_csv_carry_hostile_text_escaped(fmt, fitted, tmp_path, capsys):
         assert out.isascii()
     else:
         rows = list(csv.reader(io.StringIO(out)))
-        assert rows[0] == ["parameter", "value", "std_error"] and all(len(r) == 3 for r in rows)
+        assert rows[0] == ["parameter", "value", "std_error", "expanded_uncertainty"]
+        assert all(len(r) == 4 for r in rows)
 
 
 def test_an_alias_bomb_calibration_is_one_line(tmp_path, capsys):

@@ -59,7 +59,7 @@ def test_table_reference_matches_the_simulated_world():
     site = np.array([19_136.0, 891.0, 45_594.0])
     clock = SimClock()
     world = World(clock, field_source="turntable", site_field_nt=site)
-    ref = TableReference(site)
+    ref = TableReference.ideal(site)
     for az, el in [(30.0, 10.0), (-135.0, 75.0), (250.0, -40.0)]:
         world.set_turntable_target(az, el)
         clock.sleep(60.0)

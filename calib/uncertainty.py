@@ -1,0 +1,161 @@
+"""The uncertainty of a calibration, by Monte Carlo over its inputs (GUM Supplement 1, JCGM 101:2008).
+
+    budget = monte_carlo(ds, cal, sources, refit, grid, rng=rng)
+    budget.expanded          # {param: array}, the same keys and shapes as cal.params (k = 2)
+    budget.contributions     # [{source, contribution_nt}]: each input's share of the field error
+    budget.as_dict()         # the calibration file's `uncertainty:` section
+
+A source is one input quantity the fit rests on, as a function that draws how far the data could be from
+what was recorded: changes to the reference vectors (the coil matrix, the reference magnetometer, the
+ambient, a DUT's position within its tolerance, the coil geometry), to the temperatures (the probe's
+accuracy, the gradient to the DUT), or to the raw readings (`statistical`: the readings' own noise,
+redrawn with the fit's residual scatter; for a linear least-squares fit this reproduces sigma^2 G^-1).
+Changes of several sources add up. Every draw is re-fitted; the spread of the refitted parameters is
+their uncertainty.
+
+- each source alone, `draws_per_source` times: its contribution, the RMS change of the calibrated field
+  over the grid (the plan's fields and temperatures), in nT: a standard uncertainty;
+- all together, `draws` times: each parameter's standard uncertainty u and expanded U = k u, and the
+  calibrated field's error over the grid: its RMS (`combined_standard_nt`) and the 95th percentile of its
+  length (`expanded_vector_error_nt`, the coverage interval GUM S1 reads off the draws).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from calib.calibration import Calibration
+from calib.dataset import Dataset
+from calib.errors import FitError
+from calib.models import apply
+
+COVERAGE_FACTOR = 2.0
+COVERAGE_PROBABILITY = 0.95
+DRAWS = 200
+DRAWS_PER_SOURCE = 60
+MIN_SHARE_FITTED = 0.9  # of the draws; a fit that fails more often is too fragile to state an uncertainty
+
+
+@dataclass(frozen=True)
+class Draw:
+    """How far the data could be from what was recorded, for one draw (None: no change)."""
+
+    ref_nt: np.ndarray | None = None  # added to the reference vectors (N,3)
+    temp_c: np.ndarray | None = None  # added to the temperatures (N,) or a scalar
+    h_nt: np.ndarray | None = None  # added to the raw readings (N,3)
+
+
+@dataclass(frozen=True)
+class Source:
+    name: str
+    draw: Callable[[np.random.Generator], Draw]
+    note: str = ""
+
+
+@dataclass
+class Budget:
+    coverage_factor: float
+    standard: dict[str, np.ndarray]
+    expanded: dict[str, np.ndarray]
+    contributions: list[dict]
+    combined_standard_nt: float
+    expanded_vector_error_nt: float
+    draws: int
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        """Plain values for the calibration file."""
+        return {
+            "coverage_factor": self.coverage_factor,
+            "method": f"Monte Carlo (GUM S1), {self.draws} draws of every input together",
+            "expanded": {k: np.asarray(v, float).tolist() for k, v in self.expanded.items()},
+            "budget": [dict(c) for c in self.contributions],
+            "combined_standard_nt": self.combined_standard_nt,
+            "expanded_vector_error_nt": self.expanded_vector_error_nt,
+            "coverage_probability": COVERAGE_PROBABILITY,
+            "notes": list(self.notes),
+        }
+
+
+def with_draw(ds: Dataset, d: Draw) -> Dataset:
+    """The dataset with a draw's changes added."""
+    return replace(ds, h_nt=ds.h_nt if d.h_nt is None else ds.h_nt + d.h_nt,
+                   ref_nt=ds.ref_nt if d.ref_nt is None else ds.ref_nt + d.ref_nt,
+                   temp_c=ds.temp_c if d.temp_c is None else ds.temp_c + d.temp_c)
+
+
+def statistical(ds: Dataset, sigma_nt) -> Source:
+    """The readings' own noise: raw readings redrawn around the measured ones with the fit's residual
+    scatter per axis (a parametric bootstrap)."""
+    sigma = np.broadcast_to(np.asarray(sigma_nt, float), (3,))
+
+    def draw(rng: np.random.Generator) -> Draw:
+        return Draw(h_nt=rng.normal(0.0, 1.0, ds.h_nt.shape) * sigma)
+
+    return Source("fit (statistical)", draw, f"residual scatter {', '.join(f'{s:.3g}' for s in sigma)} nT")
+
+
+def raw_for(cal: Calibration, field_nt: np.ndarray, temp_c: np.ndarray | None) -> np.ndarray:
+    """The raw readings the calibration maps to `field_nt` at `temp_c`: every model is affine in h at a
+    given temperature, so its map is solved exactly from its values at h = 0 and at the unit vectors."""
+    field_nt = np.atleast_2d(np.asarray(field_nt, float))
+    n = len(field_nt)
+    t = None if temp_c is None else np.asarray(temp_c, float)
+    h = np.zeros((4 * n, 3))
+    h[n:2 * n, 0] = h[2 * n:3 * n, 1] = h[3 * n:, 2] = 1.0
+    out = apply(cal.model, cal.params, h, None if t is None else np.tile(t, 4), cal.temp_ref_c)
+    offset = out[:n]
+    slope = np.stack([out[n:2 * n] - offset, out[2 * n:3 * n] - offset, out[3 * n:] - offset], axis=2)
+    return np.linalg.solve(slope, (field_nt - offset)[:, :, None])[:, :, 0]
+
+
+def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Callable[[Dataset], Calibration],
+                grid: tuple[np.ndarray, np.ndarray | None], *, rng: np.random.Generator,
+                draws: int = DRAWS, draws_per_source: int = DRAWS_PER_SOURCE,
+                coverage_factor: float = COVERAGE_FACTOR) -> Budget:
+    """The budget of `cal` (fitted to `ds`) over `sources`; `grid` = (fields (G,3) nT, temperatures (G,)
+    or None) where the calibrated field's error is judged; `refit(ds)` fits the same model the same way."""
+    grid_field, grid_temp = grid
+    grid_h = raw_for(cal, grid_field, grid_temp)
+    nominal = cal.apply(grid_h, grid_temp)
+
+    def run(chosen: list[Source], n: int) -> tuple[np.ndarray, dict[str, list[np.ndarray]]]:
+        errors = []
+        params: dict[str, list[np.ndarray]] = {k: [] for k in cal.params}
+        for _ in range(n):
+            data = ds
+            for source in chosen:
+                data = with_draw(data, source.draw(rng))
+            try:
+                fitted = refit(data)
+            except FitError:  # a draw the model cannot fit at all: counted, not used
+                continue
+            errors.append(fitted.apply(grid_h, grid_temp) - nominal)
+            for k in params:
+                params[k].append(np.asarray(fitted.params[k], float))
+        if len(errors) < MIN_SHARE_FITTED * n:
+            names = ", ".join(s.name for s in chosen)
+            raise FitError(f"{cal.model}: only {len(errors)} of {n} Monte Carlo draws ({names}) could be "
+                           "fitted: the fit is too close to unidentifiable for an uncertainty")
+        return np.array(errors), params
+
+    contributions = []
+    for source in sources:
+        errors, _ = run([source], draws_per_source)
+        contributions.append({"source": source.name, "contribution_nt": _rms_length(errors),
+                              **({"note": source.note} if source.note else {})})
+    errors, params = run(sources, draws)
+    standard = {k: np.std(np.array(v), axis=0, ddof=1) for k, v in params.items()}
+    lengths = np.linalg.norm(errors, axis=2)
+    return Budget(
+        coverage_factor=coverage_factor, standard=standard,
+        expanded={k: coverage_factor * v for k, v in standard.items()},
+        contributions=contributions, combined_standard_nt=_rms_length(errors),
+        expanded_vector_error_nt=float(np.quantile(lengths, COVERAGE_PROBABILITY)), draws=draws)
+
+
+def _rms_length(errors: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(errors**2, axis=-1))))

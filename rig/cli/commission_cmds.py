@@ -1,0 +1,50 @@
+"""CLI: rig commission."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import click
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt("SIGTERM")
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to the `rig` group."""
+
+    @group.command("commission")
+    @click.argument("station_path", metavar="STATION.yaml", type=click.Path(dir_okay=False, path_type=Path))
+    @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+                  help="Folder for <station>.commissioning.yaml.")
+    @click.option("--repeats", type=click.IntRange(1, 20), default=2, show_default=True,
+                  help="How many times the whole set of settings is measured (drift between repeats).")
+    @click.option("--current", "current_a", type=float, default=None,
+                  help="Largest coil current, A (default: 0.8 x max_current_a, at most ~60 uT per coil).")
+    def commission_cmd(station_path: Path, out_dir: Path, repeats: int, current_a: float | None) -> None:
+        """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
+        reference magnetometer and write the commissioning file a station names in
+        `field_source: {commissioning: FILE}`."""
+        from rig.commission import commission
+        from rig.commissioning import read
+
+        signal.signal(signal.SIGTERM, _terminate)  # every exit leaves the coils safe (commission's finally)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path = commission(station_path, out_dir, repeats=repeats, current_a=current_a)
+        com = read(path)
+        click.echo(f"wrote {path}")
+        click.echo(com.summary())
+        if com.kind == "coils":
+            c = com.record.coils
+            for i, (row, se) in enumerate(zip(c.matrix_nt_per_a, c.std_errors_matrix_nt_per_a, strict=True)):
+                cells = "  ".join(f"{v:11.2f} +- {e:6.2f}" for v, e in zip(row, se, strict=True))
+                click.echo(f"  {'xyz'[i]}: {cells}  nT/A")
+            click.echo("  ambient (" + ", ".join(f"{v:.1f}" for v in c.ambient_nt) + ") nT; nonlinearity ("
+                       + ", ".join(f"{v:.0f}" for v in c.nonlinearity_ppm) + f") ppm; hysteresis "
+                       f"{c.hysteresis_nt:.1f} nT; drift {c.drift_nt:.1f} nT")
+        else:
+            t = com.record.table
+            click.echo("  " + ", ".join(f"{k} {v:.4g} +- {t.std_errors[k]:.2g}" for k, v in t.params.items()))
+            click.echo(f"  drift {t.drift_nt:.1f} nT")
