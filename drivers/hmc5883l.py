@@ -248,8 +248,18 @@ def _sample_time_s(options: HMC5883LOptions, set_reset_pair: bool) -> float:
     return 1.0 / options.rate_hz
 
 
+def identify(bus: SMBusLike, address: int) -> str | None:
+    """For bus scans: the three id registers, nothing written. Both chips read 'H43'."""
+    found = bytes(bus.read_i2c_block_data(address, REG_ID, len(ID_BYTES)))
+    if found != ID_BYTES:
+        return None
+    return f"Honeywell HMC5883L or HMC5983 (id {ID_BYTES.decode()!r} at 0x{REG_ID:02X}..0x{REG_ID + 2:02X})"
+
+
+PROBE = registry.I2cProbe((ADDRESS,), identify)
+
 for _options, _has_temperature in ((HMC5883LOptions, False), (HMC5983Options, True)):
     registry.register(registry.DeviceSpec(
         role="magnetometer", type=_options.TYPE, options=_options, transports=("i2c",), build=_build,
         simulator="drivers.sim.hmc5883l:simulate", has_temperature=_has_temperature,
-        sample_time=_sample_time_s, rates_hz=_options.RATES_HZ))
+        sample_time=_sample_time_s, rates_hz=_options.RATES_HZ, probe=PROBE))

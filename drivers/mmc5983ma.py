@@ -316,6 +316,15 @@ def _sample_time_s(options: MMC5983MAOptions, set_reset_pair: bool) -> float:
     return 2 * (one + SET_RESET_WAIT_S) if set_reset_pair else one
 
 
+def identify(bus: SMBusLike, address: int) -> str | None:
+    """For bus scans: the product id register, nothing written."""
+    found = bus.read_byte_data(address, REG_PRODUCT_ID)
+    if found != PRODUCT_ID:
+        return None
+    return f"MEMSIC MMC5983MA (product id 0x{found:02X} at 0x{REG_PRODUCT_ID:02X})"
+
+
 registry.register(registry.DeviceSpec(
     role="magnetometer", type="mmc5983ma", options=MMC5983MAOptions, transports=("i2c",), build=_build,
-    simulator="drivers.sim.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s))
+    simulator="drivers.sim.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s,
+    probe=registry.I2cProbe((ADDRESS,), identify)))

@@ -162,6 +162,29 @@ Builder = Callable[..., Device]  # build(link, options, *, name, clock, set_rese
 
 
 @dataclass(frozen=True)
+class I2cProbe:
+    """How a bus scan (drivers/busscan.py) recognises the chip: the addresses it can answer at, and a
+    look at its identification registers through a plain smbus2-like bus, `identify(bus, address)`:
+    what the chip is ("MEMSIC MMC5983MA (product id 0x30 at 0x2F)"), or None when it is not this chip."""
+
+    addresses: tuple[int, ...]
+    identify: Callable[[Any, int], str | None]
+
+
+@dataclass(frozen=True)
+class SerialProbe:
+    """How a port scan recognises the device: `identify(line, device_id, timeout_s)` on a
+    drivers.transports.serial.SerialLine gives {"model", "serial_number", "firmware"}, or None when
+    nothing answers at that id; `device_ids` to try; the line's possible `baudrates`; `quiet(line)`, once
+    per baud rate before the ids are asked (stop what a device may be streaming)."""
+
+    identify: Callable[[Any, int, float], dict | None]
+    device_ids: tuple[int, ...]
+    baudrates: tuple[int, ...]
+    quiet: Callable[[Any], None] | None = None
+
+
+@dataclass(frozen=True)
 class DeviceSpec:
     role: str
     type: str
@@ -173,6 +196,7 @@ class DeviceSpec:
     temperature_accuracy_c: float | None = None  # +- over its range, where its datasheet states one
     sample_time: Callable[[Any, bool], float] | None = None  # (options, set_reset_pair) -> s per reading
     rates_hz: tuple[float, ...] = ()
+    probe: I2cProbe | SerialProbe | None = None  # how `rig devices scan` recognises it
 
     def sample_time_s(self, options, set_reset_pair: bool) -> float:
         """Estimated time for one reading (duration estimates; the driver sets the real pace)."""
@@ -206,6 +230,16 @@ def specs(role: str) -> list[DeviceSpec]:
     """Every registered spec of `role`, in registration order."""
     _load()
     return [s for (r, _), s in _SPECS.items() if r == role]
+
+
+def probes(kind: type[I2cProbe] | type[SerialProbe]) -> list:
+    """The distinct probes of one kind (a driver registered under two types declares one probe)."""
+    _load()
+    out: list = []
+    for s in _SPECS.values():
+        if isinstance(s.probe, kind) and s.probe not in out:
+            out.append(s.probe)
+    return out
 
 
 def spec(role: str, type_: str) -> DeviceSpec:

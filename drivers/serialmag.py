@@ -533,7 +533,34 @@ def _sample_time_s(options: SerialMagOptions, set_reset_pair: bool) -> float:
     return 1.0 / options.rate_hz
 
 
+SCAN_NAME = "port scan"  # the name a scan's transports go by (one name for every id it asks)
+
+
+def quiet(line: SerialLine) -> None:
+    """For port scans, before asking each id: Esc, so a stream some device was left in stops."""
+    SerialMagnetometer.on_line(line, name=SCAN_NAME, device_id=0, tries=1)._stop_stream()
+
+
+def identify(line: SerialLine, device_id: int, timeout_s: float) -> dict | None:
+    """For port scans: is an HMR2300-style device at `device_id` on this line? `*ddA` (ASCII output; its
+    ASCII_ON reply also proves the baud rate), then `*dd#` and `*ddF`. Nothing else is changed. None
+    when nothing answers; ProtocolError when something else does."""
+    dev = SerialMagnetometer.on_line(line, name=SCAN_NAME, device_id=device_id, timeout_s=timeout_s, tries=1)
+    with dev.transport.session():
+        try:
+            dev._reply_to("A", ASCII_ON, "identify (*ddA)")
+        except DeviceTimeout:
+            return None
+        found = {"model": dev.model, "serial_number": None, "firmware": None}
+        for key, body in (("serial_number", "#"), ("firmware", "F")):
+            try:
+                found[key] = dev._text_query(body, f"identify (*dd{body})")
+            except DeviceError:
+                pass  # answers the handshake but not this query: still the device, say what is known
+        return found
+
+
 registry.register(registry.DeviceSpec(
     role="magnetometer", type="serialmag", options=SerialMagOptions, transports=("serial",), build=_build,
     simulator="drivers.sim.serialmag:simulate", has_temperature=False, sample_time=_sample_time_s,
-    rates_hz=RATES_HZ))
+    rates_hz=RATES_HZ, probe=registry.SerialProbe(identify, tuple(range(BROADCAST_ID)), BAUD_RATES, quiet)))

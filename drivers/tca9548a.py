@@ -38,7 +38,7 @@ log = logging.getLogger("magrig.drivers.tca9548a")
 ADDRESSES = range(0x70, 0x78)  # 0x70 + A2A1A0
 CHANNELS = 8  # bit n of the control byte enables channel n
 POWER_UP_CONTROL = 0x00  # all channels disabled after power-up or RESET
-NACK_ERRNO = errno.EREMOTEIO
+NACK_ERRNOS = (errno.EREMOTEIO, errno.ENXIO)  # ENXIO from some adapters (an MCP2221 bridge)
 T = TypeVar("T")
 
 
@@ -99,12 +99,23 @@ class TCA9548A:
         except OSError as exc:
             self.control = None
             where = f"switch at 0x{self.address:02X}"
-            if exc.errno == NACK_ERRNO:
+            if exc.errno in NACK_ERRNOS:
                 detail = f"no ACK from the {where}: a fault of the I2C switch, not of the device behind it"
                 raise DeviceNotFound(self.name, what, detail) from exc
             if exc.errno == errno.ETIMEDOUT:
                 raise DeviceTimeout(self.name, what, f"bus timeout at the {where}") from exc
             raise DeviceError(self.name, what, f"I2C error at the {where}: {exc}") from exc
+
+
+def identify(bus: Any, address: int) -> str | None:
+    """For bus scans (on a bus nothing else is using): a switch reads back the control byte written to
+    it. Writes 0x00 (every channel off, the power-up state); None when the chip there does not read it
+    back. Transfer errors (OSError) are the caller's to judge."""
+    before = bus.read_byte(address)
+    bus.write_byte(address, POWER_UP_CONTROL)
+    if bus.read_byte(address) != POWER_UP_CONTROL:
+        return None
+    return f"TCA9548A/PCA9548A I2C switch (control byte read back; was 0x{before:02X}, now all channels off)"
 
 
 class _PhysicalBus:

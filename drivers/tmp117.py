@@ -28,6 +28,7 @@ log = logging.getLogger("magrig.drivers.tmp117")
 
 # --- register map -----------------------------------------------------------------------------------
 ADDRESS = 0x48
+ADDRESSES = (0x48, 0x49, 0x4A, 0x4B)  # by the ADD0 pin: GND, V+, SDA, SCL (0x48 the default)
 REG_TEMP_RESULT = 0x00
 REG_CONFIGURATION = 0x01
 REG_THIGH = 0x02
@@ -189,7 +190,18 @@ def _build(link: registry.I2cLink, options: registry.NoOptions, *, name: str, cl
     return TMP117(link.bus, link.address, name=name, clock=clock)
 
 
+def identify(bus: SMBusLike, address: int) -> str | None:
+    """For bus scans: the DEVICE_ID register (16-bit, big-endian), nothing written."""
+    found = int.from_bytes(bytes(bus.read_i2c_block_data(address, REG_DEVICE_ID, 2)), "big")
+    if found == DEVICE_ID:
+        return f"TI TMP117 (device id 0x{found:04X} at 0x{REG_DEVICE_ID:02X})"
+    if found == TMP119_DEVICE_ID:
+        return f"TI TMP119 (device id 0x{found:04X} at 0x{REG_DEVICE_ID:02X}; the rig drives TMP117s)"
+    return None
+
+
 registry.register(registry.DeviceSpec(
     role="temperature", type="tmp117", options=registry.NoOptions, transports=("i2c",), build=_build,
     simulator="drivers.sim.tmp117:simulate", has_temperature=True,
-    temperature_accuracy_c=0.15))  # TI datasheet: +-0.1 degC from -20 to 50 degC, +-0.15 from -55 to 150
+    temperature_accuracy_c=0.15,  # TI datasheet: +-0.1 degC from -20 to 50 degC, +-0.15 from -55 to 150
+    probe=registry.I2cProbe(ADDRESSES, identify)))

@@ -51,7 +51,9 @@ from rig.errors import ERRORS, ConfigError, SessionError
 from rig.events import Kind, Reason
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.frozen import FrozenReadings
+from rig.inbox import Inbox
 from rig.interleave import read_all
+from rig.livefit import LiveFit
 from rig.lock import SessionLock
 from rig.plan import check_campaign
 from rig.points import Point
@@ -59,6 +61,7 @@ from rig.reference import reference_for
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector, criteria_of
 from rig.station import Rig, open_rig
 from rig.store import SampleRow
+from rig.telemetry import TemperatureLog
 
 log = logging.getLogger("magrig.campaign")
 
@@ -68,35 +71,6 @@ HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many settling ban
 def poll_interval_s(criteria: SettleCriteria) -> float:
     """Temperature poll while settling: about 8 samples per dwell window, between 2 and 30 s."""
     return min(30.0, max(2.0, criteria.dwell_s / 8.0))
-
-
-class LiveFit:
-    """The streaming T24 fit of one DUT, updated after every point (for the live display)."""
-
-    def __init__(self, temp_ref_c: float):
-        from calib.gram import GramAccumulator
-
-        self.acc = GramAccumulator(temp_ref_c)
-        self.rms_nt: float | None = None  # of the last solve (the live view shows the worst DUTs first)
-
-    def add(self, h_nt, temp_c, ref_nt) -> None:
-        if len(h_nt):
-            self.acc.add(h_nt, temp_c, ref_nt)
-
-    def summary(self) -> str:
-        if self.acc.n == 0:
-            return "no data yet"
-        if self.acc.identifiability() is not None:
-            return f"n={self.acc.n}: not yet identifiable"
-        try:
-            cal = self.acc.solve()
-        except ERRORS:
-            return f"n={self.acc.n}: not yet identifiable"
-        se = cal.std_errors
-        self.rms_nt = cal.stats["rms_after_nt"]
-        return (f"n={self.acc.n}: rms {cal.stats['rms_after_nt']:.1f} nT, largest se: "
-                f"b {np.max(se['b_nt']):.2f} nT, S {np.max(se['S']) * 1e6:.0f} ppm, "
-                f"K {np.max(se['K']) * 1e6:.2f} ppm/C")
 
 
 class CampaignRunner:
@@ -119,6 +93,7 @@ class CampaignRunner:
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
         self._settle_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
+        self.temperatures = TemperatureLog(session)  # what the cockpit plots between points
         from rig import ramp
 
         self.ramp = ramp.attach(self)  # continuous-ramp tasks (None for steps); stop_when
@@ -157,6 +132,7 @@ class CampaignRunner:
     def _check_chamber(self) -> None:
         reading = self.rig.chamber.read()
         self.status.chamber_c = reading.air_c
+        self.temperatures.note(reading, self.status.dut_temps_c)
         if reading.fault:
             code = (Reason.CHAMBER_ALARM if reading.alarm else
                     Reason.CHAMBER_SENSOR if reading.input_error else Reason.CHAMBER_OFF_COURSE)
@@ -258,7 +234,8 @@ class CampaignRunner:
                 self.status.dut_temps_c[dut] = temp_c
         self._check_chamber()
         stats = {**self._settle_stats, "reference": self.reference.record()}
-        self.session.record_point(point.id, rows, stats, started=started)
+        self.session.record_point(point.id, rows, stats, started=started,
+                                  temperatures=self.temperatures.take())
         self._feed_live(rows)
 
     def _feed_live(self, rows: list[SampleRow]) -> None:
@@ -444,7 +421,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     if done:
         runner.preload_live(session.path)
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session,
-                    prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status)
+                    prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status,
+                    inbox=Inbox(session.path))
     runner.engine = engine
     display = display_factory(status, runner) if display_factory else None
     if prompt is not None and hasattr(display, "suspended"):

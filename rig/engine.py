@@ -11,6 +11,9 @@ exit status: that is the engine's job, so every exit path is the same.
   poll inside a long wait), puts every device in its safe state, and asks `prompt` whether to resume or
   abort (no prompt: abort). A resumed point starts again from its first command (nothing of it was
   recorded: a point is stored in one transaction). A second Ctrl-C, or SIGTERM, aborts.
+- Requests from outside the process (the cockpit's pause and abort, rig/inbox.py) are read at the same
+  checks and take the same path; each is recorded as an event naming where it came from. A requested
+  pause with nobody at a prompt ends the run there, to be continued with `rig run --resume`.
 - A `Hold` (chamber alarm, DUT temperature out of band) or a `DeviceError` (a fault that survived the
   transport's retries) holds the run: the engine logs it, waits `hold_wait_s`, and retakes the point with
   `retake=True` (the task then re-settles). After `max_retakes` retakes of one point it aborts with the
@@ -167,6 +170,7 @@ class Engine:
         max_retakes: int = 3,
         hold_wait_s: float = 60.0,
         status: RunStatus | None = None,
+        inbox: Any = None,
     ):
         self.handlers = dict(handlers)
         self.devices = list(devices)
@@ -183,6 +187,8 @@ class Engine:
         self._prompting = False
         self._events_lost = 0
         self._stop: tuple[str, Reason] | None = None  # end early as completed (stop_when targets met)
+        self.inbox = inbox  # rig.inbox.Inbox: requests from outside the process, or None
+        self._pause_source: str | None = None  # who asked for the pending pause, when not Ctrl-C
 
     # --- requests (signal handlers and tests call these) -----------------------------------------
     def request_pause(self) -> None:
@@ -208,10 +214,27 @@ class Engine:
         """Called between commands and by long handlers at every poll: raises to pause or abort."""
         if self.log_handler is not None:
             self.log_handler.flush_pending()
+        if self.inbox is not None:
+            self._take_request()
         if self._abort_reason is not None:
             raise _Abort(self._abort_reason, self._abort_code)
         if self._pause_requested.is_set():
             raise _Pause()
+
+    def _take_request(self) -> None:
+        """A pause or abort left by the cockpit: recorded with its source, then handled as Ctrl-C is."""
+        request = self.inbox.take()
+        if request is None:
+            return
+        abort = request.action == "abort"
+        self.event(Kind.REQUEST, f"{'abort' if abort else 'pause at the next safe point'} requested by "
+                   f"{request.source}", code=Reason.OPERATOR_ABORT if abort else Reason.OPERATOR_PAUSE,
+                   point_id=self.status.point_id or None, source=request.source, request_id=request.id)
+        if abort:
+            self.request_abort(f"abort requested by {request.source}")
+        elif not self._pause_requested.is_set():
+            self._pause_source = request.source
+            self._pause_requested.set()
 
     def wait(self, seconds: float, poll_s: float = 5.0) -> None:
         """Wait on the clock in slices, staying responsive to pause and abort."""
@@ -340,8 +363,10 @@ class Engine:
             gen.close()
 
     def _pause(self, point_id: str) -> None:
-        self.event(Kind.PAUSE, f"paused at point {point_id} (not recorded yet)", code=Reason.OPERATOR_PAUSE,
-                   point_id=point_id)
+        source = self._pause_source
+        self.event(Kind.PAUSE, f"paused at point {point_id} (not recorded yet)" +
+                   (f" at the request of {source}" if source else ""), code=Reason.OPERATOR_PAUSE,
+                   point_id=point_id, source=source or "Ctrl-C")
         self.status.command = "paused"
         self.make_safe()
         answer = "abort"
@@ -354,9 +379,13 @@ class Engine:
             finally:
                 self._prompting = False
         if answer != "resume" or self._abort_reason is not None:
+            if self._abort_reason is None and self.prompt is None and source:
+                raise _Abort(f"paused at {point_id} at the request of {source}; nobody here to answer "
+                             "resume or abort, so the run ends here", Reason.OPERATOR_PAUSE)
             raise _Abort(self._abort_reason or f"operator aborted while paused at {point_id}",
                          self._abort_code)
         self._pause_requested.clear()
+        self._pause_source = None
         self.event(Kind.RESUME, f"resuming at point {point_id}", code=Reason.OPERATOR_RESUME,
                    point_id=point_id)
 

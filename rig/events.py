@@ -36,6 +36,7 @@ class Kind(StrEnum):
     STABLE = "stable"  # the DUTs are thermally stable at a step
     HOLD = "hold"  # a point could not be taken as it was; it is retaken
     FAULT = "fault"  # what ended a run that did not complete
+    REQUEST = "request"  # an operator's pause or abort from outside the run (the cockpit), with its source
     PAUSE = "pause"
     RESUME = "resume"
     SAFE_STATE = "safe_state"

@@ -1,4 +1,5 @@
-"""Exports of a calibration for other tools: a C header for flight software, JSON, CSV.
+"""Exports of a calibration for other tools: a C header for flight software, JSON, CSV; and of a
+session's samples as CSV (`write_samples_csv`).
 
 Every model is brought to one "flight form" a small computer evaluates with a few multiply-adds:
 
@@ -34,6 +35,18 @@ from rig.errors import DataError
 
 FORMATS = ("c-header", "json", "csv")
 MAX_BUDGET_LINES = 16
+
+
+# ---------------------------------------------------------------------------------------------- samples
+def write_samples_csv(stream, rows: list[dict]) -> None:
+    """One DUT's samples (rig.reader.SessionReader.sample_rows) as CSV in the reader's EXPORT_COLUMNS:
+    what `rig export` writes and `rig refit` reads back."""
+    from rig.reader import EXPORT_COLUMNS
+
+    writer = csv.writer(stream)
+    writer.writerow(EXPORT_COLUMNS)
+    for r in rows:
+        writer.writerow(["" if r[c] is None else r[c] for c in EXPORT_COLUMNS])
 
 
 @dataclass(frozen=True)

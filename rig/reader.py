@@ -1,7 +1,9 @@
-"""The one read-only view of a session file: report, `rig sessions`, `rig export` and `rig refit` use it.
+"""The one read-only view of a session file: report, `rig sessions`, `rig export`, `rig refit` and the
+cockpit (`rig serve`) use it.
 
     with SessionReader(path) as r:
         r.info(), r.points(), r.events() -> [rig.events.Event], r.fits(), r.snapshots(), r.duts()
+        r.temperatures(), r.samples_of(point_ids), r.events(after_id)   # the cockpit's live view
         r.sample_rows(dut) -> (dut, rows keyed by EXPORT_COLUMNS)
         r.dataset(dut) -> calib.dataset.Dataset
         r.summary() -> dict (for `rig sessions`)
@@ -120,14 +122,40 @@ class SessionReader:
     def points(self) -> list[dict]:
         return self._rows("SELECT * FROM points ORDER BY idx")
 
-    def events(self) -> list[Event]:
-        return [event_from_row(r) for r in self._rows("SELECT * FROM events ORDER BY id")]
+    def events(self, after_id: int = 0) -> list[Event]:
+        """The events in order; with `after_id`, only those recorded after that one (a live view)."""
+        return [event_from_row(r) for r in self._rows("SELECT * FROM events WHERE id > ? ORDER BY id",
+                                                      after_id)]
 
     def fits(self) -> list[dict]:
         return self._rows("SELECT * FROM fits ORDER BY id")
 
     def snapshots(self) -> list[dict]:
         return self._rows("SELECT * FROM snapshots ORDER BY id")
+
+    def temperatures(self, after_row: int = 0) -> list[dict]:
+        """The chamber's set point and air and the DUT temperatures the run logged (rig/telemetry.py), in
+        the order written, `duts` parsed, `row` numbering them; with `after_row`, only the rows after that
+        one (a live view); [] in a session without."""
+        if not self._has_table("temperatures"):
+            return []
+        rows = self._rows("SELECT id AS row, t, setpoint_c, closed_loop_c, air_c, duts_json "
+                          "FROM temperatures WHERE id > ? ORDER BY id", after_row)
+        for r in rows:
+            r["duts"] = json.loads(r.pop("duts_json") or "{}")
+        return rows
+
+    def samples_of(self, point_ids: list[str]) -> list[dict]:
+        """Every DUT's samples of these points in collection order (a live view adds points as they
+        come): point, dut, t, hx..hz, temp (as in `sample_rows`), bx..bz, flags."""
+        out: list[dict] = []
+        for i in range(0, len(point_ids), 500):  # well below SQLite's limit on bound parameters
+            chunk = point_ids[i:i + 500]
+            out += self._rows(
+                "SELECT point_id AS point, dut, t, hx, hy, hz, coalesce(temp_c, ref_temp_c) AS temp, "
+                f"bx, by, bz, flags FROM samples WHERE point_id IN ({','.join('?' * len(chunk))}) "
+                "ORDER BY id", *chunk)
+        return out
 
     def snapshot(self, device: str) -> dict | None:
         """The latest snapshot recorded under `device` (e.g. "reference chain"), or None."""
@@ -214,8 +242,11 @@ class SessionReader:
     # --- at a glance ------------------------------------------------------------------------------------
     def acceptance(self) -> list[dict]:
         """The per-DUT verdicts (rig/acceptance.py); [] when the plan set no acceptance limits."""
-        found = self._rows("SELECT name FROM sqlite_master WHERE type = 'table' AND name = 'acceptance'")
-        return self._rows("SELECT * FROM acceptance ORDER BY rowid") if found else []
+        return self._rows("SELECT * FROM acceptance ORDER BY rowid") if self._has_table("acceptance") else []
+
+    def _has_table(self, name: str) -> bool:
+        """Tables made when first needed (acceptance, temperatures) are missing from older sessions."""
+        return bool(self._rows("SELECT name FROM sqlite_master WHERE type = 'table' AND name = ?", name))
 
     def summary(self) -> dict:
         """One session at a glance (for `rig sessions` and the report)."""

@@ -10,6 +10,7 @@
     s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
     s.record_snapshot(device, describe_dict)
     s.record_fit(dut, model, calibration: dict, residual_rms_nt=None)
+    s.record_temperatures([TemperatureRow(t, setpoint_c, closed_loop_c, air_c, {dut: temp_c})])  # the cockpit
     s.finish(status, reason, code=Reason.X)      # ended, exit status, reason and code, completed flag
     s.close()
 
@@ -94,6 +95,26 @@ class SampleRow:
 def _opt_float(value) -> float | None:
     return None if value is None else float(value)
 
+
+@dataclass(frozen=True)
+class TemperatureRow:
+    """One line of the cockpit's temperature plot (rig/telemetry.py): the chamber's set point (and its
+    instantaneous one during a ramp), its air and each DUT's temperature."""
+
+    t: float
+    setpoint_c: float | None
+    closed_loop_c: float | None
+    air_c: float | None
+    duts_c: dict[str, float | None]
+
+    def as_params(self) -> tuple:
+        return (float(self.t), _opt_float(self.setpoint_c), _opt_float(self.closed_loop_c),
+                _opt_float(self.air_c), json.dumps({k: _opt_float(v) for k, v in self.duts_c.items()}))
+
+
+TEMPERATURES_TABLE = ("CREATE TABLE IF NOT EXISTS temperatures (id INTEGER PRIMARY KEY, "
+                      "t REAL NOT NULL, setpoint_c REAL, closed_loop_c REAL, air_c REAL, "
+                      "duts_json TEXT NOT NULL DEFAULT '{}')")
 
 _INSERT_SAMPLE = (
     "INSERT INTO samples (point_id, dut, t, hx, hy, hz, cx, cy, cz, ox, oy, oz, temp_c, ref_temp_c, "
@@ -306,8 +327,10 @@ class Session:
                 raise SessionError(f"{self.path}: cannot write to the session ({exc})") from None
 
     def record_point(self, point_id: str, rows: Iterable[SampleRow], settle_stats: dict | None = None, *,
-                     started: float | None = None, finished: float | None = None) -> None:
-        """Mark the point done and store all its samples, atomically."""
+                     started: float | None = None, finished: float | None = None,
+                     temperatures: list[TemperatureRow] = ()) -> None:
+        """Mark the point done and store all its samples, atomically (with the temperature rows noted
+        since the last write: they ride along instead of taking a transaction of their own)."""
         finished = self.clock.now() if finished is None else finished
         with self._transaction() as conn:
             state = conn.execute("SELECT state FROM points WHERE id = ?", (point_id,)).fetchone()
@@ -316,6 +339,7 @@ class Session:
             if state[0] == "done":
                 raise SessionError(f"{self.path}: point {point_id} is already recorded")
             conn.executemany(_INSERT_SAMPLE, (row.as_params(point_id) for row in rows))
+            _insert_temperatures(conn, temperatures)
             conn.execute(
                 "UPDATE points SET state = 'done', settle_json = ?, started = ?, finished = ?, reason = NULL "
                 "WHERE id = ?",
@@ -373,9 +397,24 @@ class Session:
                 [(self.clock.now(), r["dut"], r["model"], r["passed"], r["verdict"], r["failed"],
                   r["heldout_rms_nt"], r["fit_rms_nt"], r["lag_s"], r["notes"]) for r in rows])
 
+    def record_temperatures(self, rows: list[TemperatureRow]) -> None:
+        """Rows of table `temperatures` (made when first needed), for the cockpit's plot."""
+        with self._transaction() as conn:
+            _insert_temperatures(conn, rows)
+
     def finish(self, status: str, reason: str = "", completed: bool | None = None,
                code: Reason | None = None) -> None:
-        """Record how the run ended. `completed` defaults to: every planned point is done."""
+        """Record how the run ended. `completed` defaults to: every planned point is done. On a full disk
+        the write-ahead log is folded into the file first (freeing the log's space) and it is tried once
+        more: how a run ended is the one record that must not be lost."""
+        try:
+            self._finish(status, reason, completed, code)
+        except SessionError:
+            with self._lock, contextlib.suppress(sqlite3.Error):
+                self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            self._finish(status, reason, completed, code)
+
+    def _finish(self, status: str, reason: str, completed: bool | None, code: Reason | None) -> None:
         with self._transaction() as conn:
             if completed is None:
                 left = conn.execute("SELECT count(*) FROM points WHERE state != 'done'").fetchone()[0]
@@ -385,6 +424,13 @@ class Session:
                 "exit_code = ?, completed = ?",
                 (self.clock.now(), time.time(), status, reason, code and Reason(code).value, int(completed)),
             )
+
+
+def _insert_temperatures(conn: sqlite3.Connection, rows: list[TemperatureRow]) -> None:
+    if rows:
+        conn.execute(TEMPERATURES_TABLE)
+        conn.executemany("INSERT INTO temperatures (t, setpoint_c, closed_loop_c, air_c, duts_json) "
+                         "VALUES (?, ?, ?, ?, ?)", [r.as_params() for r in rows])
 
 
 def _build(build: Path, record: tuple, points: Iterable) -> None:

@@ -6,6 +6,7 @@
     bus.detach(0x30)           # unplug: every transfer raises OSError(121, "Remote I/O error")
     bus.set_faults(0x30, faults)  # a drivers.sim.faults.DeviceFaults: "nack" or "unplug" draws NACK
     mux = bus.add_switch(0x70) # a TCA9548A; mux.attach(3, 0x30, chip) puts a chip behind channel 3
+    bus.write_quick(0x30)      # the SMBus quick command of bus scans: only the ACK (or errno 121) tells
 
 A chip behind a switch answers only while its channel is enabled. When several chips answer at one
 address (two enabled channels, or a channel and the main bus), every one of them takes each write, and a
@@ -13,7 +14,8 @@ read returns the bitwise AND of their bytes: I2C is open-drain (wired-AND), so t
 mix; both chips ACK, so nothing fails loudly. The notes (1.5) only say such chips "share the bus".
 
 Chips implement `on_read(register, length) -> bytes` and `on_write(register, data)`; `RegisterChip`
-gives them a byte register file with auto-increment. `RecordingSMBus(inner)` records every transfer
+gives them a byte register file with auto-increment (a one-byte read with no register, `read_byte`,
+reads at the auto-incremented pointer). `RecordingSMBus(inner)` records every transfer
 on its way through; `ScriptedSMBus(address, script)` plays a literal transcript, checking each write
 and answering each read, so tests can hold drivers to the datasheet's bytes.
 """
@@ -150,6 +152,7 @@ class RegisterChip:
 
     def __init__(self) -> None:
         self.registers = bytearray(256)
+        self.pointer = 0  # where a plain one-byte read (no register written first) reads
 
     def update(self) -> None:
         """Advance conversions to the current time; called before every transfer."""
@@ -162,12 +165,19 @@ class RegisterChip:
 
     def on_read(self, register: int, length: int) -> bytes:
         self.update()
+        self.pointer = (register + length) & 0xFF
         return bytes(self.read_register((register + i) & 0xFF) for i in range(length))
 
     def on_write(self, register: int, data: bytes) -> None:
         self.update()
+        self.pointer = (register + len(data)) & 0xFF
         for i, value in enumerate(data):
             self.write_register((register + i) & 0xFF, value)
+
+    def on_receive(self) -> int:
+        """A one-byte read without a register (smbus2 read_byte): the register at the auto-incrementing
+        pointer, which moves on."""
+        return self.on_read(self.pointer, 1)[0]
 
 
 class FakeSMBus:
@@ -244,6 +254,10 @@ class FakeSMBus:
 
     def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
         return _receive(self._chip(i2c_addr))
+
+    def write_quick(self, i2c_addr: int, force: bool | None = None) -> None:
+        """SMBus quick command: the address alone; only the ACK says anything (bus scans)."""
+        self._chip(i2c_addr)
 
     def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
         _check_byte(value)

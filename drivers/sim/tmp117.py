@@ -38,6 +38,7 @@ class TMP117Sim:
         self.stuck_c: float | None = None
         self.never_ready = False
         self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the result
+        self.pointer = tmp.REG_TEMP_RESULT
         self._power_on()
 
     def _power_on(self) -> None:
@@ -99,6 +100,7 @@ class TMP117Sim:
     # --- bus side -----------------------------------------------------------------------------------
     def on_read(self, register: int, length: int) -> bytes:
         self.update()
+        self.pointer = register
         if register == tmp.REG_CONFIGURATION:
             word = self.config | (tmp.CONFIG_DATA_READY if self.data_ready else 0)
             self.data_ready = False
@@ -109,8 +111,13 @@ class TMP117Sim:
         data = word.to_bytes(2, "big")
         return (data * (length // 2 + 1))[:length]  # the pointer stays: longer reads repeat the word
 
+    def on_receive(self) -> int:
+        """A one-byte read with no pointer written first: the high byte of the register pointed at."""
+        return self.on_read(self.pointer, 1)[0]
+
     def on_write(self, register: int, data: bytes) -> None:
         self.update()
+        self.pointer = register
         if len(data) < 2:  # a pointer write, or half a word: nothing is stored
             return
         word = data[0] << 8 | data[1]

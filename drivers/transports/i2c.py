@@ -29,6 +29,7 @@ log = logging.getLogger("magrig.transport.i2c")
 
 BLOCK_MAX_BYTES = 32  # SMBus I2C block transfer limit (smbus2 I2C_SMBUS_BLOCK_MAX)
 NACK_ERRNO = errno.EREMOTEIO  # 121: "Remote I/O error", what Linux reports when no chip ACKs
+NACK_ERRNOS = (NACK_ERRNO, errno.ENXIO)  # ENXIO (6): the same from some adapters (an MCP2221 bridge)
 CLOCK_RESOLUTION_S = 1e-6  # epoch seconds as float resolve ~0.2 us: finer waits cannot advance
 T = TypeVar("T")
 
@@ -157,10 +158,11 @@ class I2CTransport:
             raise
 
     def _as_device_error(self, exc: OSError, operation: str) -> DeviceError:
-        if exc.errno == NACK_ERRNO:
+        if exc.errno in NACK_ERRNOS:
             return DeviceNotFound(self.name, operation, f"no ACK at 0x{self.address:02X}")
         if exc.errno == errno.ETIMEDOUT:
-            return DeviceTimeout(self.name, operation, f"bus timeout at 0x{self.address:02X}")
+            # a CP2112 bridge reports a chip that does not ACK this way too
+            return DeviceTimeout(self.name, operation, f"bus timeout (or no ACK) at 0x{self.address:02X}")
         return DeviceError(self.name, operation, f"I2C error at 0x{self.address:02X}: {exc}")
 
     # --- waiting ----------------------------------------------------------------------------------

@@ -32,6 +32,7 @@ COMMAND_MODULES = {
     "commission": "commission_cmds",
     "report": "report_cmds", "export-cal": "report_cmds", "sessions": "report_cmds",
     "push": "fleet_cmds", "fleet": "fleet_cmds", "refit-all": "fleet_cmds",
+    "serve": "serve_cmds",
 }
 
 

@@ -1,4 +1,4 @@
-"""CLI: rig devices check."""
+"""CLI: rig devices check, rig devices scan."""
 
 from __future__ import annotations
 
@@ -75,3 +75,49 @@ def register(group: click.Group) -> None:
         if failed:
             raise DevicesFailed(f"{len(failed)} of {len(results)} devices failed: {', '.join(failed)}")
         click.echo(f"all {len(results)} devices answer")
+
+    @devices.command("scan")
+    @click.argument("station_path", required=False, metavar="[STATION.yaml]", type=click.Path(dir_okay=False))
+    @click.option("--bus", "buses", type=click.IntRange(0, 255), multiple=True, metavar="N",
+                  help="Scan /dev/i2c-N (repeatable), without a station file.")
+    @click.option("--port", "ports", multiple=True, metavar="PATH",
+                  help="Scan this serial port (repeatable).")
+    @click.option("--baud", type=click.Choice(["9600", "19200"]), default="9600", show_default=True,
+                  help="First baud rate to ask --port at (the other is tried when nothing answers).")
+    @click.option("--ids", metavar="A-B", help="Serial device ids to ask (default: 0-98, all of them).")
+    def scan(station_path, buses, ports, baud, ids):
+        """Which I2C addresses answer on each bus of STATION.yaml (and behind each TCA9548A/PCA9548A switch
+        channel), and which serial devices on its ports, each with what it is (its identification
+        registers or replies), matched with the station's devices. Or one bus (--bus N) or port (--port)."""
+        from rig.devicescan import scan_station, scan_targets
+
+        if not (station_path or buses or ports):
+            raise click.UsageError("give STATION.yaml, --bus N or --port PATH")
+        device_ids = _id_range(ids)
+        if station_path:
+            from rig.config import load_station
+
+            report = scan_station(load_station(station_path), device_ids=device_ids)
+            if buses or ports:
+                extra = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids)
+                report.buses += extra.buses
+                report.ports += extra.ports
+        else:
+            report = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids)
+        for line in report.lines():
+            click.echo(line)
+        if report.problems:
+            raise DevicesFailed("; ".join(report.problems))
+
+
+def _id_range(text: str | None) -> range | None:
+    if text is None:
+        return None
+    low, sep, high = text.partition("-")
+    try:
+        first, last = int(low), int(high if sep else low)
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: give ids as A-B, e.g. 0-98", param_hint="--ids") from None
+    if not 0 <= first <= last <= 98:
+        raise click.BadParameter(f"{text!r}: ids are 0..98", param_hint="--ids")
+    return range(first, last + 1)

@@ -12,10 +12,11 @@ import click
 from calib.models import MODELS
 from rig import __version__
 from rig.errors import ERRORS, MagrigError
+from rig.fleet import DATE_FORMATS
 
 DB_OPTION = click.option("--db", "db_url", metavar="URL", envvar="MAGRIG_DB",
                          help="Fleet database, e.g. postgresql://rig@db.lab/magrig (default: $MAGRIG_DB).")
-DATE = click.DateTime(["%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S"])
+DATE = click.DateTime(DATE_FORMATS)
 
 
 def fleet_filters(f):
@@ -93,7 +94,7 @@ def list_cmd(db_url, station, dut, since, until, verdict) -> None:
 
 def list_fleet(db_url: str, station, dut, since, until, verdict) -> None:
     """The fleet listing (also `rig sessions --db URL`)."""
-    from rig.fleet.query import Filters, list_sessions
+    from rig.fleet.query import LISTING_COLUMNS, Filters, list_sessions, listing_cells
     from rig.fleet.schema import connect
 
     filters = Filters(station=station, dut=dut, since=_utc(since), until=_utc(until), verdict=verdict)
@@ -102,13 +103,9 @@ def list_fleet(db_url: str, station, dut, since, until, verdict) -> None:
     if not rows:
         click.echo("no sessions match")
         return
-    click.echo(fleet_line("session", "started (UTC)", "station", "DUTs", "points", "exit", "verdict", "file"))
+    click.echo(fleet_line(*LISTING_COLUMNS))
     for r in rows:
-        started = r["started_utc"].strftime("%Y-%m-%d %H:%M") if r["started_utc"] else "-"
-        duts = r["duts"] + (f" ({r['serials']})" if r["serials"] else "")
-        click.echo(fleet_line(r["uid"][:12], started, r["station_name"] or "-", duts or "-",
-                              f"{r['points_done']}/{r['points_planned']}", r["exit_status"] or "not finished",
-                              r["verdict"] or "-", r["source_path"]))
+        click.echo(fleet_line(*listing_cells(r)))
     click.echo(f"{len(rows)} session(s)")
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import click
@@ -10,7 +9,7 @@ import click
 from calib.atomic import atomic_write
 from rig.config import load_campaign
 from rig.plan import check_campaign
-from rig.reader import EXPORT_COLUMNS, SessionReader
+from rig.reader import SessionReader
 
 
 @click.command("check")
@@ -58,12 +57,11 @@ def export_cmd(session_path: Path, as_csv: bool, dut: str | None, output: Path,
 
 def _write_csv_atomically(output: Path, rows: list[dict]) -> None:
     """A failure never leaves half a file (nor touches an existing one)."""
+    from rig.exports import write_samples_csv
+
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(output, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(EXPORT_COLUMNS)
-        for r in rows:
-            writer.writerow(["" if r[c] is None else r[c] for c in EXPORT_COLUMNS])
+        write_samples_csv(f, rows)
 
 
 def register(group: click.Group) -> None:

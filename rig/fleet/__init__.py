@@ -10,6 +10,8 @@ batch on a Dask cluster. SQLite session files stay the rigs' own record; this is
 
 from rig.errors import MagrigError
 
+DATE_FORMATS = ("%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S")  # the listing's --since / --until (UTC)
+
 
 class FleetError(MagrigError):
     """The fleet database cannot be reached, or refuses what was sent."""

@@ -10,8 +10,20 @@ import psycopg
 from psycopg import sql
 from psycopg.rows import dict_row
 
-from rig.fleet import FleetError
+from rig.fleet import DATE_FORMATS, FleetError
 from rig.fleet.schema import SCHEMA
+
+LISTING_COLUMNS = ("session", "started (UTC)", "station", "DUTs", "points", "exit", "verdict", "file")
+
+
+def parse_date(text: str, what: str) -> dt.datetime:
+    """A --since / --until value (one of DATE_FORMATS) as a UTC time; FleetError naming `what`."""
+    for fmt in DATE_FORMATS:
+        try:
+            return dt.datetime.strptime(text.strip(), fmt).replace(tzinfo=dt.UTC)
+        except ValueError:
+            continue
+    raise FleetError(f"{what}: {text!r} is not a date ({', '.join(DATE_FORMATS)})")
 
 
 @dataclass(frozen=True)
@@ -51,6 +63,15 @@ def list_sessions(conn: psycopg.Connection, filters: Filters = Filters()) -> lis
     )
     with conn.cursor(row_factory=dict_row) as cur:
         return cur.execute(query, params).fetchall()
+
+
+def listing_cells(row: dict) -> list[str]:
+    """One row of `list_sessions` as the LISTING_COLUMNS (`rig fleet list` and the cockpit's fleet page)."""
+    started = row["started_utc"].strftime("%Y-%m-%d %H:%M") if row["started_utc"] else "-"
+    duts = row["duts"] + (f" ({row['serials']})" if row["serials"] else "")
+    return [row["uid"][:12], started, row["station_name"] or "-", duts or "-",
+            f"{row['points_done']}/{row['points_planned']}", row["exit_status"] or "not finished",
+            row["verdict"] or "-", row["source_path"]]
 
 
 def session_rows(conn: psycopg.Connection, uid: str) -> tuple[dict, list[dict], list[dict]]:

@@ -125,8 +125,9 @@ def ensure_copy_table(conn: psycopg.Connection, table: Table, known: dict[str, s
         columns += [sql.SQL("{} {}").format(sql.Identifier(c.name), sql.SQL(pg_type(c)))
                     for c in table.columns]
         key = [c.name for c in sorted(table.columns, key=lambda c: c.pk_index) if c.pk_index]
-        columns.append(sql.SQL("PRIMARY KEY ({})").format(
-            sql.SQL(", ").join(map(sql.Identifier, ["session_uid", *key]))))
+        if key:  # a table without a key of its own (acceptance) holds many rows per session: no key here
+            columns.append(sql.SQL("PRIMARY KEY ({})").format(
+                sql.SQL(", ").join(map(sql.Identifier, ["session_uid", *key]))))
         conn.execute(sql.SQL("CREATE TABLE {} ({})").format(name, sql.SQL(", ").join(columns)))
         known[table.name] = {"session_uid"}
     for column in table.columns:

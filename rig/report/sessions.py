@@ -1,4 +1,5 @@
-"""`rig sessions`: one line per session file, from rig.reader.SessionReader.summary."""
+"""`rig sessions`: one line per session file, from rig.reader.SessionReader.summary (the cockpit's list
+shows the same cells)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ def _row(*cells: str) -> str:
     return " ".join(f"{c:<{w}}" for c, w in zip(fixed, WIDTHS, strict=True)) + " " + last
 
 
-HEADER = _row("file", "started (UTC)", "station", "DUTs", "points done", "exit", "acceptance",
-              "last fit residual")
+COLUMNS = ("file", "started (UTC)", "station", "DUTs", "points done", "exit", "acceptance",
+           "last fit residual")
+HEADER = _row(*COLUMNS)
 
 
 def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
@@ -25,6 +27,11 @@ def session_files(directory: Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 def session_line(path: Path) -> str:
     """The session at a glance; raises SessionError for a file that is not a session or is damaged."""
+    return _row(*session_cells(path))
+
+
+def session_cells(path: Path) -> list[str]:
+    """The COLUMNS of one session (`rig sessions` and the cockpit's list); SessionError as above."""
     from rig.acceptance import verdict_text
     from rig.reader import SessionReader
 
@@ -44,8 +51,7 @@ def session_line(path: Path) -> str:
     exit_status = s["exit_status"] or "not finished"
     if s["exit_code"] and s["exit_code"] != Reason.COMPLETED:  # why it stopped, as a code
         exit_status += f" ({s['exit_code']})"
-    return _row(path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, accepted,
-                last)
+    return [path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, accepted, last]
 
 
 def skipped_line(path: Path, reason: str) -> str:

@@ -179,6 +179,31 @@ def test_new_columns_and_tables_arrive_without_code_changes(tmp_path, fleet_db):
     assert row == ("PASS",)
 
 
+def test_the_runs_acceptance_and_temperature_tables_are_pushed_whole(tmp_path, fleet_db):
+    """Tables the store makes when first needed, several rows per session: acceptance (no key of its
+    own) and the cockpit's temperatures."""
+    from rig.store import Session, TemperatureRow
+
+    path = write_session(tmp_path / "s.session", Spec(seed=3, duts=("dut1", "dut2")))
+    with Session.open(path) as s:
+        s.record_acceptance([{"dut": d, "model": "t24", "passed": int(d == "dut1"), "verdict": v,
+                              "failed": "" if v == "PASS" else "fit_rms 30 nT > 20", "heldout_rms_nt": 25.0,
+                              "fit_rms_nt": 20.0 + i * 10, "lag_s": None, "notes": ""}
+                             for i, (d, v) in enumerate((("dut1", "PASS"), ("dut2", "FAIL")))])
+        s.record_temperatures([TemperatureRow(100.0 * i, 25.0, None, 24.0 + i,
+                                              {"dut1": 23.0 + i, "dut2": None}) for i in range(3)])
+    assert main(["push", str(path), "--db", fleet_db]) == 0
+    uid = session_snapshot(path).uid
+    with psycopg.connect(fleet_db) as pg:
+        verdicts = pg.execute("SELECT dut, verdict FROM magrig.acceptance WHERE session_uid = %s "
+                              "ORDER BY dut", (uid,)).fetchall()
+        air = pg.execute("SELECT air_c FROM magrig.temperatures WHERE session_uid = %s ORDER BY id",
+                         (uid,)).fetchall()
+        verdict = pg.execute("SELECT verdict FROM magrig.fleet_sessions WHERE uid = %s", (uid,)).fetchone()
+    assert verdicts == [("dut1", "PASS"), ("dut2", "FAIL")] and verdict == ("FAIL",)
+    assert air == [(24.0,), (25.0,), (26.0,)]
+
+
 def test_push_goes_on_past_a_bad_file_and_says_so(tmp_path, fleet_db, capsys):
     good = write_session(tmp_path / "good.session", Spec(seed=1))
     bad = tmp_path / "bad.session"

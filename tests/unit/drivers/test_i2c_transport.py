@@ -86,11 +86,13 @@ def test_other_bus_errors_are_device_errors_not_not_found(bus: FakeSMBus) -> Non
         def read_byte_data(self, i2c_addr, register, force=None):
             raise OSError(self.err, "bus trouble")
 
-    with pytest.raises(DeviceTimeout, match="bus timeout at 0x30"):
+    with pytest.raises(DeviceTimeout, match=r"bus timeout \(or no ACK\) at 0x30"):  # a CP2112's NACK too
         link_on(FailingBus(errno.ETIMEDOUT)).read_byte(0x08, "status")
     with pytest.raises(DeviceError, match=r"I2C error at 0x30: \[Errno 5\] bus trouble") as err:
         link_on(FailingBus(errno.EIO)).read_byte(0x08, "status")
     assert not isinstance(err.value, DeviceNotFound)
+    with pytest.raises(DeviceNotFound, match="no ACK at 0x30"):  # how an MCP2221 bridge reports a NACK
+        link_on(FailingBus(errno.ENXIO)).read_byte(0x08, "status")
 
 
 def test_raw_transfers_logged_at_debug(bus: FakeSMBus, caplog) -> None:

@@ -1,0 +1,124 @@
+"""What the cockpit offers for download, each made by the very code of the CLI command that writes it:
+
+    calibration file, YAML or JSON      calib.calfile.save              (rig run, rig refit)
+    C header, flight JSON, parameters   rig.exports.export_calibration  (rig export-cal)
+    samples CSV                         rig.exports.write_samples_csv   (rig export)
+    report                              rig.report.build.build_report   (rig report)
+
+Calibrations are the fits the session recorded (the last one of each DUT and model). Files are made in the
+server's own scratch folder, never beside the session.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from rig.errors import DataError
+from rig.reader import SessionReader
+
+# kind -> (what the page calls it, file name ending, content type)
+CALIBRATION_KINDS = {
+    "cal-yaml": ("calibration file (YAML)", ".yaml", "application/yaml; charset=utf-8"),
+    "cal-json": ("calibration file (JSON)", ".json", "application/json"),
+    "c-header": ("C header", ".h", "text/x-c; charset=utf-8"),
+    "flight-json": ("flight form (JSON)", ".flight.json", "application/json"),
+    "params-csv": ("parameters (CSV)", ".params.csv", "text/csv; charset=utf-8"),
+}
+EXPORT_FORMAT = {"c-header": "c-header", "flight-json": "json", "params-csv": "csv"}
+SAMPLES_KIND = "samples-csv"
+
+
+@dataclass(frozen=True)
+class Download:
+    filename: str
+    body: bytes
+    content_type: str
+
+
+def recorded_fits(reader: SessionReader) -> dict[tuple[str, str], dict]:
+    """The last recorded fit of each (DUT, model)."""
+    return {(f["dut"], f["model"]): f for f in reader.fits()}
+
+
+def calibration(path: Path, dut: str, model: str):
+    """The calibration of `dut` and `model` the session recorded (calib.calibration.Calibration)."""
+    from calib.calibration import Calibration
+
+    with SessionReader(path) as reader:
+        fit = recorded_fits(reader).get((dut, model))
+    if fit is None:
+        raise DataError(f"{path.name}: no {model} fit of DUT {dut!r} recorded")
+    return Calibration.from_dict(json.loads(fit["calibration_json"]), where=f"{path.name}: fit of {dut}")
+
+
+def calibration_download(path: Path, kind: str, dut: str, model: str, scratch: Path) -> Download:
+    from calib import calfile
+    from rig.exports import export_calibration
+    from rig.outputs import calibration_file
+
+    label, ending, content_type = CALIBRATION_KINDS[kind]
+    cal = calibration(path, dut, model)
+    filename = calibration_file(path, dut, model).name.removesuffix(".yaml") + ending
+    if kind in EXPORT_FORMAT:
+        return Download(filename, export_calibration(cal, EXPORT_FORMAT[kind], dut).encode(), content_type)
+    with tempfile.TemporaryDirectory(dir=scratch) as tmp:
+        target = Path(tmp) / f"cal{ending}"
+        calfile.save(cal, target)
+        return Download(filename, target.read_bytes(), content_type)
+
+
+def samples_download(path: Path, dut: str) -> Download:
+    """One DUT's unflagged samples, as `rig export SESSION --csv --dut DUT` writes them."""
+    from rig.exports import write_samples_csv
+    from rig.names import file_stem
+
+    with SessionReader(path) as reader:
+        dut, rows = reader.sample_rows(dut)
+    text = io.StringIO(newline="")
+    write_samples_csv(text, [r for r in rows if not r["flags"]])
+    stem = path.name.removesuffix(".session")
+    return Download(f"{stem}.{file_stem(dut)}.csv", text.getvalue().encode(), "text/csv; charset=utf-8")
+
+
+class Reports:
+    """HTML reports of sessions, built on first request in the scratch folder and kept until the session
+    file changes (a running campaign's report is of the points taken so far)."""
+
+    def __init__(self, scratch: Path):
+        self.scratch = scratch
+        self.lock = threading.Lock()
+        self.building: dict[Path, threading.Lock] = {}
+        self.built: dict[Path, tuple[tuple, Path]] = {}
+
+    def html(self, path: Path) -> bytes:
+        from rig.report.build import build_report
+
+        key = _file_key(path)
+        with self.lock:
+            guard = self.building.setdefault(path, threading.Lock())
+        with guard:  # one build per session at a time; a second request waits for it
+            found = self.built.get(path)
+            if found is None or found[0] != key:
+                if found is not None:
+                    shutil.rmtree(found[1].parent, ignore_errors=True)
+                out = Path(tempfile.mkdtemp(prefix="report-", dir=self.scratch))
+                self.built[path] = (key, build_report(path, out_dir=out))
+            return self.built[path][1].read_bytes()
+
+
+def _file_key(path: Path) -> tuple:
+    out = []
+    for p in (path, Path(f"{path}-wal")):
+        try:
+            st = os.stat(p)
+            out.append((st.st_mtime_ns, st.st_size))
+        except OSError:
+            out.append(None)
+    return tuple(out)
