@@ -44,7 +44,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             out.append({"dut": dut.name, "model": "-", "error": str(exc)})
             continue
         lag = None
-        if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
+        if plan.moving:  # a ramp shows each DUT's thermal lag: fit the element's temperature
             from rig.lagfit import lag_corrected
 
             ds, lag = lag_corrected(ds)

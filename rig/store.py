@@ -6,6 +6,9 @@
     s = Session.open(path)                       # resume: checks the file, migrates an older schema
     s.done_point_ids() -> set[str]
     s.record_point(point_id, rows: list[SampleRow], settle_stats: dict)   # ONE transaction per point
+    s.record_point(..., decision=Decision(data,
+                                          points))  # a sequential schedule's next sweep, same transaction
+    s.decisions() -> list[dict]
     s.mark_point_failed(point_id, reason)
     s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
     s.record_snapshot(device, describe_dict)
@@ -44,11 +47,13 @@ from rig.errors import SessionError
 from rig.events import Kind, Reason, legacy_event
 from rig.sessionfile import (
     APPLICATION_ID,
+    DECISIONS_TABLE,
     MIGRATE_V1,
     SCHEMA,
     SCHEMA_VERSION,
     check_file,
     pid_alive,
+    read_decisions,
     verify,
 )
 
@@ -306,10 +311,14 @@ class Session:
                 raise SessionError(f"{self.path}: cannot write to the session ({exc})") from None
 
     def record_point(self, point_id: str, rows: Iterable[SampleRow], settle_stats: dict | None = None, *,
-                     started: float | None = None, finished: float | None = None) -> None:
-        """Mark the point done and store all its samples, atomically."""
+                     started: float | None = None, finished: float | None = None,
+                     decision: Decision | None = None) -> None:
+        """Mark the point done and store all its samples, atomically; with a `decision` (a sequential
+        schedule's next sweep, made from this point's data) recorded in the same transaction."""
         finished = self.clock.now() if finished is None else finished
         with self._transaction() as conn:
+            if decision is not None:
+                _record_decision(conn, point_id, decision, finished)
             state = conn.execute("SELECT state FROM points WHERE id = ?", (point_id,)).fetchone()
             if state is None:
                 raise SessionError(f"{self.path}: point {point_id} is not in the plan")
@@ -321,6 +330,10 @@ class Session:
                 "WHERE id = ?",
                 (json.dumps(settle_stats or {}, default=float), started, finished, point_id),
             )
+
+    def decisions(self) -> list[dict]:
+        """The recorded decisions of a sequential schedule, in order ([] for any other session)."""
+        return read_decisions(self._conn)
 
     def mark_point_failed(self, point_id: str, reason: str) -> None:
         with self._transaction() as conn:
@@ -387,6 +400,31 @@ class Session:
             )
 
 
+@dataclass(frozen=True)
+class Decision:
+    """What a sequential schedule decided after a point: its data (JSON-ready) and the points it adds
+    (objects with id, index, temp_index, setpoint_c, field_index and target, like rig.points.Point)."""
+
+    data: dict
+    points: tuple = ()
+
+
+def _insert_points(conn: sqlite3.Connection, points: Iterable) -> None:
+    conn.executemany(
+        "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
+        "VALUES (?, ?, ?, ?, ?, ?)",
+        ((p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target)) for p in points),
+    )
+
+
+def _record_decision(conn: sqlite3.Connection, point_id: str, decision: Decision, t: float) -> None:
+    """The decision and its points, inside the caller's transaction (the table is made when first needed)."""
+    conn.execute(DECISIONS_TABLE)
+    conn.execute("INSERT INTO decisions (t, after_point, decision_json) VALUES (?, ?, ?)",
+                 (t, point_id, json.dumps(decision.data, default=_json_default)))
+    _insert_points(conn, decision.points)
+
+
 def _build(build: Path, record: tuple, points: Iterable) -> None:
     """Write a complete new session file at `build` (a temporary name) and close it."""
     _remove(build)
@@ -406,12 +444,7 @@ def _build(build: Path, record: tuple, points: Iterable) -> None:
             "INSERT INTO session (id, plan_name, station_name, plan_text, station_text, plan_sha256, "
             "station_sha256, plan_path, station_path, software_version, operator, simulated_json, started, "
             "wall_started) VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", record)
-        conn.executemany(
-            "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
-            "VALUES (?, ?, ?, ?, ?, ?)",
-            ((p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target))
-             for p in points),
-        )
+        _insert_points(conn, points)
         conn.execute("COMMIT")
         conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # everything in the main file before it is renamed
     finally:

@@ -38,9 +38,9 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 def _register_all() -> None:
-    from rig.cli import calib_cmds, campaign_cmds, device_cmds, report_cmds, store_cmds
+    from rig.cli import calib_cmds, campaign_cmds, design_cmds, device_cmds, report_cmds, store_cmds
 
-    for module in (calib_cmds, device_cmds, store_cmds, campaign_cmds, report_cmds):
+    for module in (calib_cmds, device_cmds, store_cmds, campaign_cmds, design_cmds, report_cmds):
         module.register(cli)
     from rig.cli import fleet_cmds
 
