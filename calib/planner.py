@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.design import information, regressors, target_ratios
+from calib.design import regressors, target_ratios
 from calib.errors import DataError
 from calib.lag import lag_filter
 
@@ -425,7 +425,3 @@ def _stay_options(budget: int) -> list[int]:
         k *= 2
     return out
 
-
-def gram_of(fields_nt, temps_c, samples, temp_ref_c: float) -> np.ndarray:
-    """The Gram of measured points (for a State built from a campaign's records)."""
-    return information(fields_nt, temps_c, samples, temp_ref_c=temp_ref_c)
