@@ -173,7 +173,7 @@ def test_a_designed_plan_aborted_in_a_leg_resumes_without_a_stability_wait(tmp_p
 
     assert run_campaign(campaign=campaign, session_path=session,
                         display_factory=abort_in_leg_2).result.status == "aborted"
-    assert session_counts(session)["done"] == points.index(next(p for p in points if p.id == "L02-S002-F03")) + 1
+    assert session_counts(session)["done"] == [p.id for p in points].index("L02-S002-F03") + 1
     resumed = run_campaign(session_path=session, resume=True)
     assert resumed.result.status == "completed", resumed.result.reason
     counts = session_counts(session)
