@@ -7,7 +7,7 @@
 Where the numbers come from, in order:
 - targets: the plan's `stop_when`, else its `acceptance.max_std_error` (t24);
 - each DUT's noise (one fitted sample, per axis) and lag behind the air: an earlier session given with
-  --from (the T24 fit's residual sigma; the lag from the temperature settling in its dwells or holds,
+  --from (the T24 fit's residual sigma; the lag from the temperature settling in its longest hold,
   calib/lag.py), else a designed plan's `assumed:`, else the station's simulated values (a SET/RESET pair
   halves the variance), else ASSUMED_NOISE_NT and plancheck's ASSUMED_THERMAL_LAG_S for a real DUT;
 - the range: the plan's temperatures (steps: lowest and highest; ramp or sequential: range_c);
@@ -134,7 +134,7 @@ def station_duts(plan: Plan, station: Station) -> tuple[list[DutModel], dict[str
 
 def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], dict[str, str], list[str]]:
     """Noise and lag measured by an earlier session: the residual sigma of each DUT's T24 fit (lag-corrected
-    for a ramp), and its lag from the temperature settling in the session's dwells or holds."""
+    for a ramp), and its lag from the temperature settling in the session's holds (calib/lag.py)."""
     import calib
     from rig.lagfit import lag_corrected, session_is_ramp
     from rig.reader import read_dataset
@@ -155,9 +155,9 @@ def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], d
         origin = f"session {session.name}: noise from the fit residual"
         if lag is None:
             lag = prior.lag_s
-            origin += f"; lag {lag:g} s as before (no dwell shows it)"
+            origin += f"; lag {lag:g} s as before (no hold at one temperature shows it)"
         else:
-            origin += ", lag from its dwells"
+            origin += ", lag from its holds at one temperature"
         if lag_info and lag_info.get("tau_s") is not None:
             notes.append(f"{prior.name}: recorded temperature lags the element by {lag_info['tau_s']:.0f} "
                          f"+- {lag_info['tau_se_s']:.0f} s (calib/lag.py); corrected by the fit")
@@ -167,20 +167,23 @@ def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], d
 
 
 def _settling_lag(ds) -> float | None:
-    """Median settling time constant over the runs of points at one setpoint (dwells, end holds)."""
+    """Settling time constant in the session's longest hold: a run of two or more sweeps at one nominal
+    air temperature (a ramp's end hold, a designed leg's end), the longest showing the most decay. A single
+    sweep's nominal is only where the air was when it began, and a step's dwell starts once the DUT has
+    settled: neither shows it."""
     from calib.lag import settling_lag_s
 
     t, setpoint = ds.columns["t"], ds.columns["setpoint_c"]
     order = np.argsort(t, kind="stable")
-    t, temp, setpoint = t[order], ds.temp_c[order], setpoint[order]
+    t, temp, setpoint, sweep = t[order], ds.temp_c[order], setpoint[order], ds.group[order]
     starts = np.flatnonzero(np.concatenate([[True], np.diff(setpoint) != 0, [True]]))
-    lags = []
-    for a, b in zip(starts[:-1], starts[1:], strict=True):
-        if b - a >= 3:
-            lag = settling_lag_s(t[a:b], temp[a:b], float(setpoint[a]))
-            if lag is not None and lag < 0.5 * DESIGN_HORIZON_S:
-                lags.append(lag)
-    return float(np.median(lags)) if lags else None
+    holds = [(t[b - 1] - t[a], a, b) for a, b in zip(starts[:-1], starts[1:], strict=True)
+             if len(set(sweep[a:b])) >= 2]
+    for _, a, b in sorted(holds, reverse=True):
+        lag = settling_lag_s(t[a:b], temp[a:b], float(setpoint[a]))
+        if lag is not None and lag < 0.5 * DESIGN_HORIZON_S:
+            return lag
+    return None
 
 
 def design_inputs(plan: Plan, station: Station, session: Path | None = None) -> DesignInputs:

@@ -64,6 +64,7 @@ def test_the_settling_lag_is_read_from_a_dwell():
     temp = -30 + 4.0 * np.exp(-t / 700.0) + np.random.default_rng(1).normal(0, 0.004, t.size)
     assert settling_lag_s(t, temp, -30.0) == pytest.approx(700, rel=0.05)
     assert settling_lag_s(t, np.full_like(t, -30.0), -30.0) is None  # nothing to read
+    assert settling_lag_s(t[:20], temp[:20], -30.0) is None  # 190 s of a 700 s decay: too short to tell
 
 
 def test_crossing_rate_is_the_chambers_unless_the_slowest_dut_cannot_follow():
