@@ -62,6 +62,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 from rig.lagfit import annotate
 
                 annotate(cal, lag)
+            if model == "t24":  # the model check the plan's interior temperatures are for
+                check_linearity(cal, ds)
             try:
                 path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:
@@ -74,3 +76,14 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
             out.append(entry)
     return out
+
+
+def check_linearity(cal, ds) -> None:
+    """T24's linearity in temperature (calib/linearity.py) in the calibration's stats; a warning when it
+    does not hold."""
+    from calib.linearity import linearity
+
+    check = linearity(ds.h_nt, ds.temp_c, ds.ref_nt)
+    cal.stats["linearity"] = check
+    if check["holds"] is False:
+        cal.stats["warnings"] = [*cal.stats.get("warnings", []), check["message"]]

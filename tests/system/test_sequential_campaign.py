@@ -77,7 +77,9 @@ def test_a_sequential_campaign_decides_each_sweep_and_stops_at_its_targets(tmp_p
     legs = {d["leg"]: d["to_c"] for d in made if not d["stop"]}
     assert 22.0 in legs.values()  # the model check's interior temperature was visited
     for fit in outcome.fits:  # the calibrations meet the targets the run stopped at
-        se = calfile.load(fit["path"]).std_errors
+        cal = calfile.load(fit["path"])
+        assert cal.stats["linearity"]["testable"]  # the check temperature lets the model check see a curve
+        se = cal.std_errors
         for group, key in (("S", "S"), ("K", "K"), ("b", "b_nt"), ("kb", "kb_nt_per_c")):
             assert np.max(se[key]) <= TARGETS[group] * 1.001, (fit["dut"], group)
     kinds = query(session, "SELECT kind, count(*) FROM events GROUP BY kind")
