@@ -163,10 +163,9 @@ def main() -> None:
         out.mkdir(parents=True, exist_ok=True)
         station = args.station.resolve()
         targets = step_targets(station, args.margin) if args.targets == "step" else None
-        print(f"station {station.name}; targets: "
-              + (", ".join(f"{k} {v:g}" for k,
-                           v in targets.items()) + f" ({args.margin:g} x the step plan's predicted)"
-                 if targets else "the plan's stop_when"))
+        aim = (", ".join(f"{k} {v:g}" for k, v in targets.items()) + f" ({args.margin:g} x the step plan's "
+               "predicted)") if targets else "the plan's stop_when"
+        print(f"station {station.name}; targets: {aim}")
         sequential = with_targets(PLANS / "sequential-campaign.yaml", targets, out, "sequential")
         designed_path, samples = designed(sequential, station, out)
         sequential = with_targets(sequential, None, out, "sequential", samples)

@@ -202,8 +202,7 @@ def design_inputs(plan: Plan, station: Station, session: Path | None = None) -> 
         duts = list(by_name.values())
     lo, hi = plan_range(plan)
     return DesignInputs(targets, duts, origins, (lo, hi), fastest_ramp_c_per_min(station),
-                        start_air_c(station),
-                        notes)
+                        start_air_c(station), notes)
 
 
 # --- the design ----------------------------------------------------------------------------------------

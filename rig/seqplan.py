@@ -30,7 +30,6 @@ from rig.points import RampPoint
 from rig.rampplan import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
 
 RATE_PATH = ("temperatures", "rate_c_per_min")
-MAX_LEGS = 99
 WIDTHS_LEG_SWEEP = (2, len(str(MAX_SWEEPS)))
 
 

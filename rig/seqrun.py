@@ -186,8 +186,8 @@ class SequentialMode(RampMode):
         state = State(elapsed, air,
                       {d: (m.element_c if m.element_c is not None else air) for d, m in measured.items()},
                       {d: m.gram for d, m in measured.items()})
-        duts = [DutModel(d, m.sigma_nt or self.priors[d].sigma_nt, self.priors[d].lag_s) for d,
-                m in measured.items()]
+        duts = [DutModel(d, m.sigma_nt or self.priors[d].sigma_nt, self.priors[d].lag_s)
+                for d, m in measured.items()]
         legs = self._legs_done()
         rate = self._rate(measured)
         pace = self._pace()

@@ -6,8 +6,7 @@
     s = Session.open(path)                       # resume: checks the file, migrates an older schema
     s.done_point_ids() -> set[str]
     s.record_point(point_id, rows: list[SampleRow], settle_stats: dict)   # ONE transaction per point
-    s.record_point(..., decision=Decision(data,
-                                          points))  # a sequential schedule's next sweep, same transaction
+    s.record_point(..., decision=Decision(data, points))   # a sequential schedule's next sweep, too
     s.decisions() -> list[dict]
     s.mark_point_failed(point_id, reason)
     s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
