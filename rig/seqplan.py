@@ -18,6 +18,8 @@ and what the design from the station's values expects (legs, chamber time, stand
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from calib.design import exchange
@@ -59,7 +61,7 @@ class SequentialSchedule:
     def rate(self) -> float:
         """The plan's rate, or the chamber's fastest if slower (rig check refuses one above the chamber's
         limit); decisions may ramp slower."""
-        return min(self.temps.rate_c_per_min, fastest_ramp_c_per_min(self.station))
+        return min(self.temps.rate_c_per_min or math.inf, fastest_ramp_c_per_min(self.station))
 
     def pace(self, picks: list[int]) -> Pace:
         """One sweep of the fields `picks` (1-based) at the estimated pace."""
@@ -162,7 +164,7 @@ class SequentialSchedule:
                 raise plan_error(LimitError, plan, ("temperatures", "range_c", i),
                                  f"{value:g} degC is outside chamber.limits min_setpoint_c "
                                  f"{lim.min_setpoint_c:g} .. max_setpoint_c {lim.max_setpoint_c:g}")
-        if temps.rate_c_per_min > lim.max_ramp_c_per_min:
+        if temps.rate_c_per_min is not None and temps.rate_c_per_min > lim.max_ramp_c_per_min:
             raise plan_error(LimitError, plan, RATE_PATH, f"{temps.rate_c_per_min:g} degC/min exceeds "
                              f"chamber.limits max_ramp_c_per_min {lim.max_ramp_c_per_min:g}")
         span = abs(temps.range_c[1] - temps.range_c[0])

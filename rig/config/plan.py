@@ -170,12 +170,12 @@ class SequentialTemperatures(Strict):
     measured, whether to stay at the current end of `range_c`, cross to the other (pausing `check_sweeps`
     sweeps at each of `checks_c`, the model check's interior temperatures), or stop because every DUT
     meets the plan's `stop_when` targets; each sweep takes the `fields_per_sweep` of the plan's fields that
-    teach the worst DUT the most. `rate_c_per_min` is the fastest ramp (slower when the slowest DUT could
-    not follow it); `max_duration_h` bounds the run."""
+    teach the worst DUT the most. `rate_c_per_min` is the fastest ramp (default: the chamber's; slower when
+    the slowest DUT could not follow it); `max_duration_h` bounds the run."""
 
     mode: Literal["sequential"]
     range_c: tuple[TEMP_C, TEMP_C]
-    rate_c_per_min: RAMP_C_PER_MIN
+    rate_c_per_min: RAMP_C_PER_MIN | None = Field(None, description="default: the chamber's fastest")
     checks_c: list[TEMP_C] | None = Field(None, description="default: the middle of the range")
     check_sweeps: Count(100) = 1
     fields_per_sweep: Count(10_000) | None = Field(None, description="default: all the plan's fields")
