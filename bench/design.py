@@ -12,7 +12,10 @@ For each plan: the simulated chamber time (session start to end), each DUT's hel
 separate validation campaign (other directions, temperatures between the steps) against the simulator's
 true field for the same raw readings (the calibration's own error; against the recorded reference, noise
 included, in brackets), and each DUT's largest standard errors (S, K, b, kb) as the fit reports them.
-Goal: chamber time <= 0.25 of the step plan's, held-out error <= 1.1 x the step plan's.
+Goal: chamber time <= 0.25 of the step plan's, held-out error <= 1.1 x the step plan's. A DUT without a
+SET/RESET pair (an HMC5883L) reads its bridge offset, which drifts some 20 nT/degC: the validation's own
+temperatures (a probe a fraction of a degree off the element even when stable) then put a floor of a few
+nT under every plan's error against the truth, the same for all of them.
 
     .venv/bin/python bench/design.py [--station S] [--out DIR] [--targets step|plan]   (about 15 min)
 """
@@ -142,10 +145,13 @@ def expected_held_out_nt(session: Path, validation: Path, dut: str) -> float:
     return float(np.sqrt(sigma2 * np.einsum("ni,ij,nj->n", x, cov, x).mean()))
 
 
-def held_out_nt(cal: Calibration, validation: Path, dut: str, truth) -> tuple[float, float]:
+def held_out_nt(cal: Calibration, validation: Path, dut: str, truth, pair: bool) -> tuple[float, float]:
+    """RMS vector error on the validation rows against the simulator's true field for the same raw readings
+    (a DUT without a SET/RESET pair reads its bridge offset too), and against the recorded reference."""
     ds = read_dataset(validation, dut)
     calibrated = cal.apply(ds.h_nt, ds.temp_c)
-    true = np.array([truth.field_from_raw(h, t) for h, t in zip(ds.h_nt, ds.temp_c, strict=True)])
+    true = np.array([truth.field_from_raw(h if pair else h - truth.bridge_offset_at(t), t)
+                     for h, t in zip(ds.h_nt, ds.temp_c, strict=True)])
     return tuple(float(np.sqrt(np.mean(np.sum((calibrated - x) ** 2, axis=1)))) for x in (true, ds.ref_nt))
 
 
@@ -176,9 +182,13 @@ def main() -> None:
         validation.write_text(yaml.safe_dump(VALIDATION, sort_keys=False))
         sessions = {name: run(path, station, out, name) for name, path in plans.items()}
         sessions["validation"] = run(validation, station, out, "validation")
-        truths = dut_truths(load_campaign(validation, station).station)
+        checked = load_campaign(validation, station)
+        truths = dut_truths(checked.station)
+        pairs = {d.name: checked.plan.set_reset == "pair" and bool(getattr(d.options, "set_reset", False))
+                 for d in checked.station.duts}
         hours = {name: chamber_hours(s) for name, s in sessions.items() if name != "validation"}
-        errors = {name: {dut: held_out_nt(t24_of(s, dut), sessions["validation"], dut, truths[dut])
+        errors = {name: {dut: held_out_nt(t24_of(s, dut), sessions["validation"], dut, truths[dut],
+                                          pairs[dut])
                          for dut in truths} for name, s in sessions.items() if name != "validation"}
         expected = {name: {dut: expected_held_out_nt(s, sessions["validation"], dut) for dut in truths}
                     for name, s in sessions.items() if name != "validation"}
