@@ -143,14 +143,12 @@ class _ScaledSystem:
         sigma2 = rss / (acc.n - N_PARAMS)
         cov_centred = self.gs_inv / np.outer(self.d, self.d)
         tr = acc.temp_ref_c
-        to_abs = np.eye(N_PARAMS)
-        to_abs[0, 1] = -tr  # b = b' - tr kb
-        to_abs[2:5, 5:8] = -tr * np.eye(3)  # S = S' - tr K
+        to_abs = absolute_transform(tr)
         beta_abs = to_abs @ self.beta
         cov_abs = to_abs @ cov_centred @ to_abs.T
         se = np.sqrt(np.outer(np.diag(cov_abs), sigma2))  # (8,3)
-        params = _unpack(beta_abs)
-        std_errors = _unpack(se)
+        params = unpack(beta_abs)
+        std_errors = unpack(se)
         n = acc.n
         stats = {
             "n": n,
@@ -175,7 +173,16 @@ class _ScaledSystem:
         )
 
 
-def _unpack(beta: np.ndarray) -> dict[str, np.ndarray]:
+def absolute_transform(temp_ref_c: float) -> np.ndarray:
+    """The 8x8 map from the centred-tau parameters [b', kb, S'_i., K_i.] to the absolute-tau ones:
+    b = b' - tr kb, S = S' - tr K (tr the reference temperature); covariances go as A C A^T."""
+    to_abs = np.eye(N_PARAMS)
+    to_abs[0, 1] = -temp_ref_c
+    to_abs[2:5, 5:8] = -temp_ref_c * np.eye(3)
+    return to_abs
+
+
+def unpack(beta: np.ndarray) -> dict[str, np.ndarray]:
     """(8,3) per-axis columns -> named T24 parameters."""
     return {
         "S": beta[2:5].T.copy(),

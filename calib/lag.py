@@ -272,6 +272,31 @@ def updown_disagreement_nt(h, temp_c, ref, slope) -> tuple[float | None, str | N
     return worst, None
 
 
+# --- the lag behind the air, from a dwell -----------------------------------------------------------------
+MIN_SETTLING_OFFSET_C = 0.03  # a few TMP117 steps (7.8 mdegC): closer to the target the log is noise
+MIN_SETTLING_ROWS = 10
+MIN_SETTLING_DECAY = 2.0  # the offset must fall by this factor over the rows: less is too short to tell
+
+
+def settling_lag_s(t_s, temp_c, target_c: float) -> float | None:
+    """Time constant of a temperature settling on a constant air temperature `target_c` (a dwell or an
+    end hold): late in a first-order approach log|T - target| falls as -t/tau, the slowest lag of the
+    chain (the element's behind the air, when the probe is faster). Least squares over the rows at least
+    MIN_SETTLING_OFFSET_C from the target on the side they approach from; None when the rows show no
+    decay (too few, too close, moving away, or falling by less than MIN_SETTLING_DECAY)."""
+    t, temp = _checked(t_s, temp_c)
+    off = temp - float(target_c)
+    side = np.sign(np.median(off))
+    keep = side * off >= MIN_SETTLING_OFFSET_C
+    if side == 0 or keep.sum() < MIN_SETTLING_ROWS:
+        return None
+    tk, log_off = t[keep] - t[keep][0], np.log(side * off[keep])
+    slope, intercept = np.polyfit(tk, log_off, 1)
+    if slope >= 0 or -slope * (tk[-1] - tk[0]) < math.log(MIN_SETTLING_DECAY):
+        return None
+    return float(-1.0 / slope)
+
+
 # --- helpers --------------------------------------------------------------------------------------------
 def _checked(t_s, temp_c) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(t_s, float).ravel()

@@ -55,6 +55,7 @@ C_PER_LSB = 0.0078125
 NO_RESULT_CODE = -32768  # TEMP_RESULT before the first conversion (-256 degC)
 AVG_CODES = {1: 0, 8: 1, 32: 2, 64: 3}
 CONVERSION_TIME_S = 0.0155  # one conversion; averaging repeats it
+DEFAULT_AVERAGING = 8
 CONV_CYCLE_S = (0.0155, 0.125, 0.25, 0.5, 1.0, 4.0, 8.0, 16.0)  # by CONV code
 RANGE_C = (-55.0, 150.0)
 ACCURACY_C = 0.1  # -20..50 degC
@@ -100,7 +101,7 @@ class TMP117(Device):
         name: str = "tmp117",
         clock: Clock | None = None,
         mode: str = "one_shot",
-        averaging: int = 8,
+        averaging: int = DEFAULT_AVERAGING,
         conversion_code: int = 4,
         tries: int = 3,
     ):
@@ -200,8 +201,13 @@ def identify(bus: SMBusLike, address: int) -> str | None:
     return None
 
 
+def _sample_time_s(options: registry.NoOptions, set_reset_pair: bool) -> float:
+    """One one-shot result at the averaging the rig builds it with (the default)."""
+    return active_time_s(DEFAULT_AVERAGING)
+
+
 registry.register(registry.DeviceSpec(
     role="temperature", type="tmp117", options=registry.NoOptions, transports=("i2c",), build=_build,
-    simulator="drivers.sim.tmp117:simulate", has_temperature=True,
+    simulator="drivers.sim.tmp117:simulate", has_temperature=True, sample_time=_sample_time_s,
     temperature_accuracy_c=0.15,  # TI datasheet: +-0.1 degC from -20 to 50 degC, +-0.15 from -55 to 150
     probe=registry.I2cProbe(ADDRESSES, identify)))

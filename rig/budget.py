@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import zlib
 from dataclasses import dataclass
 
@@ -70,6 +71,7 @@ class RunInputs:
     site: list[dict]  # the ambient / site field measurements, in time order: {t, vector_nt, std_error_nt}
     reference_cal: Calibration | None  # the reference magnetometer that measured the field source
     reference_temp_accuracy_c: float = 0.0  # of its temperature source, when its calibration needs one
+    points: dict[str, dict] = dataclasses.field(default_factory=dict)  # the done points: {id: {target, ...}}
 
     @classmethod
     def of_session(cls, reader) -> RunInputs:
@@ -89,7 +91,9 @@ class RunInputs:
         accuracy = 0.0
         if name in refs and refs[name].temp_source is not None:
             accuracy, _ = temperature_accuracy_c(station, refs[name])
-        return cls(station, plan, reader.point_references(), site, reference_cal, accuracy)
+        points = {p["id"]: {"target": json.loads(p["target_json"]), "setpoint_c": p["setpoint_c"]}
+                  for p in reader.points() if p["state"] == "done"}
+        return cls(station, plan, reader.point_references(), site, reference_cal, accuracy, points)
 
     # --- the budget of one DUT's calibration ----------------------------------------------------------
     def budget(self, dut: str, ds, cal: Calibration, *, rng: np.random.Generator | None = None,
@@ -103,13 +107,12 @@ class RunInputs:
 
     @functools.cached_property
     def _grid(self) -> tuple[np.ndarray, np.ndarray]:
-        """The plan's field targets (as fields at the centre) at the plan's temperatures."""
-        from rig.plan import compile_plan
-
-        points = compile_plan(self.plan, self.station)
+        """The run's field targets (as fields at the centre) at the run's temperatures: those of the points
+        it took (a schedule decided during the run knows its points only then)."""
         source = self.station.field_source
-        fields = np.unique(np.array([source.nominal_field_nt(p.command) for p in points]), axis=0)
-        temps = np.unique(np.round([p.setpoint_c for p in points], 1))
+        commands = [_command(p["target"]) for p in self.points.values()]
+        fields = np.unique(np.array([source.nominal_field_nt(c) for c in commands]), axis=0)
+        temps = np.unique(np.round([p["setpoint_c"] for p in self.points.values()], 1))
         if len(temps) > 8:  # a ramp: its ends and evenly between
             temps = np.linspace(temps.min(), temps.max(), 5)
         grid_f = np.repeat(fields, len(temps), axis=0)
@@ -320,7 +323,7 @@ class TableChain:
         if fallback is None:  # a session from before points stored their reference
             fallback = list(self.source.reference(run.site[0]["vector_nt"] if run.site else None).params)
         self.params = np.array([fallback if r is None else r for r in recorded], float)
-        targets = {p.id: p.target for p in _points(run)}
+        targets = {pid: p["target"] for pid, p in run.points.items()}
         self.angles = np.array([[targets[p]["az_deg"], targets[p]["el_deg"]] for p in ds.columns["point"]])
         self.home = None if not run.site else np.asarray(run.site[0]["vector_nt"], float)
 
@@ -407,10 +410,11 @@ def coil_chain(run: RunInputs, dut: str, ds) -> CoilChain:
     return CoilChain(run, dut, ds)
 
 
-def _points(run: RunInputs):
-    from rig.plan import compile_plan
-
-    return compile_plan(run.plan, run.station)
+def _command(target: dict) -> tuple[float, ...]:
+    """A point's stored target as the field source's command: a field vector, or (az, el)."""
+    if "field_nt" in target:
+        return tuple(target["field_nt"])
+    return (target["az_deg"], target["el_deg"])
 
 
 def standard_uncertainties(cal: Calibration) -> dict[str, np.ndarray]:

@@ -58,6 +58,7 @@ from rig.lock import SessionLock
 from rig.plan import check_campaign
 from rig.points import Point
 from rig.reference import reference_for
+from rig.seqplan import decided_points
 from rig.settle import STABLE, TIMEOUT, SettleCriteria, StabilityDetector, criteria_of
 from rig.station import Rig, open_rig
 from rig.store import SampleRow
@@ -94,9 +95,11 @@ class CampaignRunner:
         self._settle_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
         self.temperatures = TemperatureLog(session)  # what the cockpit plots between points
-        from rig import ramp
+        self.decide = None  # (point, rows) -> store.Decision | None: a schedule decided during the run
+        from rig import ramp, seqrun
 
-        self.ramp = ramp.attach(self)  # continuous-ramp tasks (None for steps); stop_when
+        # tasks of a schedule that samples while the temperature moves (None for steps); stop_when
+        self.ramp = seqrun.attach(self) or ramp.attach(self)
 
     # --- the plan as generators -------------------------------------------------------------------
     def tasks(self) -> list[Task]:
@@ -233,10 +236,11 @@ class CampaignRunner:
                                                         ref_temp_c=other_c))
                 self.status.dut_temps_c[dut] = temp_c
         self._check_chamber()
+        self._feed_live(rows)
+        decision = self.decide(point, rows) if self.decide is not None else None  # stored with the point
         stats = {**self._settle_stats, "reference": self.reference.record()}
         self.session.record_point(point.id, rows, stats, started=started,
-                                  temperatures=self.temperatures.take())
-        self._feed_live(rows)
+                                  temperatures=self.temperatures.take(), decision=decision)
 
     def _feed_live(self, rows: list[SampleRow]) -> None:
         for dut, live in self.live.items():
@@ -355,6 +359,7 @@ def run_campaign(
                 on_rig(rig)
             if resume:
                 session = Session.open(session_path, clock=rig.clock)
+                points = points + decided_points(plan, station, session.decisions(), len(points))
                 _check_resumable(session, points)
             else:
                 session = Session.create_for(session_path, campaign, points, clock=rig.clock,
@@ -420,6 +425,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     done = session.done_point_ids()
     if done:
         runner.preload_live(session.path)
+        if hasattr(runner.ramp, "preload"):  # a sequential schedule decides from every row so far
+            runner.ramp.preload(session.path)
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session,
                     prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status,
                     inbox=Inbox(session.path))

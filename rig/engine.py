@@ -189,6 +189,7 @@ class Engine:
         self._stop: tuple[str, Reason] | None = None  # end early as completed (stop_when targets met)
         self.inbox = inbox  # rig.inbox.Inbox: requests from outside the process, or None
         self._pause_source: str | None = None  # who asked for the pending pause, when not Ctrl-C
+        self._todo: list[Task] = []
 
     # --- requests (signal handlers and tests call these) -----------------------------------------
     def request_pause(self) -> None:
@@ -205,6 +206,12 @@ class Engine:
             self._abort_code = code
         if self._prompting:
             raise KeyboardInterrupt  # stop waiting for the operator's answer
+
+    def add_tasks(self, tasks: Iterable[Task]) -> None:
+        """Append tasks to the running list (a schedule decided during the run, rig/seqrun.py)."""
+        added = list(tasks)
+        self._todo.extend(added)
+        self.status.points_total += len(added)
 
     def request_stop(self, reason: str, code: Reason) -> None:
         """End the run after the current task as completed although points remain (good enough)."""
@@ -260,7 +267,7 @@ class Engine:
         """Run every task whose point is not in `done_ids`; always ends with safe_state() everywhere."""
         tasks = list(tasks)
         done = set(done_ids)
-        todo = [t for t in tasks if t.point_id not in done]
+        todo = self._todo = [t for t in tasks if t.point_id not in done]  # add_tasks() may extend it
         self.status.points_total = len(tasks)
         self.status.points_done = len(tasks) - len(todo)
         self.status.started_t = self.clock.now()
@@ -271,11 +278,12 @@ class Engine:
         with _signals_to(self):
             try:
                 self.event(Kind.RUN, f"{len(todo)} of {len(tasks)} points to take", code=Reason.STARTED)
-                for task in todo:
-                    if self._stop is not None:
-                        break
-                    self._run_point(task)
-                status, reason, code = COMPLETED, f"all {len(tasks)} points taken", Reason.COMPLETED
+                next_task = 0
+                while next_task < len(todo) and self._stop is None:
+                    self._run_point(todo[next_task])
+                    next_task += 1
+                status, reason = COMPLETED, f"all {self.status.points_total} points taken"
+                code = Reason.COMPLETED
                 if self._stop is not None:
                     reason, code = self._stop
             except _Abort as exc:

@@ -46,6 +46,7 @@ class Kind(StrEnum):
     WARNING = "warning"  # a WARNING log record of the rig (transport retries...)
     ERROR = "error"  # an ERROR log record of the rig
     SITE_FIELD = "site_field"  # the ambient / site field measured by a reference magnetometer
+    DECISION = "decision"  # a sequential schedule decided its next sweep (or to stop)
 
 
 class Reason(StrEnum):
@@ -66,6 +67,7 @@ class Reason(StrEnum):
     # a run ends
     COMPLETED = "completed"
     TARGETS_MET = "targets_met"  # stop_when: every DUT's standard errors reached their targets
+    TIME_BUDGET = "time_budget"  # a sequential schedule reached max_duration_h before its targets
     RETAKES_EXHAUSTED = "retakes_exhausted"
     LIMIT_REFUSED = "limit_refused"
     OPERATOR_ABORT = "operator_abort"
@@ -79,6 +81,7 @@ class Reason(StrEnum):
     OPERATOR_PAUSE = "operator_pause"
     OPERATOR_RESUME = "operator_resume"
     STABLE = "stable"
+    DECIDED = "decided"  # the next sweep of a sequential schedule
     SITE_FIELD_MEASURED = "site_field_measured"  # at the start: the value every reference uses
     SITE_FIELD_CHECKED = "site_field_checked"  # re-checked at a temperature step, within its limit
     ALL_SAFE = "all_safe"

@@ -43,7 +43,8 @@ def annotate(cal, info: dict) -> None:
 
 
 def session_is_ramp(path: str | Path) -> bool:
-    """Whether a session file recorded a continuous-ramp plan (its lag is then estimated and applied)."""
+    """Whether a session file recorded a plan that samples while the temperature moves (a continuous ramp,
+    a designed or sequential schedule): its lag is then estimated and applied."""
     from rig.config import Plan
     from rig.reader import SessionReader
     from rig.sessionfile import looks_like_session
@@ -54,7 +55,7 @@ def session_is_ramp(path: str | Path) -> bool:
     with SessionReader(path) as reader:
         text = reader.info()["plan_text"]
     try:
-        return load_model(Plan, f"{path} (recorded plan)", text).ramp is not None
+        return load_model(Plan, f"{path} (recorded plan)", text).moving
     except ERRORS:
         return False
 

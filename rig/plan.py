@@ -6,7 +6,11 @@
 
 The plan's temperature schedule is one of (SCHEDULES, chosen by the plan's `temperatures:`):
 - steps (rig/stepplan.py): every field at each stable setpoint; `T03-F07`, `T03-O07`;
-- a continuous ramp (rig/rampplan.py): legs x sweeps x fields; `R1U-S003-F07`.
+- a continuous ramp (rig/rampplan.py): legs x sweeps x fields; `R1U-S003-F07`;
+- a designed schedule (rig/legplan.py, written by `rig design`): legs to chosen temperatures, each held
+  for its sweeps; `L02-S003-F07`;
+- a sequential schedule (rig/seqplan.py, run by rig/seqrun.py): only the first sweep is known before the
+  run, each further sweep is decided after the one before and recorded in the session; `L02-S0003-F07`.
 The plan check asks the schedule once for its points, limits and duration, then applies what every plan
 shares (rig/plancheck.py): the field source's limits, the T24 design, the duration bound, stop_when; and
 the reference chain's (rig/referencecheck.py): commissioning, non-uniformity at the DUT positions.
@@ -16,8 +20,17 @@ turntable it is (az_deg, el_deg).
 
 from __future__ import annotations
 
-from rig.config import Campaign, Plan, RampTemperatures, Station, Temperatures
+from rig.config import (
+    Campaign,
+    DesignedTemperatures,
+    Plan,
+    RampTemperatures,
+    SequentialTemperatures,
+    Station,
+    Temperatures,
+)
 from rig.errors import ConfigError
+from rig.legplan import LegSchedule
 from rig.plancheck import (
     MAX_DURATION_S,
     MAX_FIELDS,
@@ -37,12 +50,15 @@ from rig.plancheck import (
 from rig.points import Point, RampPoint, point_id
 from rig.rampplan import RampSchedule
 from rig.referencecheck import reference_lines
+from rig.seqplan import SequentialSchedule
 from rig.stepplan import StepSchedule
 
-SCHEDULES = {Temperatures: StepSchedule, RampTemperatures: RampSchedule}
+SCHEDULES = {Temperatures: StepSchedule, RampTemperatures: RampSchedule, DesignedTemperatures: LegSchedule,
+             SequentialTemperatures: SequentialSchedule}
+Schedule = StepSchedule | RampSchedule | LegSchedule | SequentialSchedule
 
 
-def schedule_for(plan: Plan, station: Station) -> StepSchedule | RampSchedule:
+def schedule_for(plan: Plan, station: Station) -> Schedule:
     """The plan's temperature schedule, with the field source's targets expanded (bounded first)."""
     n_fields = plan.fields.count()
     if n_fields > MAX_FIELDS:
@@ -66,14 +82,15 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
     own = schedule.check()
     warnings: list[str] = []
     source_lines = check_field_limits(plan, station, own.points, warnings)
-    if "t24" in plan.fit.models:
-        problem = t24_design_problem(own.points, station)
+    design_points = own.points if own.design_points is None else own.design_points
+    if "t24" in plan.fit.models and design_points:
+        problem = t24_design_problem(design_points, station)
         if problem:
             warnings.append(problem)
     check_duration(plan, own.breakdown_s, own.duration_keys)
     duration_s = sum(own.breakdown_s.values())
     lines = [*own.lines, *source_lines, *reference_lines(plan, station, warnings)]
-    if plan.stop_when:
+    if plan.stop_when and own.stop_when_line:
         lines.append(stop_when_line(plan, duration_s))
     return PlanCheck(
         points=own.points,
@@ -86,6 +103,8 @@ def check_plan(plan: Plan, station: Station) -> PlanCheck:
         source_lines=lines,
         warnings=warnings,
         temperatures_word=own.temperatures_word,
+        prediction=own.prediction,
+        size_line=own.size_line,
     )
 
 

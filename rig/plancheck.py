@@ -11,7 +11,7 @@ import contextlib
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -74,9 +74,12 @@ class PlanCheck:
     source_lines: list[str] = field(default_factory=list)  # the schedule's and field source's figures
     warnings: list[str] = field(default_factory=list)
     temperatures_word: str = "temperatures"  # "sweeps" for a continuous ramp
+    prediction: Any = None  # a designed schedule's predicted errors (calib.planner.Schedule), for figures
+    size_line: str | None = None  # the schedule's own first line, when points x fields does not say it
 
     def summary_lines(self) -> list[str]:
         lines = [
+            self.size_line or
             f"{len(self.points)} points = {self.n_temperatures} {self.temperatures_word} x {self.n_fields} "
             "fields; "
             f"{self.samples_per_dut} samples per DUT, {self.n_duts} DUT(s)",
@@ -99,6 +102,10 @@ class ScheduleCheck:
     duration_keys: dict[str, KeyPath]
     lines: list[str] = field(default_factory=list)
     temperatures_word: str = "temperatures"
+    prediction: Any = None  # calib.planner.Schedule of a designed schedule
+    design_points: list[Point] | None = None  # judged by the T24 design test (default: points; [] skips it)
+    size_line: str | None = None  # replaces "N points = temperatures x fields"
+    stop_when_line: bool = True  # False: the schedule's own lines say how it stops
 
 
 # --- the field source -----------------------------------------------------------------------------------
@@ -133,14 +140,15 @@ def check_field_limits(plan: Plan, station: Station, points: list[Point], warnin
 def sample_time_s(plan: Plan, station: Station) -> float:
     """Time for one sample of every DUT. Reading is interleaved (rig/interleave.py): the DUTs wait for
     their conversions together, so a sample takes as long as the slowest DUT, except that DUTs sharing
-    one serial line are polled in turn."""
+    one serial line are polled in turn. The temperature sensors are read first, together likewise."""
     pair = plan.set_reset == "pair"
     groups: dict[tuple[str, str], float] = {}
     for d in station.duts:
         line, port = getattr(d.transport, "line", None), getattr(d.transport, "port", None)
         key = ("line", line) if line else ("port", port) if port else ("dut", d.name)
         groups[key] = groups.get(key, 0.0) + d.spec.sample_time_s(d.options, pair)
-    return max(groups.values())
+    sensors = [s.spec.sample_time_s(s.options, pair) for s in station.temperature_sensors]
+    return max(groups.values()) + max(sensors, default=0.0)
 
 
 def slowest_lag_s(station: Station) -> float:
@@ -151,6 +159,17 @@ def slowest_lag_s(station: Station) -> float:
         lag = None if sim is None else sim.thermal_lag_s
         lags.append(ASSUMED_THERMAL_LAG_S if lag is None else lag)
     return max(lags)
+
+
+def fastest_ramp_c_per_min(station: Station) -> float:
+    """The fastest the chamber's air can move: its limit, or the simulated chamber's own pace if slower
+    (what a design plans with)."""
+    limit = station.chamber.limits.max_ramp_c_per_min
+    if not station.chamber.simulated:
+        return limit
+    from rig.simstation import chamber_ramp_c_per_min
+
+    return min(limit, chamber_ramp_c_per_min())
 
 
 def start_air_c(station: Station) -> float:
@@ -196,6 +215,6 @@ def t24_design_problem(points: list[Point], station: Station) -> str | None:
 def stop_when_line(plan: Plan, duration_s: float) -> str:
     """What `stop_when` means for the plan's chamber time: only the best case is shorter."""
     targets = ", ".join(f"{k} {v:g}" for k, v in (plan.stop_when or {}).items())
-    where = "sweep" if plan.ramp is not None else "temperature step"
+    where = "sweep" if plan.moving else "temperature step"
     return (f"stop_when {targets}: checked after every {where} on each DUT's live T24 fit; stops once "
             f"every DUT meets them; worst case the whole plan, {format_duration(duration_s)}")

@@ -73,8 +73,10 @@ class _Stepping:
 class RampMode:
     """The ramp part of a CampaignRunner: its tasks and the handlers of StartRamp and AwaitAir."""
 
-    def __init__(self, runner):
+    def __init__(self, runner, *, settle_at_start: bool = True):
         self.runner = runner
+        self.settle_at_start = settle_at_start  # a ramp starts from a stable range start; designed legs
+        # start ramping from wherever the air is
         self.leg: int | None = None  # the leg the chamber is ramping for; None until commanded
         self.stepping: _Stepping | None = None
         self.rate_c_per_min = 1.0  # of the leg being ramped
@@ -88,7 +90,7 @@ class RampMode:
     def point_commands(self, point: RampPoint, retake: bool) -> Generator[Any, Any, None]:
         if retake or self.leg != point.leg:
             self.leg = None
-            if point.index == 0:  # the plan's start: the DUTs begin the first leg at its start
+            if point.index == 0 and self.settle_at_start:  # the DUTs begin the first leg at its start
                 limit = self.runner.rig.station.chamber.limits.max_ramp_c_per_min
                 yield SetChamber(point.leg_start_c, limit)
                 yield WaitStable(point.leg_start_c, criteria_of(point.stability))
@@ -149,8 +151,10 @@ class StopWhen:
     """An on_point callback: after the last point of a sweep (or temperature step), stop the run once
     every DUT's live T24 fit meets the plan's `stop_when` targets (calib/targets.py)."""
 
-    def __init__(self, runner):
+    def __init__(self, runner, *, settle_at_start: bool = True):
         self.runner = runner
+        self.settle_at_start = settle_at_start  # a ramp starts from a stable range start; designed legs
+        # start ramping from wherever the air is
         points = runner.points
         self.group_ends = {p.id for p, nxt in zip(points, [*points[1:], None], strict=True)
                            if nxt is None or nxt.temp_index != p.temp_index}
@@ -173,7 +177,10 @@ class StopWhen:
 
 
 def attach(runner) -> RampMode | None:
-    """Hook the plan's ramp mode and stop_when into a CampaignRunner; the RampMode for a ramp plan."""
+    """Hook the plan's ramp mode and stop_when into a CampaignRunner; the RampMode of a plan that samples
+    while the temperature moves (a ramp; designed legs, which start from wherever the air is)."""
     if runner.plan.stop_when:
         runner.on_point.append(StopWhen(runner))
-    return RampMode(runner) if runner.plan.ramp is not None else None
+    if not runner.plan.moving:
+        return None
+    return RampMode(runner, settle_at_start=runner.plan.ramp is not None)

@@ -33,7 +33,7 @@ import yaml
 from calib.digest import sha256_file, sha256_text
 from rig.errors import ERRORS, SessionError
 from rig.events import Event, event_from_row
-from rig.sessionfile import check_file, verify
+from rig.sessionfile import check_file, read_decisions, verify
 
 # The CSV contract of calib.csvio (hx,hy,hz raw nT; temp degC; bx,by,bz reference nT; group) plus context.
 EXPORT_COLUMNS = ["point", "group", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c",
@@ -240,6 +240,13 @@ class SessionReader:
         )
 
     # --- at a glance ------------------------------------------------------------------------------------
+    def decisions(self) -> list[dict]:
+        """A sequential schedule's recorded decisions, in order ([] for any other session)."""
+        try:
+            return read_decisions(self._conn)
+        except (sqlite3.DatabaseError, ValueError) as exc:
+            raise SessionError(f"{self.path}: damaged session file: {exc}") from None
+
     def acceptance(self) -> list[dict]:
         """The per-DUT verdicts (rig/acceptance.py); [] when the plan set no acceptance limits."""
         return self._rows("SELECT * FROM acceptance ORDER BY rowid") if self._has_table("acceptance") else []

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import sqlite3
 import struct
@@ -14,6 +15,21 @@ SCHEMA_VERSION = 2  # 2: typed events (point_id, code), recorded text hashes, ex
 READABLE_VERSIONS = (1, 2)
 APPLICATION_ID = 0x4D475247  # "MGRG": marks the file as a magrig session
 SESSION_SUFFIXES = (".session", ".sqlite", ".sqlite3", ".db")
+
+# made by the first decision of a sequential schedule (rig/seqrun.py): one row per decided sweep or stop
+DECISIONS_TABLE = ("CREATE TABLE IF NOT EXISTS decisions (seq INTEGER PRIMARY KEY, t REAL, after_point TEXT, "
+                   "decision_json TEXT)")
+
+
+def read_decisions(conn: sqlite3.Connection) -> list[dict]:
+    """Every recorded decision in order, `after_point` included; [] when the session has none."""
+    found = conn.execute("SELECT name FROM sqlite_master WHERE type = 'table' AND name = 'decisions'"
+                         ).fetchone()
+    if found is None:
+        return []
+    rows = conn.execute("SELECT after_point, decision_json FROM decisions ORDER BY seq").fetchall()
+    return [{**json.loads(r[1]), "after_point": r[0]} for r in rows]
+
 
 SCHEMA = """
 CREATE TABLE session (

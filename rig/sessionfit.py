@@ -47,7 +47,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             continue
         ds, ambient = refined(inputs, ds)  # every reference with the run's best ambient (rig/ambient.py)
         lag = None
-        if plan.ramp is not None:  # a ramp shows each DUT's thermal lag: fit the element's temperature
+        if plan.moving:  # a ramp shows each DUT's thermal lag: fit the element's temperature
             from rig.lagfit import lag_corrected
 
             ds, lag = lag_corrected(ds)
@@ -65,6 +65,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 from rig.lagfit import annotate
 
                 annotate(cal, lag)
+            if model == "t24":  # the model check the plan's interior temperatures are for
+                check_linearity(cal, ds)
             if ambient is not None:
                 cal.stats["ambient"] = ambient
             state_uncertainty(inputs, dut.name, ds, cal)
@@ -115,3 +117,14 @@ def state_uncertainty(inputs, dut: str, ds, cal) -> None:
             cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
     except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
+
+
+def check_linearity(cal, ds) -> None:
+    """T24's linearity in temperature (calib/linearity.py) in the calibration's stats; a warning when it
+    does not hold."""
+    from calib.linearity import linearity
+
+    check = linearity(ds.h_nt, ds.temp_c, ds.ref_nt)
+    cal.stats["linearity"] = check
+    if check["holds"] is False:
+        cal.stats["warnings"] = [*cal.stats.get("warnings", []), check["message"]]

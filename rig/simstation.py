@@ -31,7 +31,7 @@ from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.serialmag import SerialMagLine
-from drivers.sim.truths import AIR_C, dut_truth, mount_truth
+from drivers.sim.truths import AIR_C, CHAMBER_RAMP_C_PER_MIN, dut_truth, mount_truth
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.configbase import ModbusTcp
@@ -86,9 +86,15 @@ def reference_truths(station) -> dict[str, DutTruth]:
     return out
 
 
+def chamber_ramp_c_per_min() -> float:
+    """The fastest the simulated chamber's air moves, whatever ramp it is told."""
+    return CHAMBER_RAMP_C_PER_MIN
+
+
 def make_world(station, clock: Clock) -> World:
     air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
-    world = World(clock, air_c=air_c, seed=station.sim.seed, **station.field_source.world_field(station.sim))
+    world = World(clock, air_c=air_c, seed=station.sim.seed, ramp_c_per_min=CHAMBER_RAMP_C_PER_MIN,
+                  **station.field_source.world_field(station.sim))
     for name, truth in (dut_truths(station) | reference_truths(station)).items():
         world.add_dut(name, truth)
     for sensor in station.temperature_sensors:

@@ -6,6 +6,8 @@
     s = Session.open(path)                       # resume: checks the file, migrates an older schema
     s.done_point_ids() -> set[str]
     s.record_point(point_id, rows: list[SampleRow], settle_stats: dict)   # ONE transaction per point
+    s.record_point(..., decision=Decision(data, points))   # a sequential schedule's next sweep, too
+    s.decisions() -> list[dict]
     s.mark_point_failed(point_id, reason)
     s.log_event(kind, message, code=Reason.X, point_id=None, device=None, level=None, **data)
     s.record_snapshot(device, describe_dict)
@@ -45,11 +47,13 @@ from rig.errors import SessionError
 from rig.events import Kind, Reason, legacy_event
 from rig.sessionfile import (
     APPLICATION_ID,
+    DECISIONS_TABLE,
     MIGRATE_V1,
     SCHEMA,
     SCHEMA_VERSION,
     check_file,
     pid_alive,
+    read_decisions,
     verify,
 )
 
@@ -328,11 +332,15 @@ class Session:
 
     def record_point(self, point_id: str, rows: Iterable[SampleRow], settle_stats: dict | None = None, *,
                      started: float | None = None, finished: float | None = None,
-                     temperatures: list[TemperatureRow] = ()) -> None:
+                     temperatures: list[TemperatureRow] = (), decision: Decision | None = None) -> None:
         """Mark the point done and store all its samples, atomically (with the temperature rows noted
-        since the last write: they ride along instead of taking a transaction of their own)."""
+        since the last write: they ride along instead of taking a transaction of their own); with a
+        `decision` (a sequential schedule's next sweep, made from this point's data) in the same
+        transaction."""
         finished = self.clock.now() if finished is None else finished
         with self._transaction() as conn:
+            if decision is not None:
+                _record_decision(conn, point_id, decision, finished)
             state = conn.execute("SELECT state FROM points WHERE id = ?", (point_id,)).fetchone()
             if state is None:
                 raise SessionError(f"{self.path}: point {point_id} is not in the plan")
@@ -345,6 +353,10 @@ class Session:
                 "WHERE id = ?",
                 (json.dumps(settle_stats or {}, default=float), started, finished, point_id),
             )
+
+    def decisions(self) -> list[dict]:
+        """The recorded decisions of a sequential schedule, in order ([] for any other session)."""
+        return read_decisions(self._conn)
 
     def mark_point_failed(self, point_id: str, reason: str) -> None:
         with self._transaction() as conn:
@@ -433,6 +445,31 @@ def _insert_temperatures(conn: sqlite3.Connection, rows: list[TemperatureRow]) -
                          "VALUES (?, ?, ?, ?, ?)", [r.as_params() for r in rows])
 
 
+@dataclass(frozen=True)
+class Decision:
+    """What a sequential schedule decided after a point: its data (JSON-ready) and the points it adds
+    (objects with id, index, temp_index, setpoint_c, field_index and target, like rig.points.Point)."""
+
+    data: dict
+    points: tuple = ()
+
+
+def _insert_points(conn: sqlite3.Connection, points: Iterable) -> None:
+    conn.executemany(
+        "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
+        "VALUES (?, ?, ?, ?, ?, ?)",
+        ((p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target)) for p in points),
+    )
+
+
+def _record_decision(conn: sqlite3.Connection, point_id: str, decision: Decision, t: float) -> None:
+    """The decision and its points, inside the caller's transaction (the table is made when first needed)."""
+    conn.execute(DECISIONS_TABLE)
+    conn.execute("INSERT INTO decisions (t, after_point, decision_json) VALUES (?, ?, ?)",
+                 (t, point_id, json.dumps(decision.data, default=_json_default)))
+    _insert_points(conn, decision.points)
+
+
 def _build(build: Path, record: tuple, points: Iterable) -> None:
     """Write a complete new session file at `build` (a temporary name) and close it."""
     _remove(build)
@@ -452,12 +489,7 @@ def _build(build: Path, record: tuple, points: Iterable) -> None:
             "INSERT INTO session (id, plan_name, station_name, plan_text, station_text, plan_sha256, "
             "station_sha256, plan_path, station_path, software_version, operator, simulated_json, started, "
             "wall_started) VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", record)
-        conn.executemany(
-            "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
-            "VALUES (?, ?, ?, ?, ?, ?)",
-            ((p.id, p.index, p.temp_index, p.setpoint_c, p.field_index, json.dumps(p.target))
-             for p in points),
-        )
+        _insert_points(conn, points)
         conn.execute("COMMIT")
         conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # everything in the main file before it is renamed
     finally:

@@ -13,6 +13,7 @@ from drivers.sim.world import DutTruth
 NOISE_NT = 20.0  # white noise per axis, RMS
 THERMAL_LAG_S = 600.0  # DUT temperature time constant against the chamber air
 AIR_C = 22.0  # chamber air at the start
+CHAMBER_RAMP_C_PER_MIN = 3.0  # the fastest the simulated chamber's air moves (heater and compressor)
 TRUTH_KEYS = ("S", "K", "b_nt", "kb_nt_per_c", "bridge_offset_nt", "bridge_offset_tc_nt_per_c")
 
 

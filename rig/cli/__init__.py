@@ -30,6 +30,7 @@ COMMAND_MODULES = {
     "check": "store_cmds", "export": "store_cmds",
     "run": "campaign_cmds",
     "commission": "commission_cmds",
+    "design": "design_cmds",
     "report": "report_cmds", "export-cal": "report_cmds", "sessions": "report_cmds",
     "push": "fleet_cmds", "fleet": "fleet_cmds", "refit-all": "fleet_cmds",
     "serve": "serve_cmds",

@@ -8,6 +8,7 @@ import click
 
 from calib.atomic import atomic_write
 from rig.config import load_campaign
+from rig.errors import ConfigError
 from rig.plan import check_campaign
 from rig.reader import SessionReader
 
@@ -16,11 +17,17 @@ from rig.reader import SessionReader
 @click.argument("plan_path", metavar="PLAN.yaml", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--station", "station_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Station file (default: the plan's `station:`, else configs/stations/sim.yaml).")
-def check_cmd(plan_path: Path, station_path: Path | None) -> None:
+@click.option("--figure", "figure_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Designed or sequential plan: write the predicted temperatures and standard errors "
+              "against chamber time to this PNG.")
+def check_cmd(plan_path: Path, station_path: Path | None, figure_path: Path | None) -> None:
     """Validate a plan against its station without touching hardware; print the step count and an
-    estimate of the campaign's duration."""
+    estimate of the campaign's duration (and, for a designed plan, its predicted standard errors)."""
     campaign = load_campaign(plan_path, station_path)
     report = check_campaign(campaign)
+    if figure_path is not None and report.prediction is None:
+        raise ConfigError(f"--figure {figure_path}: plan {campaign.plan.name} predicts no standard errors to "
+                          "draw (a designed or sequential plan with stop_when does)")
     simulated = campaign.station.simulated_devices()
     if all(simulated.values()):
         sim_note = "all devices simulated"
@@ -32,6 +39,13 @@ def check_cmd(plan_path: Path, station_path: Path | None) -> None:
                f"({campaign.station_path}; {sim_note}): OK")
     for line in report.summary_lines():
         click.echo(line)
+    if figure_path is not None:
+        from rig.designfig import write_schedule_figure
+
+        write_schedule_figure(report.prediction,
+                              f"plan {campaign.plan.name} on station {campaign.station.name}",
+                              figure_path)
+        click.echo(f"wrote {figure_path}")
 
 
 @click.command("export")

@@ -17,7 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.config.plan import (
+    AssumedDut,
     Cube24Fields,
+    DesignedLeg,
+    DesignedTemperatures,
     DirectionFields,
     FibonacciFields,
     FieldSet,
@@ -27,6 +30,7 @@ from rig.config.plan import (
     Outputs,
     Plan,
     RampTemperatures,
+    SequentialTemperatures,
     Stability,
     Temperatures,
     TempRange,
@@ -98,11 +102,13 @@ def load_campaign(plan_path: str | Path, station_path: str | Path | None = None)
 
 
 __all__ = [
-    "CONFIGS_DIR", "DEFAULT_STATION", "Campaign", "Chamber", "ChamberConfig", "Coils", "Cube24Fields",
-    "DirectionFields", "Dut", "DutConfig", "FibonacciFields", "FieldSet", "FieldSource", "Fit",
-    "GridOrientations", "I2c", "ListOrientations", "ModbusRtu", "ModbusTcp", "Outputs", "Plan", "Serial",
-    "Sim", "SimDut", "SimWorld", "SiteFromModel", "SiteFromReference", "SiteFromVector", "Stability",
-    "Station", "Strict", "TempRange", "TempStep", "TemperatureSensor", "TemperatureSensorConfig",
-    "RampTemperatures", "Temperatures", "Turntable", "TruthSpec", "VectorFields", "load_campaign",
-    "load_plan", "load_station", "resolve_station_path",
+    "CONFIGS_DIR", "DEFAULT_STATION", "AssumedDut", "Campaign", "Chamber", "ChamberConfig", "Coils",
+    "Cube24Fields", "DesignedLeg", "DesignedTemperatures", "DirectionFields", "Dut", "DutConfig",
+    "FibonacciFields", "FieldSet", "FieldSource", "Fit", "GridOrientations", "I2c", "ListOrientations",
+    "ModbusRtu", "ModbusTcp", "Outputs", "Plan", "RampTemperatures", "SequentialTemperatures", "Serial",
+    "Sim",
+    "SimDut", "SimWorld", "SiteFromModel", "SiteFromReference", "SiteFromVector", "Stability", "Station",
+    "Strict", "TempRange", "TempStep", "TemperatureSensor", "TemperatureSensorConfig", "Temperatures",
+    "Turntable", "TruthSpec", "VectorFields", "load_campaign", "load_plan", "load_station",
+    "resolve_station_path",
 ]

@@ -2,7 +2,9 @@
 mode (only `step_and_dwell` today: each point is collected at a stable temperature; every sample still
 carries its own temperature so a later `continuous_ramp` mode can reuse the store and the fits);
 temperatures {steps | range, ramp_c_per_min, stability} or {mode: ramp, range_c, rate_c_per_min,
-cycles, end_hold_s, stability} (continuous ramp, rig/ramp.py); fields (see rig/fieldsets.py; which kinds a
+cycles, end_hold_s, stability} (continuous ramp, rig/ramp.py) or {mode: designed, rate_c_per_min, legs}
+(what `rig design` writes, rig/legplan.py) or {mode: sequential, range_c, ...} (decided during the run,
+rig/seqplan.py); fields (see rig/fieldsets.py; which kinds a
 station can make is its field source's business, rig/fieldsources/); samples_per_point, settle_s,
 set_reset; fit {models, robust}; outputs {dir}; stop_when {S, K, b, kb} (optional).
 
@@ -11,7 +13,7 @@ A "temperature step" is one setpoint of `temperatures` (T03 in a point id); the 
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BeforeValidator, Discriminator, Field, Tag, model_validator
@@ -86,6 +88,8 @@ class Temperatures(Strict):
     ramp_c_per_min: RAMP_C_PER_MIN = 2.0
     stability: Stability = Stability()
 
+    moving: ClassVar[bool] = False  # samples are taken at stable temperatures
+
     @model_validator(mode="after")
     def _one_source(self):
         if (self.steps is None) == (self.range is None):
@@ -118,6 +122,8 @@ class RampTemperatures(Strict):
     end_hold_s: SECONDS = 0.0
     stability: Stability = Stability()
 
+    moving: ClassVar[bool] = True  # samples are taken while the temperature moves: each DUT's lag is fitted
+
     @model_validator(mode="after")
     def _span(self):
         if self.range_c[0] == self.range_c[1]:
@@ -125,17 +131,93 @@ class RampTemperatures(Strict):
         return self
 
 
+MAX_LEG_SWEEPS = 10_000
+
+
+class DesignedLeg(Strict):
+    """One leg of a designed schedule: the air goes to `to_c` and stays while `sweeps` sweeps are taken."""
+
+    to_c: TEMP_C
+    sweeps: Count(MAX_LEG_SWEEPS)
+    rate_c_per_min: RAMP_C_PER_MIN | None = Field(None, description="default: the schedule's")
+    check: bool = Field(False, description="an interior temperature of the model check (T24's linearity)")
+
+
+class AssumedDut(Strict):
+    """What a design assumed of a DUT (its noise per fitted sample and axis, its lag behind the air)."""
+
+    noise_nt: bounded(gt=0, hi=NT_MAX)
+    lag_s: bounded(gt=0, hi=DAY_S)
+
+
+class DesignedTemperatures(Strict):
+    """A designed schedule (`rig design` writes it; rig/legplan.py): legs run back to back from wherever
+    the air is, each ramping at its rate and holding while its sweeps are taken; the field source sweeps
+    the plan's fields throughout. `assumed` records the DUT noise and lags the design was made for (rig
+    check predicts the standard errors from them; the station's stated values otherwise)."""
+
+    mode: Literal["designed"]
+    rate_c_per_min: RAMP_C_PER_MIN
+    legs: list[DesignedLeg] = Field(min_length=1)
+    assumed: dict[str, AssumedDut] = {}
+    stability: Stability = Stability()
+
+    moving: ClassVar[bool] = True
+
+
+class SequentialTemperatures(Strict):
+    """Sequential design (rig/seqplan.py): after every sweep the campaign decides, from what it has
+    measured, whether to stay at the current end of `range_c`, cross to the other (pausing `check_sweeps`
+    sweeps at each of `checks_c`, the model check's interior temperatures), or stop because every DUT
+    meets the plan's `stop_when` targets; each sweep takes the `fields_per_sweep` of the plan's fields that
+    teach the worst DUT the most. `rate_c_per_min` is the fastest ramp (default: the chamber's; slower when
+    the slowest DUT could not follow it); `max_duration_h` bounds the run."""
+
+    mode: Literal["sequential"]
+    range_c: tuple[TEMP_C, TEMP_C]
+    rate_c_per_min: RAMP_C_PER_MIN | None = Field(None, description="default: the chamber's fastest")
+    checks_c: list[TEMP_C] | None = Field(None, description="default: the middle of the range")
+    check_sweeps: Count(100) = 1
+    fields_per_sweep: Count(10_000) | None = Field(None, description="default: all the plan's fields")
+    max_duration_h: bounded(gt=0, hi=24 * 56.0) = 24.0
+    stability: Stability = Stability()
+
+    moving: ClassVar[bool] = True
+
+    @model_validator(mode="after")
+    def _range(self):
+        lo, hi = sorted(self.range_c)
+        if lo == hi:
+            raise KeyPathError(("range_c",), "the two ends must differ")
+        for i, c in enumerate(self.checks_c or []):
+            if not lo < c < hi:
+                raise KeyPathError(("checks_c", i), f"{c:g} degC is not inside range_c {lo:g} .. {hi:g}")
+        return self
+
+    def checks(self) -> list[float]:
+        lo, hi = sorted(self.range_c)
+        return list(self.checks_c) if self.checks_c is not None else [round(0.5 * (lo + hi), 3)]
+
+
+MODES = {"ramp": "ramp mode", "designed": "designed mode", "sequential": "sequential mode"}
+
+
 def _temperatures_mode(value: Any) -> str:
-    """`mode:` present means a ramp (a wrong value is then refused by RampTemperatures)."""
+    """The schedule a `temperatures:` names: no `mode:` means temperature steps."""
     if isinstance(value, dict):
-        return "ramp mode" if "mode" in value else "step mode"
-    return "ramp mode" if isinstance(value, RampTemperatures) else "step mode"
+        return MODES.get(value["mode"], "unknown mode") if "mode" in value else "step mode"
+    return {RampTemperatures: "ramp mode", DesignedTemperatures: "designed mode",
+            SequentialTemperatures: "sequential mode"}.get(type(value), "step mode")
 
 
 AnyTemperatures = Annotated[
-    # tags are no key of either model, so an error's key path skips them (rig/yamlload.py)
-    Annotated[Temperatures, Tag("step mode")] | Annotated[RampTemperatures, Tag("ramp mode")],
-    Discriminator(_temperatures_mode),
+    # tags are no key of any model, so an error's key path skips them (rig/yamlload.py)
+    Annotated[Temperatures, Tag("step mode")] | Annotated[RampTemperatures, Tag("ramp mode")]
+    | Annotated[DesignedTemperatures, Tag("designed mode")]
+    | Annotated[SequentialTemperatures, Tag("sequential mode")],
+    Discriminator(_temperatures_mode, custom_error_type="unknown_mode",
+                  custom_error_message="mode must be ramp, designed or sequential (none for temperature "
+                  "steps)"),
 ]
 
 
@@ -313,6 +395,12 @@ class Plan(Strict):
         return self
 
     @property
+    def moving(self) -> bool:
+        """Whether samples are taken while the temperature moves (ramp, designed, sequential): the fits
+        then correct each DUT's thermal lag and stop_when is judged after every sweep."""
+        return self.temperatures.moving
+
+    @property
     def ramp(self) -> RampTemperatures | None:
         """The ramp settings of a continuous-ramp plan, None for temperature steps."""
         return self.temperatures if isinstance(self.temperatures, RampTemperatures) else None
@@ -321,4 +409,18 @@ class Plan(Strict):
     def _acceptance_model(self):
         if self.acceptance is not None:
             self.acceptance.check_against(list(self.fit.models))
+        if isinstance(self.temperatures, SequentialTemperatures) and not self.se_targets():
+            raise KeyPathError(("temperatures", "mode"),
+                               "a sequential schedule stops when the DUTs meet their "
+                               "targets: give stop_when (or acceptance.max_std_error for t24)")
         return self
+
+    def se_targets(self) -> dict[str, float]:
+        """The T24 standard errors the campaign aims at: `stop_when`, else the acceptance limits'
+        `max_std_error` when the judged model is t24 (empty when neither states any)."""
+        if self.stop_when:
+            return dict(self.stop_when)
+        acc = self.acceptance
+        if acc is not None and (acc.model or self.fit.models[0]) == "t24" and acc.max_std_error:
+            return dict(acc.max_std_error)
+        return {}

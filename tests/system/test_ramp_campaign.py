@@ -38,7 +38,7 @@ def ramp_plan(tmp_path, *, samples=3, stop_when=None, name="ramp") -> str:
         "fields": {"kind": "directions", "magnitude_nt": 50000,
                    "directions": [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]},
         "samples_per_point": samples,
-        "settle_s": 1.8,
+        "settle_s": 1.0,
         "fit": {"models": ["t24"]},
     }
     if stop_when:

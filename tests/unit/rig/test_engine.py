@@ -317,3 +317,24 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
     assert "1 settle timeout(s): T01-F02 (dut7: settle timeout)" in warnings
     assert "1 hold(s) during the run: T01-F02 (coils: device timeout)" in warnings
     assert "whatever words" not in warnings
+
+
+def test_tasks_added_during_the_run_are_run_in_order_and_counted(new_session):
+    """A schedule decided during the run (rig/seqrun.py) appends its next points from a checkpoint."""
+    session = new_session()
+    extra = ["T03-F01", "T03-F02"]
+    rig = Rig(session)
+    engine = make_engine(rig, session)
+
+    def add_after_last(point_id):
+        if point_id == IDS[-1]:
+            session.store._conn.executemany(  # the planned rows the real schedule records with its decision
+                "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
+                "VALUES (?, ?, 3, 25.0, ?, '{}')", [(pid, 4 + i, i + 1) for i, pid in enumerate(extra)])
+            engine.add_tasks(rig.steps(extra))
+
+    rig.on_collect = add_after_last
+    result = engine.run(rig.steps(IDS))
+    assert result.status == COMPLETED and result.points_done == 6
+    assert session.points == IDS + extra
+    assert engine.status.points_total == 6 and "all 6 points taken" in result.reason

@@ -178,7 +178,8 @@ def test_duration_estimate_adds_up_from_its_parts():
     lag = 600.0
     assert b["stability"] == pytest.approx(lag * np.log(10 / 0.5) + 100 + lag * np.log(20 / 0.5) + 100)
     assert b["moves+settle"] == pytest.approx(6 * 2.0)
-    assert b["sampling"] == pytest.approx(6 * 4 / 7.5)  # hmc5883l at rate_hz 7.5
+    # hmc5883l at rate_hz 7.5, after the TMP117 beside it (one-shot, 8 conversions of 15.5 ms)
+    assert b["sampling"] == pytest.approx(6 * 4 * (1 / 7.5 + 8 * 0.0155))
     assert report.duration_s == pytest.approx(sum(b.values()))
     assert report.samples_per_dut == 24 and report.n_temperatures == 2 and report.n_fields == 3
 

@@ -77,7 +77,7 @@ def test_a_ramp_too_fast_for_the_field_source_is_refused_with_the_rate_to_use():
 
 
 @pytest.mark.parametrize("temps, match", [
-    ({"mode": "rmp"}, "input should be 'ramp'"),
+    ({"mode": "rmp"}, "mode must be ramp, designed or sequential"),
     ({"cycles": 0}, "cycles"),
     ({"range_c": [20, 20]}, "range_c: start and end must differ"),
     ({"rate_c_per_min": -1}, "rate_c_per_min"),

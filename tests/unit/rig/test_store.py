@@ -306,3 +306,27 @@ def test_writes_from_another_thread(tmp_path, campaign, points):
     s.record_point(points[0].id, rows_for(points[0]))
     assert [e.message for e in session_tables(s.path)["events"]] == ["from a simulator thread"]
     s.close()
+
+
+def test_a_decision_is_stored_with_its_point_or_not_at_all(tmp_path, campaign, points):
+    """A sequential schedule's decision (the next sweep's points) goes in the point's own transaction."""
+    from types import SimpleNamespace
+
+    from rig.store import Decision
+
+    s = new_session(tmp_path, campaign, points[:2])
+    nxt = [SimpleNamespace(id=f"L01-S0002-F0{i}", index=2 + i, temp_index=2, setpoint_c=20.0, field_index=i,
+                           target={"field_nt": [1.0, 0.0, 0.0]}) for i in (1, 2)]
+    s.record_point(points[0].id, rows_for(points[0]))
+    bad = Decision({"leg": 1, "sweep": 2}, (nxt[0], nxt[0]))  # the same point twice: the insert fails
+    with pytest.raises(sqlite3.IntegrityError):
+        s.record_point(points[1].id, rows_for(points[1]), decision=bad)
+    assert s.done_point_ids() == {points[0].id} and s.decisions() == []
+    assert s.planned_point_ids() == [p.id for p in points[:2]]
+    s.record_point(points[1].id, rows_for(points[1]), decision=Decision({"leg": 1, "sweep": 2}, tuple(nxt)))
+    assert s.planned_point_ids() == [points[0].id, points[1].id, *(p.id for p in nxt)]
+    assert s.decisions() == [{"leg": 1, "sweep": 2, "after_point": points[1].id}]
+    s.close()
+    with SessionReader(tmp_path / "s.magrig") as reader:
+        assert reader.decisions() == [{"leg": 1, "sweep": 2, "after_point": points[1].id}]
+        assert reader.summary()["points_planned"] == 4

@@ -1,0 +1,427 @@
+"""Least chamber time for T24 targets: where the chamber air goes, how long it stays, and when to stop.
+
+    duts = [DutModel("dut1", sigma_nt=21.0, lag_s=300.0), ...]
+    chamber = ChamberModel(range_c=(-30, 70), rate_c_per_min=5.0, checks_c=(20.0,), check_sweeps=1)
+    pace = Pace(fields_nt=one_sweep, samples=20, point_s=4.4)
+    schedule = design_schedule(duts, chamber, pace, {"K": 2e-6, "kb": 0.05}, start_c=22.0)
+    schedule.legs, schedule.duration_s, schedule.met, schedule.history    # legs and predicted errors
+
+## Physics
+
+The chamber air ramps towards a leg's temperature at the leg's rate and then holds there; each DUT's
+sensing element follows the air with its own first-order lag (the simulator's model and calib/lag.py's
+`element_lags`); the field source sweeps a balanced set of fields back to back, one sweep taking
+`Pace.sweep_s`, and every sample carries its DUT's temperature (the post-run fit corrects the recorded
+temperature to the element's, calib/lag.py). So a schedule of legs predicts every sample's element
+temperature, hence each DUT's Gram (calib/design.py) and standard errors after every sweep.
+
+## The schedule
+
+T24 is linear in temperature, so its temperature information lies at the two ends of the range
+(calib/design.py: the D- and I-optimal temperatures split between the ends). The least-time schedule is:
+to the nearer end (or the other, whichever is faster) at the chamber's rate and hold there while sweeping,
+cross to the other end, pausing `check_sweeps` sweeps at each interior check temperature (the points that
+show whether T24's linearity holds), and hold at the other end until every DUT meets its targets. The
+slowest DUT sets how long the holds are: it needs a few of its lags at each end. The free numbers are the
+sweeps spent at the first end and at the second; `design_schedule` searches them for the least total
+time (both orders of the ends). `next_leg` is the same search run during a campaign from the Grams
+measured so far (a receding horizon): after each sweep it says stay, go on to the next leg, or stop.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from calib.design import regressors, target_ratios
+from calib.errors import DataError
+from calib.lag import lag_filter
+
+MAX_SWEEPS = 2000  # bound on the sweeps a schedule may predict (also bounds the search's cost)
+END, CHECK = "end", "check"
+
+
+@dataclass(frozen=True)
+class DutModel:
+    """What the design knows of a DUT: its noise (one fitted sample, per axis, nT) and thermal lag."""
+
+    name: str
+    sigma_nt: float
+    lag_s: float
+
+
+@dataclass(frozen=True)
+class ChamberModel:
+    """The range's two ends, the ramp rate between legs, and the interior temperatures of the model check."""
+
+    range_c: tuple[float, float]
+    rate_c_per_min: float
+    checks_c: tuple[float, ...] = ()
+    check_sweeps: int = 1
+
+
+@dataclass(frozen=True)
+class Pace:
+    """One sweep: its fields (n, 3) nT in order, samples per point, seconds per point (move, settle, read)."""
+
+    fields_nt: np.ndarray
+    samples: int
+    point_s: float
+
+    @property
+    def sweep_s(self) -> float:
+        return self.point_s * len(self.fields_nt)
+
+
+@dataclass(frozen=True)
+class Leg:
+    """The air goes to `to_c` at `rate_c_per_min` and stays; `sweeps` sweeps are taken meanwhile."""
+
+    to_c: float
+    sweeps: int
+    rate_c_per_min: float
+    kind: str = END  # END (one of the range's ends) or CHECK (an interior check temperature)
+    from_c: float | None = None  # where the air was when the leg began (when known)
+
+
+@dataclass
+class State:
+    """Where a campaign stands: time, air, each DUT's element temperature and Gram so far."""
+
+    t_s: float
+    air_c: float
+    element_c: dict[str, float]
+    grams: dict[str, np.ndarray]
+
+    @classmethod
+    def start(cls, duts: Sequence[DutModel], air_c: float) -> State:
+        return cls(0.0, air_c, {d.name: air_c for d in duts}, {d.name: np.zeros((8, 8)) for d in duts})
+
+
+@dataclass
+class Prediction:
+    """After each sweep of some legs: the time, each DUT's Gram, air and element temperatures."""
+
+    t_s: np.ndarray  # (n_sweeps,) end of each sweep
+    grams: dict[str, np.ndarray]  # name -> (n_sweeps, 8, 8) cumulative
+    air_c: np.ndarray  # (n_sweeps,) at the end of each sweep
+    element_c: dict[str, np.ndarray]  # name -> (n_sweeps,)
+    leg_of_sweep: np.ndarray  # (n_sweeps,) index of the leg
+
+    def state(self, sweep: int) -> State:
+        """The state after sweep `sweep` (0-based)."""
+        return State(float(self.t_s[sweep]), float(self.air_c[sweep]),
+                     {n: float(e[sweep]) for n, e in self.element_c.items()},
+                     {n: g[sweep] for n, g in self.grams.items()})
+
+
+@dataclass
+class Schedule:
+    """A designed schedule: its legs, chamber time, whether the targets are met, and the predicted worst
+    ratio (standard error / target) of each DUT and group after each sweep (for rig check's table)."""
+
+    legs: list[Leg]
+    duration_s: float
+    met: bool
+    sweep_end_s: np.ndarray
+    ratios: dict[str, np.ndarray]  # DUT -> (n_sweeps, n_groups), groups in the targets' order
+    groups: list[str]
+    message: str = ""
+    std_errors: dict[str, dict] = field(default_factory=dict)  # DUT -> group -> se at the end
+    air_c: np.ndarray | None = None  # (n_sweeps,) at the end of each sweep
+    element_c: dict[str, np.ndarray] = field(default_factory=dict)  # DUT -> (n_sweeps,)
+
+
+# --- the thermal prediction ------------------------------------------------------------------------------
+def air_path(t_s: np.ndarray, start_t_s: float, start_c: float, legs: Sequence[Leg], sweep_s: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Air temperature at times t_s (sorted) and the leg index of each, for legs run back to back."""
+    air = np.empty_like(t_s)
+    leg_index = np.empty(t_s.shape, int)
+    t0, a0 = start_t_s, start_c
+    for j, leg in enumerate(legs):
+        t1 = t0 + leg.sweeps * sweep_s
+        sel = (t_s >= t0) & ((t_s < t1) | (j == len(legs) - 1))
+        span = leg.to_c - a0
+        moved = np.minimum(leg.rate_c_per_min / 60.0 * (t_s[sel] - t0), abs(span))
+        air[sel] = a0 + math.copysign(1.0, span) * moved
+        leg_index[sel] = j
+        a0 = a0 + math.copysign(min(leg.rate_c_per_min / 60.0 * (t1 - t0), abs(span)), span)
+        t0 = t1
+    return air, leg_index
+
+
+def element_path(t_s: np.ndarray, air_c: np.ndarray, lag_s: float, start_element_c: float) -> np.ndarray:
+    """First-order response to the air (linear between rows) from the element's temperature at t_s[0]."""
+    seg = np.zeros(len(t_s), int)
+    return lag_filter(t_s, air_c, lag_s, seg) + (start_element_c - air_c[0]) * np.exp(-(t_s - t_s[0]) / lag_s)
+
+
+def predict(state: State, legs: Sequence[Leg], pace: Pace, duts: Sequence[DutModel], temp_ref_c: float
+            ) -> Prediction:
+    """Run `legs` from `state` on paper: each DUT's cumulative Gram after every sweep."""
+    n_sweeps = sum(leg.sweeps for leg in legs)
+    n_f = len(pace.fields_nt)
+    if n_sweeps == 0:
+        raise DataError("predict: no sweeps")
+    if n_sweeps > MAX_SWEEPS:
+        raise DataError(f"predict: {n_sweeps} sweeps; at most {MAX_SWEEPS}")
+    k = np.arange(n_sweeps * n_f)
+    t_points = state.t_s + (k + 0.5) * pace.point_s
+    t_all = np.concatenate([[state.t_s], t_points])
+    air_all, _ = air_path(t_all, state.t_s, state.air_c, legs, pace.sweep_s)
+    sweep_end = state.t_s + (np.arange(n_sweeps) + 1) * pace.sweep_s
+    air_end, leg_index = air_path(sweep_end - 1e-9, state.t_s, state.air_c, legs, pace.sweep_s)
+    fields = np.tile(pace.fields_nt, (n_sweeps, 1))
+    grams, elements = {}, {}
+    for dut in duts:
+        temp = element_path(t_all, air_all, dut.lag_s, state.element_c[dut.name])
+        x = regressors(fields, temp[1:], temp_ref_c)
+        per_point = pace.samples * np.einsum("ni,nj->nij", x, x)
+        per_sweep = per_point.reshape(n_sweeps, n_f, 8, 8).sum(axis=1)
+        grams[dut.name] = state.grams[dut.name] + np.cumsum(per_sweep, axis=0)
+        elements[dut.name] = temp[1:][n_f - 1 :: n_f]
+    return Prediction(sweep_end, grams, air_end, elements, leg_index)
+
+
+def worst_ratios(prediction: Prediction, duts: Sequence[DutModel], targets: Mapping[str, float],
+                 temp_ref_c: float) -> dict[str, np.ndarray]:
+    """DUT -> (n_sweeps, n_groups) standard error over target after each predicted sweep."""
+    return {d.name: target_ratios(prediction.grams[d.name], d.sigma_nt, temp_ref_c, targets) for d in duts}
+
+
+def _first_met(ratios: dict[str, np.ndarray], from_sweep: int) -> int | None:
+    """First sweep (0-based, >= from_sweep) after which every DUT's every ratio is <= 1."""
+    ok = np.all([np.all(r <= 1.0, axis=1) for r in ratios.values()], axis=0)
+    ok[:from_sweep] = False
+    hits = np.flatnonzero(ok)
+    return int(hits[0]) if hits.size else None
+
+
+# --- the least-time schedule ----------------------------------------------------------------------------
+def sweeps_to_reach(from_c: float, to_c: float, rate_c_per_min: float, sweep_s: float) -> int:
+    """Sweeps taken while the air ramps from from_c to to_c (at least one)."""
+    return max(1, math.ceil(abs(to_c - from_c) / rate_c_per_min * 60.0 / sweep_s - 1e-9))
+
+
+def sweeps_with_hold(from_c: float, to_c: float, rate_c_per_min: float, sweep_s: float, hold: int) -> int:
+    """Sweeps of a leg that ramps from from_c to to_c and then takes `hold` sweeps with the air there (a
+    sweep's nominal air is where the air is when it starts)."""
+    span = abs(to_c - from_c)
+    return (math.ceil(span / rate_c_per_min * 60.0 / sweep_s - 1e-9) if span > 0 else 0) + hold
+
+
+def crossing(chamber: ChamberModel, from_c: float, to_c: float, sweep_s: float,
+             done_checks: Sequence[float] = ()) -> list[Leg]:
+    """The check legs met on the way from one end to the other (those not yet done), in travel order,
+    each long enough to reach its temperature and take check_sweeps sweeps there."""
+    lo, hi = sorted((from_c, to_c))
+    todo = [c for c in chamber.checks_c if lo < c < hi and c not in done_checks]
+    todo.sort(reverse=to_c < from_c)
+    legs, at = [], from_c
+    for c in todo:
+        n = sweeps_with_hold(at, c, chamber.rate_c_per_min, sweep_s, chamber.check_sweeps)
+        legs.append(Leg(c, n, chamber.rate_c_per_min, CHECK, at))
+        at = c
+    return legs
+
+
+def crossing_rate(max_rate_c_per_min: float, span_c: float, slowest_lag_s: float) -> float:
+    """The ramp rate for a crossing of span_c: the chamber's fastest, but no faster than the slowest DUT can
+    follow. Reaching within delta of the far end takes span/r + tau ln(r tau / delta), least at
+    r = span / tau: a faster ramp only leaves that DUT further behind (and leans harder on the lag
+    correction of every sample taken on the way)."""
+    return min(max_rate_c_per_min, 60.0 * abs(span_c) / slowest_lag_s)
+
+
+def temp_ref_of(chamber: ChamberModel) -> float:
+    """Centre of the range: where the design's temperatures are centred (the absolute errors do not care)."""
+    return round(0.5 * (chamber.range_c[0] + chamber.range_c[1]), 1)
+
+
+def hold_until_met(state: State, legs_before: list[Leg], last: Leg, pace: Pace, duts, targets,
+                   temp_ref_c: float, max_sweeps: int) -> tuple[int | None, Prediction, dict]:
+    """Run legs_before, then `last` for as long as needed, up to max_sweeps in all: the sweeps of `last`
+    that bring every DUT to its targets (None: not within max_sweeps), with the prediction and ratios.
+    The horizon doubles until the targets are met, so a short answer costs a short prediction."""
+    before = sum(leg.sweeps for leg in legs_before)
+    horizon = max(32, 2 * before)
+    while True:
+        total = min(horizon, max(max_sweeps, before + 1))
+        pred = predict(state, [*legs_before, replace(last, sweeps=total - before)], pace, duts, temp_ref_c)
+        ratios = worst_ratios(pred, duts, targets, temp_ref_c)
+        start_air = pred.air_c[before - 1] if before else state.air_c
+        reach = sweeps_to_reach(start_air, last.to_c, last.rate_c_per_min, pace.sweep_s)
+        hit = _first_met(ratios, min(before + reach, total) - 1)
+        if hit is not None or total >= max_sweeps:
+            return (None if hit is None else hit - before + 1), pred, ratios
+        horizon *= 2
+
+
+def design_schedule(duts: Sequence[DutModel], chamber: ChamberModel, pace: Pace, targets: Mapping[str, float],
+                    *, start_c: float, max_duration_s: float) -> Schedule:
+    """The least-time schedule of the module's shape meeting every DUT's targets (see the docstring); when
+    no schedule within max_duration_s meets them, the one that comes closest, with met=False."""
+    _check_inputs(duts, chamber, pace)
+    temp_ref = temp_ref_of(chamber)
+    max_sweeps = min(MAX_SWEEPS, max(2, int(max_duration_s // pace.sweep_s)))
+    best = None
+    for first, second in (chamber.range_c, chamber.range_c[::-1]):
+        reach1 = sweeps_to_reach(start_c, first, chamber.rate_c_per_min, pace.sweep_s)
+        checks = crossing(chamber, first, second, pace.sweep_s)
+        n_checks = sum(c.sweeps for c in checks)
+        if reach1 + n_checks + 1 > max_sweeps:
+            continue
+        start = State.start(duts, start_c)
+        prefix = predict(start, [Leg(first, max_sweeps, chamber.rate_c_per_min)], pace, duts, temp_ref)
+        for n1 in range(reach1, max_sweeps - n_checks):
+            if best is not None and not best[0][0] and n1 + n_checks + 1 >= best[0][1]:
+                break  # a longer first hold cannot make the whole shorter
+            budget = max_sweeps - n1
+            n2, _, ratios = hold_until_met(prefix.state(n1 - 1), checks,
+                                           Leg(second, 1, chamber.rate_c_per_min), pace, duts, targets,
+                                           temp_ref, budget)
+            total = n1 + n_checks + (n2 if n2 is not None else budget)
+            score = (n2 is None, total if n2 is not None else _closeness(ratios), n1)
+            if best is None or score < best[0]:
+                best = (score, first, second, n1, checks, n2)
+    if best is None:
+        raise DataError(f"design: not even one crossing of the range fits in {max_duration_s / 3600:.3g} h")
+    _, first, second, n1, checks, n2 = best
+    met = n2 is not None
+    legs = [Leg(first, n1, chamber.rate_c_per_min), *checks,
+            Leg(second, n2 if met else max_sweeps - n1 - sum(c.sweeps for c in checks),
+                chamber.rate_c_per_min)]
+    return summarise(legs, duts, pace, targets, temp_ref, start_c, met)
+
+
+def _closeness(ratios: dict[str, np.ndarray]) -> float:
+    """How far the end of a prediction stays from the targets (the largest final ratio)."""
+    return float(max(r[-1].max() for r in ratios.values()))
+
+
+def summarise(legs: list[Leg], duts: Sequence[DutModel], pace: Pace, targets: Mapping[str, float],
+              temp_ref_c: float, start_c: float, met: bool | None = None) -> Schedule:
+    """The predicted errors of a given list of legs (rig check of a designed plan uses it as it is)."""
+    pred = predict(State.start(duts, start_c), legs, pace, duts, temp_ref_c)
+    ratios = worst_ratios(pred, duts, targets, temp_ref_c)
+    final = {n: r[-1] for n, r in ratios.items()}
+    if met is None:
+        met = all(np.all(r <= 1.0) for r in final.values())
+    worst = max(final, key=lambda n: final[n].max())
+    groups = list(targets)
+    g = groups[int(np.argmax(final[worst]))]
+    message = (f"targets met by every DUT (closest: {worst} {g} at {final[worst].max():.2f} of its target)"
+               if met else f"targets not met: {worst} {g} at {final[worst].max():.2f} x its target")
+    se = {n: {grp: float(final[n][i] * targets[grp]) for i, grp in enumerate(groups)} for n in final}
+    return Schedule(legs, float(pred.t_s[-1]), met, pred.t_s, ratios, groups, message, se, pred.air_c,
+                    pred.element_c)
+
+
+def _check_inputs(duts: Sequence[DutModel], chamber: ChamberModel, pace: Pace) -> None:
+    if not duts:
+        raise DataError("design: no DUTs")
+    for d in duts:
+        if not (d.sigma_nt > 0 and math.isfinite(d.sigma_nt)):
+            raise DataError(f"design: DUT {d.name}: noise {d.sigma_nt!r} nT must be a positive number")
+        if not (d.lag_s > 0 and math.isfinite(d.lag_s)):
+            raise DataError(f"design: DUT {d.name}: thermal lag {d.lag_s!r} s must be a positive number")
+    lo, hi = chamber.range_c
+    if not lo < hi:
+        raise DataError(f"design: range {lo:g} .. {hi:g} degC must go from low to high")
+    if not chamber.rate_c_per_min > 0:
+        raise DataError(f"design: ramp rate {chamber.rate_c_per_min!r} degC/min must be positive")
+    if not (pace.point_s > 0 and pace.samples >= 1 and len(pace.fields_nt) >= 1):
+        raise DataError("design: a sweep needs fields, samples and a positive time per point")
+
+
+# --- during a campaign: the next leg from what has been measured --------------------------------------
+@dataclass(frozen=True)
+class Decision:
+    """What the next sweep does: `stop`, or a sweep of `leg` (a new leg when `new_leg`)."""
+
+    stop: bool
+    leg: Leg | None
+    new_leg: bool
+    reason: str
+    predicted_remaining_s: float | None = None
+
+
+def next_leg(state: State, legs_done: Sequence[Leg], duts: Sequence[DutModel], chamber: ChamberModel,
+             pace: Pace, targets: Mapping[str, float], *, max_duration_s: float,
+             ratios_now: Mapping[str, float]) -> Decision:
+    """After a sweep: stop (every DUT's measured worst ratio `ratios_now` <= 1 and the checks done), go on
+    with the current leg, or start the next. `legs_done` are the legs so far, the last one current, each
+    with the sweeps taken in it. Staying k more sweeps at an end before crossing is weighed against
+    crossing now by the predicted time to every target (k = 0, 1, 2, 4, ...)."""
+    temp_ref = temp_ref_of(chamber)
+    current = legs_done[-1]
+    done_checks = [leg.to_c for leg in legs_done if leg.kind == CHECK]
+    all_checks_done = all(c in done_checks for c in chamber.checks_c)
+    worst = max(ratios_now, key=ratios_now.__getitem__)
+    if all_checks_done and ratios_now[worst] <= 1.0:
+        return Decision(True, None, False, f"every DUT meets its targets (closest: {worst} at "
+                        f"{ratios_now[worst]:.2f} of its target)")
+    if current.kind == CHECK:
+        start = current.to_c if current.from_c is None else current.from_c
+        needed = sweeps_with_hold(start, current.to_c, current.rate_c_per_min, pace.sweep_s,
+                                  chamber.check_sweeps)
+        if current.sweeps < needed:
+            return Decision(False, replace(current, sweeps=1), False, f"model check at {current.to_c:g} degC")
+        ends = [leg.to_c for leg in legs_done if leg.kind == END]
+        heading = _other_end(chamber, ends[-1])
+        rest = crossing(chamber, current.to_c, heading, pace.sweep_s, done_checks)
+        nxt = rest[0] if rest else Leg(heading, 1, chamber.rate_c_per_min)
+        return Decision(False, replace(nxt, sweeps=1), True, "model check done here; on across the range")
+    elapsed = state.t_s
+    budget = max(1, min(MAX_SWEEPS, int((max_duration_s - elapsed) // pace.sweep_s)))
+    other = _other_end(chamber, current.to_c)
+    checks = crossing(chamber, current.to_c, other, pace.sweep_s, done_checks)
+    reach_now = sweeps_to_reach(state.air_c, current.to_c, current.rate_c_per_min, pace.sweep_s)
+    options: list[tuple[float, int]] = []
+    for k in _stay_options(budget):
+        stay = [replace(current, sweeps=k)] if k else []
+        remaining = budget - k - sum(c.sweeps for c in checks)
+        if remaining < 1:
+            break
+        n2, _, _ = hold_until_met(state, [*stay, *checks], Leg(other, 1, current.rate_c_per_min), pace, duts,
+                                  targets, temp_ref, budget)
+        if n2 is not None:
+            options.append((k + sum(c.sweeps for c in checks) + n2, k))
+    stay_n, _, _ = hold_until_met(state, [], replace(current, sweeps=1), pace, duts, targets, temp_ref,
+                                  budget)
+    if all_checks_done and stay_n is not None:
+        options.append((stay_n, budget + 1))  # staying until done: never cross
+    if not options:
+        return Decision(False, replace(current, sweeps=1), False,
+                        f"targets out of reach within the time left ({worst} at {ratios_now[worst]:.2f}); "
+                        "staying where the information is")
+    total, k = min(options)
+    remaining_s = total * pace.sweep_s
+    if k > 0 or reach_now > 1:
+        return Decision(False, replace(current, sweeps=1), False,
+                        f"staying at {current.to_c:g} degC: predicted {remaining_s / 60:.0f} min to every "
+                        "target",
+                        remaining_s)
+    nxt = checks[0] if checks else Leg(other, 1, current.rate_c_per_min)
+    return Decision(False, replace(nxt, sweeps=1), True,
+                    f"crossing to {other:g} degC now: predicted {remaining_s / 60:.0f} min to every target",
+                    remaining_s)
+
+
+def _other_end(chamber: ChamberModel, end_c: float) -> float:
+    lo, hi = chamber.range_c
+    return hi if abs(end_c - lo) <= abs(end_c - hi) else lo
+
+
+def _stay_options(budget: int) -> list[int]:
+    """0, 1, 2, 4, 8, ... up to the budget: how many more sweeps to stay before crossing."""
+    out, k = [0, 1], 2
+    while k < budget:
+        out.append(k)
+        k *= 2
+    return out
+

@@ -1,0 +1,156 @@
+"""`rig design` and the designed / sequential plans it and the user write: accepted by rig check, with the
+predicted standard errors and their figure; bad input refused in one located line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rig.cli import main
+from rig.config import load_campaign
+from rig.plan import check_campaign, compile_plan
+
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
+SIM4 = CONFIGS / "stations" / "sim-4.yaml"
+SIM = CONFIGS / "stations" / "sim.yaml"
+SEQUENTIAL = CONFIGS / "plans" / "sequential-campaign.yaml"
+DESIGNED = CONFIGS / "plans" / "designed-campaign.yaml"
+TARGETS = {"S": 3e-5, "K": 8e-7, "b": 1.0, "kb": 0.03}
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def write_plan(tmp_path: Path, name: str = "p", **overrides) -> Path:
+    data = {"name": name, "temperatures": {"steps": [-20, 10, 40, 60]},
+            "fields": {"kind": "cube24", "magnitudes_nt": [30000, 60000]}, "samples_per_point": 10,
+            "settle_s": 1.0, "fit": {"models": ["t24"]}, "stop_when": TARGETS}
+    data.update(overrides)
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def test_design_writes_a_plan_rig_check_accepts_with_its_predicted_errors(tmp_path, capsys):
+    plan = write_plan(tmp_path)
+    out_path = tmp_path / "sub" / "designed.yaml"
+    code, out, err = run(capsys, "design", plan, "--station", SIM, "-o", out_path)
+    assert code == 0, err
+    assert "predicted standard errors" in out and "targets met by every DUT" in out
+    assert f"rig check of {out_path}: OK" in out
+    data = yaml.safe_load(out_path.read_text())
+    temps = data["temperatures"]
+    assert temps["mode"] == "designed" and data["stop_when"] == TARGETS
+    ends = [leg["to_c"] for leg in temps["legs"] if not leg.get("check")]
+    assert sorted({ends[0], ends[-1]}) == [-20, 60]  # the information lies at the ends of the range
+    assert any(leg.get("check") for leg in temps["legs"])  # interior temperatures for the model check
+    assert set(temps["assumed"]) == {"mmc0", "serial0"}
+    assert data["fields"]["kind"] == "vectors" and len(data["fields"]["vectors_nt"]) >= 8
+    assert (out_path.parent / data["station"]).resolve() == SIM.resolve()  # relative to the new file
+    # rig check of the written plan (station from the plan itself) shows the prediction, and draws it
+    figure = tmp_path / "pred.png"
+    code, out, err = run(capsys, "check", out_path, "--figure", figure)
+    assert code == 0, err
+    assert "designed schedule:" in out and "predicted standard errors" in out
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    points = compile_plan(*_plan_station(out_path))
+    assert points[0].id == "L01-S001-F01" and len({p.id for p in points}) == len(points)
+
+
+def _plan_station(path: Path):
+    campaign = load_campaign(path)
+    return campaign.plan, campaign.station
+
+
+def test_design_from_a_sequential_plan_and_the_shipped_designed_plan_check(capsys):
+    code, out, err = run(capsys, "check", SEQUENTIAL, "--station", SIM4)
+    assert code == 0, err
+    assert "points planned before the run (the first sweep)" in out
+    assert "expected from the station's values" in out
+    campaign = load_campaign(DESIGNED)
+    report = check_campaign(campaign)
+    assert report.prediction is not None and report.prediction.met
+    assert report.duration_s < 0.25 * check_campaign(load_campaign(CONFIGS / "plans" / "full-campaign.yaml",
+                                                                   campaign.station_path)).duration_s
+
+
+def test_design_uses_an_earlier_sessions_noise(tmp_path, capsys):
+    from rig.campaign import run_campaign
+
+    small = write_plan(tmp_path, "small", temperatures={"steps": [20, 30], "stability": {"dwell_s": 30}},
+                       fields={"kind": "directions", "magnitude_nt": 50000,
+                               "directions": [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0,
+                                                                                                        -1]]},
+                       samples_per_point=4)
+    session = tmp_path / "small.session"
+    assert run_campaign(campaign=load_campaign(small, SIM), session_path=session).result.status == "completed"
+    code, out, err = run(capsys, "design", write_plan(tmp_path), "--station", SIM, "--from", session,
+                         "-o", tmp_path / "d.yaml")
+    assert code == 0, err
+    assert "session small.session: noise from the fit residual" in out
+    assumed = yaml.safe_load((tmp_path / "d.yaml").read_text())["temperatures"]["assumed"]
+    # the fitted noise of mmc0 (40 nT a reading, a SET/RESET pair: about 28) rather than the station's 40
+    assert 20 < assumed["mmc0"]["noise_nt"] < 36
+
+
+@pytest.mark.parametrize(("edit", "expected"), [
+    ({"stop_when": None}, "nothing to design for"),
+    ({"temperatures": {"steps": [25]}}, "needs a range"),
+])
+def test_design_refuses_a_plan_it_cannot_design_for(tmp_path, capsys, edit, expected):
+    plan = write_plan(tmp_path, **edit)
+    code, out, err = run(capsys, "design", plan, "--station", SIM, "-o", tmp_path / "x.yaml")
+    assert code == 2 and err.count("\n") == 1 and expected in err, err
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_design_refuses_a_missing_session(tmp_path, capsys):
+    code, _, err = run(capsys, "design", write_plan(tmp_path), "--station", SIM, "--from",
+                       tmp_path / "none.session")
+    assert code == 2 and err.count("\n") == 1 and "no such session file" in err
+
+
+LEG_PLAN = """name: legs
+temperatures:
+  mode: designed
+  rate_c_per_min: 3
+  legs:
+    - {to_c: -20, sweeps: 3}
+    - {to_c: 95, sweeps: 3}
+fields: {kind: cube24}
+samples_per_point: 2
+"""
+
+
+@pytest.mark.parametrize(("text", "where"), [
+    (LEG_PLAN, "temperatures.legs[1].to_c: 95 degC is outside chamber.limits"),
+    (LEG_PLAN.replace("95", "60").replace("rate_c_per_min: 3", "rate_c_per_min: 9"),
+     "temperatures.rate_c_per_min: 9 degC/min exceeds"),
+    (LEG_PLAN.replace("sweeps: 3}\n    - {to_c: 95", "sweeps: 0}\n    - {to_c: 95"),
+     "temperatures.legs[0].sweeps"),
+    ("name: s\ntemperatures: {mode: sequential, range_c: [-20, 60], rate_c_per_min: 3}\n"
+     "fields: {kind: cube24}\nsamples_per_point: 2\n", "temperatures.mode: a sequential schedule stops when"),
+    ("name: s\ntemperatures: {mode: sequential, range_c: [-20, 60], rate_c_per_min: 3, checks_c: [70]}\n"
+     "fields: {kind: cube24}\nsamples_per_point: 2\nstop_when: {K: 1e-6}\n",
+     "temperatures.checks_c[0]: 70 degC"),
+    ("name: s\ntemperatures: {mode: sequential, range_c: [-20, 60], rate_c_per_min: 3, max_duration_h: 0}\n"
+     "fields: {kind: cube24}\nsamples_per_point: 2\nstop_when: {K: 1e-6}\n", "temperatures.max_duration_h"),
+    ("name: s\ntemperatures: {mode: designer, legs: []}\nfields: {kind: cube24}\nsamples_per_point: 2\n",
+     "temperatures: mode must be ramp, designed or sequential"),
+])
+def test_bad_designed_and_sequential_plans_are_refused_in_one_located_line(tmp_path, capsys, text, where):
+    plan = tmp_path / "bad.yaml"
+    plan.write_text(text)
+    code, out, err = run(capsys, "check", plan, "--station", SIM)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert err.startswith(f"error: {plan}: ") and where in err and "(line " in err, err
+
+
+def test_figure_needs_a_plan_that_predicts(tmp_path, capsys):
+    code, _, err = run(capsys, "check", CONFIGS / "plans" / "demo.yaml", "--figure", tmp_path / "f.png")
+    assert code == 2 and "predicts no standard errors" in err and err.count("\n") == 1
