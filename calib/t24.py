@@ -7,7 +7,7 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
-from calib.gram import GramAccumulator
+from calib.gram import GramAccumulator, absolute_transform, unpack
 from calib.stats import default_temp_ref_c
 
 
@@ -24,3 +24,21 @@ def fit_weighted(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float | No
     residuals = cal.apply(ds.h_nt, ds.temp_c)  # a fresh array: the reference is taken off in place
     residuals -= ds.ref_nt
     return cal, residuals
+
+
+def reference_map(ds: Dataset, weights: np.ndarray | None, temp_ref_c: float):
+    """For fixed readings and temperatures the T24 parameters are linear in the reference vectors: the
+    function from a change of the references (N,3) to the change of every parameter (the uncertainty
+    budget's fast path for inputs that move only the reference)."""
+    t = ds.temp_c - temp_ref_c
+    x = np.column_stack([np.ones(len(ds)), t, ds.h_nt, t[:, None] * ds.h_nt])
+    w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
+    scale = np.linalg.norm(x * np.sqrt(w)[:, None], axis=0)
+    xs = x / scale
+    solve = np.linalg.solve(xs.T @ (xs * w[:, None]), (xs * w[:, None]).T) / scale[:, None]  # (8,N)
+    to_abs = absolute_transform(temp_ref_c)
+
+    def change(ref_change_nt: np.ndarray) -> dict[str, np.ndarray]:
+        return unpack(to_abs @ (solve @ ref_change_nt))
+
+    return change

@@ -54,6 +54,7 @@ class Source:
     name: str
     draw: Callable[[np.random.Generator], Draw]
     note: str = ""
+    reference_only: bool = False  # its draws change the reference vectors alone
 
 
 @dataclass
@@ -116,9 +117,11 @@ def raw_for(cal: Calibration, field_nt: np.ndarray, temp_c: np.ndarray | None) -
 def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Callable[[Dataset], Calibration],
                 grid: tuple[np.ndarray, np.ndarray | None], *, rng: np.random.Generator,
                 draws: int = DRAWS, draws_per_source: int = DRAWS_PER_SOURCE,
-                coverage_factor: float = COVERAGE_FACTOR) -> Budget:
+                coverage_factor: float = COVERAGE_FACTOR, reference_map=None) -> Budget:
     """The budget of `cal` (fitted to `ds`) over `sources`; `grid` = (fields (G,3) nT, temperatures (G,)
-    or None) where the calibrated field's error is judged; `refit(ds)` fits the same model the same way."""
+    or None) where the calibrated field's error is judged; `refit(ds)` fits the same model the same way.
+    `reference_map` (a model linear in the reference, e.g. calib.t24.reference_map) gives the parameters'
+    change for a change of the references alone, so those draws need no refit."""
     grid_field, grid_temp = grid
     grid_h = raw_for(cal, grid_field, grid_temp)
     nominal = cal.apply(grid_h, grid_temp)
@@ -127,13 +130,17 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
         errors = []
         params: dict[str, list[np.ndarray]] = {k: [] for k in cal.params}
         for _ in range(n):
-            data = ds
-            for source in chosen:
-                data = with_draw(data, source.draw(rng))
-            try:
-                fitted = refit(data)
-            except FitError:  # a draw the model cannot fit at all: counted, not used
-                continue
+            if reference_map is not None and all(source.reference_only for source in chosen):
+                change = sum(source.draw(rng).ref_nt for source in chosen)
+                fitted = replace(cal, params={k: cal.params[k] + d for k, d in reference_map(change).items()})
+            else:
+                data = ds
+                for source in chosen:
+                    data = with_draw(data, source.draw(rng))
+                try:
+                    fitted = refit(data)
+                except FitError:  # a draw the model cannot fit at all: counted, not used
+                    continue
             errors.append(fitted.apply(grid_h, grid_temp) - nominal)
             for k in params:
                 params[k].append(np.asarray(fitted.params[k], float))

@@ -101,7 +101,8 @@ class RunInputs:
         rng = rng or np.random.default_rng(zlib.crc32(f"{dut}/{cal.model}".encode()))
         sources, notes = self.sources(dut, ds, cal)
         kwargs = {} if draws is None else {"draws": draws, "draws_per_source": max(20, draws // 3)}
-        budget = monte_carlo(ds, cal, sources, refit_like(cal), self._grid, rng=rng, **kwargs)
+        budget = monte_carlo(ds, cal, sources, refit_like(cal), self._grid, rng=rng,
+                             reference_map=reference_map_of(ds, cal), **kwargs)
         budget.notes = notes
         return budget
 
@@ -122,13 +123,11 @@ class RunInputs:
     def sources(self, dut: str, ds, cal: Calibration) -> tuple[list[Source], list[str]]:
         notes: list[str] = []
         out = [statistical(ds, residual_sigma_nt(ds, cal))]
-        source = self.station.field_source
-        if source.kind == "coils":
-            out += CoilChain(self, dut, ds).sources(notes)
-        else:
-            out += TableChain(self, ds).sources(notes)
+        coils = self.station.field_source.kind == "coils"
+        chain = CoilChain(self, dut, ds) if coils else TableChain(self, ds)
+        out += [dataclasses.replace(s, reference_only=True) for s in chain.sources(notes)]  # fields only
         out.append(self._temperature(dut, ds, cal, notes))
-        return [s for s in out if s is not None], notes
+        return out, notes
 
     def _temperature(self, dut: str, ds, cal: Calibration, notes: list[str]) -> Source:
         """The probe's accuracy, the DUT-to-probe gradient and, on a ramp, the uncertainty of the thermal
@@ -403,6 +402,16 @@ def temperature_accuracy_c(station, config) -> tuple[float, bool]:
         s for s in station.temperature_sensors if s.name == config.temp_source)
     accuracy = sensor.spec.temperature_accuracy_c
     return (UNSTATED_TEMP_ACCURACY_C, False) if accuracy is None else (accuracy, True)
+
+
+def reference_map_of(ds, cal: Calibration):
+    """The model's parameters as a linear map of the references, where it is one (T24), else None."""
+    if cal.model != "t24":
+        return None
+    from calib.t24 import reference_map
+
+    weights = None if cal.outliers is None or not cal.outliers.any() else (~cal.outliers).astype(float)
+    return reference_map(ds, weights, cal.temp_ref_c)
 
 
 def coil_chain(run: RunInputs, dut: str, ds) -> CoilChain:

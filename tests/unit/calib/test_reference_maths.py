@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,16 @@ def test_sources_add_up_and_a_larger_input_uncertainty_widens_the_budget():
     assert np.all(np.abs(large.standard["b_nt"] - np.hypot(1.0, 30.0)) < 6.0)
     assert large.expanded_vector_error_nt > 10 * small.expanded_vector_error_nt
     assert [c["source"] for c in large.contributions] == ["offset 1.0", "offset 30.0"]
+
+
+def test_the_t24_reference_map_is_the_refit_of_a_changed_reference():
+    from calib.t24 import reference_map
+
+    rng = np.random.default_rng(8)
+    ds, _ = synthetic.t24_dataset(rng, noise_nt=10.0, samples_per_point=3)
+    cal = calib.fit(ds, "t24", temp_ref_c=20.0)
+    change = rng.normal(0, 50.0, ds.ref_nt.shape)
+    refit = calib.fit(dataclasses.replace(ds, ref_nt=ds.ref_nt + change), "t24", temp_ref_c=20.0)
+    mapped = reference_map(ds, None, 20.0)(change)
+    for key in cal.params:
+        assert np.allclose(cal.params[key] + mapped[key], refit.params[key], rtol=1e-7, atol=1e-9), key
