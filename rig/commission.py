@@ -169,11 +169,15 @@ def _table_design(station, repeats: int) -> list[tuple[tuple[float, ...], str]]:
     return one * repeats
 
 
+def _arrays(readings: list[Reading]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(settings, mean readings, their standard errors), one row per reading."""
+    return (np.array([r.setting for r in readings]), np.array([r.measured.vector_nt for r in readings]),
+            np.array([r.measured.std_error_nt for r in readings]))
+
+
 def _fit_coils(station, ref_config, readings: list[Reading]) -> dict:
     source = station.field_source
-    currents = np.array([r.setting for r in readings])
-    means = np.array([r.measured.vector_nt for r in readings])
-    se = np.array([r.measured.std_error_nt for r in readings])
+    currents, means, se = _arrays(readings)
     try:
         fit = fit_coil_matrix(currents, means, se)
     except FitError as exc:
@@ -226,9 +230,7 @@ def _centre_matrix(geometry, measured: np.ndarray, position_mm: np.ndarray) -> n
 
 
 def _fit_table(readings: list[Reading]) -> dict:
-    angles = np.array([r.setting for r in readings])
-    means = np.array([r.measured.vector_nt for r in readings])
-    se = np.array([r.measured.std_error_nt for r in readings])
+    angles, means, se = _arrays(readings)
     try:
         fit = fit_table_axes(angles, means, se)
     except FitError as exc:

@@ -185,6 +185,20 @@ def settle_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st:
     return decay + st.dwell_s
 
 
+def check_range_limits(plan: Plan, station: Station, range_c, rate_c_per_min: float | None,
+                       rate_path: KeyPath) -> None:
+    """A moving schedule's range and rate against the chamber's limits (LimitError naming the plan key)."""
+    lim = station.chamber.limits
+    for i, value in enumerate(range_c):
+        if not lim.min_setpoint_c <= value <= lim.max_setpoint_c:
+            raise plan_error(LimitError, plan, ("temperatures", "range_c", i),
+                             f"{value:g} degC is outside chamber.limits min_setpoint_c "
+                             f"{lim.min_setpoint_c:g} .. max_setpoint_c {lim.max_setpoint_c:g}")
+    if rate_c_per_min is not None and rate_c_per_min > lim.max_ramp_c_per_min:
+        raise plan_error(LimitError, plan, rate_path, f"{rate_c_per_min:g} degC/min exceeds chamber.limits "
+                         f"max_ramp_c_per_min {lim.max_ramp_c_per_min:g}")
+
+
 def check_duration(plan: Plan, breakdown: dict[str, float], keys: dict[str, KeyPath]) -> None:
     """Refuse a plan that would run for more than MAX_DURATION_S, blaming its largest part."""
     total = sum(breakdown.values())

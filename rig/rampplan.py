@@ -23,6 +23,7 @@ from rig.plancheck import (
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
     ScheduleCheck,
+    check_range_limits,
     format_duration,
     plan_error,
     sample_time_s,
@@ -143,16 +144,7 @@ class RampSchedule:
     def _check_limits(self) -> float:
         """Chamber limits and the field source's pace; returns the temperature span of one sweep."""
         plan, ramp, sweep_s = self.plan, self.ramp, self.sweep_s
-        lim = self.station.chamber.limits
-        for i, value in enumerate(ramp.range_c):
-            if not lim.min_setpoint_c <= value <= lim.max_setpoint_c:
-                raise plan_error(LimitError, plan, ("temperatures", "range_c", i),
-                                 f"{value:g} degC is outside chamber.limits min_setpoint_c "
-                                 f"{lim.min_setpoint_c:g} .. max_setpoint_c {lim.max_setpoint_c:g}")
-        if ramp.rate_c_per_min > lim.max_ramp_c_per_min:
-            raise plan_error(LimitError, plan, RAMP_PATH,
-                             f"{ramp.rate_c_per_min:g} degC/min exceeds chamber.limits max_ramp_c_per_min "
-                             f"{lim.max_ramp_c_per_min:g}")
+        check_range_limits(plan, self.station, ramp.range_c, ramp.rate_c_per_min, RAMP_PATH)
         span_c = ramp.rate_c_per_min * sweep_s / 60.0
         allowed_c = MAX_SWEEP_SPAN_FRACTION * abs(ramp.range_c[1] - ramp.range_c[0])
         if span_c > allowed_c:

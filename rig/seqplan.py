@@ -27,7 +27,14 @@ from calib.planner import MAX_SWEEPS, ChamberModel, Pace, crossing_rate, design_
 from rig.config import Plan, SequentialTemperatures, Station
 from rig.errors import ConfigError, LimitError, SessionError
 from rig.legplan import leg_points
-from rig.plancheck import ScheduleCheck, fastest_ramp_c_per_min, format_duration, plan_error, start_air_c
+from rig.plancheck import (
+    ScheduleCheck,
+    check_range_limits,
+    fastest_ramp_c_per_min,
+    format_duration,
+    plan_error,
+    start_air_c,
+)
 from rig.points import RampPoint
 from rig.rampplan import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
 
@@ -158,15 +165,7 @@ class SequentialSchedule:
 
     def _check_limits(self) -> None:
         plan, temps = self.plan, self.temps
-        lim = self.station.chamber.limits
-        for i, value in enumerate(temps.range_c):
-            if not lim.min_setpoint_c <= value <= lim.max_setpoint_c:
-                raise plan_error(LimitError, plan, ("temperatures", "range_c", i),
-                                 f"{value:g} degC is outside chamber.limits min_setpoint_c "
-                                 f"{lim.min_setpoint_c:g} .. max_setpoint_c {lim.max_setpoint_c:g}")
-        if temps.rate_c_per_min is not None and temps.rate_c_per_min > lim.max_ramp_c_per_min:
-            raise plan_error(LimitError, plan, RATE_PATH, f"{temps.rate_c_per_min:g} degC/min exceeds "
-                             f"chamber.limits max_ramp_c_per_min {lim.max_ramp_c_per_min:g}")
+        check_range_limits(plan, self.station, temps.range_c, temps.rate_c_per_min, RATE_PATH)
         span = abs(temps.range_c[1] - temps.range_c[0])
         swept_c = self.rate() * self.sweep_s / 60.0
         if swept_c > MAX_SWEEP_SPAN_FRACTION * span:

@@ -26,13 +26,13 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, PrivateAttr
 
 from drivers import registry
 from rig.configbase import DeviceConfig, ModbusTransport
 from rig.errors import ConfigError, LimitError
 from rig.names import SafeName
-from rig.numbers import MODBUS_UNIT
+from rig.numbers import MODBUS_UNIT, bounded
 from rig.yamlload import blamed
 
 if TYPE_CHECKING:
@@ -60,6 +60,21 @@ class FieldSourceConfig(DeviceConfig):
     name: SafeName
     transport: ModbusTransport
     unit: MODBUS_UNIT = Field(1, description="Modbus device id")
+    commissioning: str | None = Field(
+        None, description="`rig commission`'s file (relative to the station file): what it measured")
+    max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
+        180.0, description="`rig run` refuses a commissioning file older than this")
+    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded (rig/config)
+
+    def with_commissioning(self, commissioned) -> FieldSourceConfig:
+        """A copy that uses what `commissioned` (rig.commissioning.Commissioning) measured."""
+        copy = self.model_copy()
+        copy._commissioned = commissioned
+        return copy
+
+    @property
+    def commissioned(self):
+        return self._commissioned
 
     @property
     def device_type(self) -> str:

@@ -13,10 +13,10 @@ match C at the centre; without one the field is taken as uniform.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, PrivateAttr, Tag, model_validator
+from pydantic import Discriminator, Field, Tag, model_validator
 
 from drivers.coils import CoilOptions
 from rig import fieldsets
@@ -63,10 +63,6 @@ class Coils(FieldSourceConfig, CoilOptions):
     max_current_a: bounded(gt=0, hi=A_MAX)
     coil_constants_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC] | None = Field(
         None, description="the design matrix (rows = lab axes); replaced by `commissioning` when given")
-    commissioning: str | None = Field(
-        None, description="`rig commission`'s file (relative to the station file): the measured matrix")
-    max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
-        180.0, description="`rig run` refuses a commissioning file older than this")
     constants_uncertainty_ppm: bounded(lo=0, hi=1e6) = Field(
         DECLARED_UNCERTAINTY_PPM, description="standard uncertainty of each declared matrix element, "
         "relative to its column (used while the coils are not commissioned)")
@@ -80,8 +76,6 @@ class Coils(FieldSourceConfig, CoilOptions):
         None, description="which reference magnetometer measures the ambient; default: the only one")
     ambient_drift_max_nt: NT = Field(
         DRIFT_MAX_NT, description="a measured ambient that moves more than this between steps holds the run")
-
-    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded
 
     @model_validator(mode="after")
     def _invertible(self):
@@ -106,16 +100,6 @@ class Coils(FieldSourceConfig, CoilOptions):
         if self.coil_constants_nt_per_a is None:
             raise ConfigError(f"field_source.commissioning {self.commissioning!r} has not been loaded")
         return self.declared_constants
-
-    def with_commissioning(self, commissioned) -> Coils:
-        """A copy that uses `commissioned` (rig.commissioning.Commissioning) as its matrix."""
-        copy = self.model_copy()
-        copy._commissioned = commissioned
-        return copy
-
-    @property
-    def commissioned(self):
-        return self._commissioned
 
     def matrices_at(self, positions_mm: dict[str, tuple | None]) -> dict[str, np.ndarray]:
         """{device name: the coil matrix where it sits} (the centre's without a geometry or position)."""

@@ -17,7 +17,7 @@ import datetime as dt
 from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, Discriminator, Field, PrivateAttr, Tag
+from pydantic import BaseModel, Discriminator, Field, Tag
 
 from drivers.turntable import TurntableOptions
 from rig.configbase import Strict
@@ -105,21 +105,6 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     el_limits_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (-180.0, 180.0)
     rate_deg_s: bounded(gt=0, hi=1_000.0) = Field(10.0, description="slew rate, for move-time estimates")
     site_field: SiteField
-    commissioning: str | None = Field(
-        None, description="`rig commission`'s file (relative to the station file): the table's axes")
-    max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
-        180.0, description="`rig run` refuses a commissioning file older than this")
-    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded
-
-    def with_commissioning(self, commissioned) -> Turntable:
-        copy = self.model_copy()
-        copy._commissioned = commissioned
-        return copy
-
-    @property
-    def commissioned(self):
-        return self._commissioned
-
     def stated_site_field_nt(self) -> np.ndarray | None:
         """The site field the station file states (None when a reference magnetometer must measure it)."""
         return self.site_field.stated_nt()
