@@ -83,7 +83,7 @@ def main(rows: int = ROWS) -> None:
         sys.exit(max(codes))
     print(f"{rows:.0e} CSV rows, {size_mb:.0f} MB ({size_mb * 1e6 / rows:.0f} bytes/row):")
     print(f"  read with the scanner (+ sha256):         {t_read * per_row:.3f} us/row")
-    print(f"  columnar pyarrow reader (calib's choice): {t_columnar * per_row:.3f} us/row")
+    print(f"  columnar pyarrow reader (calib's choice):  {t_columnar * per_row:.3f} us/row")
     print(f"  scanner alone on one core, CPU time:       {t_cpu * per_row:.3f} us/row "
           f"({t_cpu / (size_mb * 1e6) * 1e9:.2f} ns/byte)")
     print(f"  the bytes from the page cache:             {t_bytes * per_row:.3f} us/row; "
