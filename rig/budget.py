@@ -83,7 +83,7 @@ class RunInputs:
         cals = chain.get("reference_calibrations") or {}
         source = station.field_source
         name = source.measuring_magnetometer([r.name for r in station.reference_magnetometers])
-        com = getattr(source, "commissioned", None)
+        com = source.commissioned
         if com is not None:
             name = com.record.reference_magnetometer.name
         reference_cal = Calibration.from_dict(cals[name]) if name in cals else None

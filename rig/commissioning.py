@@ -218,7 +218,7 @@ def load_for_station(station, station_path: str | Path, station_text: str, *,
                      now: dt.datetime | None = None) -> Commissioning | None:
     """The station's commissioning file, read and checked against the station and its reference."""
     source = station.field_source
-    name = getattr(source, "commissioning", None)
+    name = source.commissioning
     if name is None:
         return None
 

@@ -21,7 +21,7 @@ SNAPSHOT = "reference chain"
 
 def record(station, reference_calibrations: dict | None = None) -> dict:
     source = station.field_source
-    com = getattr(source, "commissioned", None)
+    com = source.commissioned
     positions = station.positions_mm()
     out: dict = {"commissioning": None if com is None else com.as_record(),
                  "reference_calibrations": {name: cal.to_dict()

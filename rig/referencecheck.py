@@ -18,7 +18,7 @@ def reference_lines(plan, station, warnings: list[str]) -> list[str]:
     """Lines for `rig check`; LimitError (blamed on the station's position_mm) above plan.accuracy_ppm."""
     source = station.field_source
     lines = []
-    commissioned = getattr(source, "commissioned", None)
+    commissioned = source.commissioned
     if commissioned is not None:
         lines.append(commissioned.summary(source.max_age_days))
     elif source.kind == "coils":
