@@ -143,7 +143,7 @@ def three_references(station_path: Path, plan_path: Path, out: Path) -> None:
         worst = 0.0
         for dut in [d.name for d in station.duts]:
             ds, _ = inputs.refined(reader.dataset(dut))  # as the rig fits it: the run's best ambient
-            chain = budget.coil_chain(inputs, dut, ds)  # the currents of every sample
+            chain = budget.CoilChain(inputs, dut, ds)  # the currents of every sample
             grid = validation_grid(ds.temp_c)
             refs = {
                 "a": chain.currents @ declared.T + chain.ambient,

@@ -57,8 +57,13 @@ def refit_like(cal: Calibration):
         temperature_terms="KA_per_c" in cal.params if cal.model == "scalar" else None,
         balance_orientations=bool(cal.stats.get("balance_orientations", False)),
     )
-    weights = None if cal.outliers is None or not cal.outliers.any() else (~cal.outliers).astype(float)
+    weights = fit_weights(cal)
     return lambda ds: spec.fit_weighted(ds, weights, options)[0]
+
+
+def fit_weights(cal: Calibration) -> np.ndarray | None:
+    """The row weights `cal` was fitted with: the robust iterations' outliers left out."""
+    return None if cal.outliers is None or not cal.outliers.any() else (~cal.outliers).astype(float)
 
 
 @dataclass
@@ -220,11 +225,9 @@ class CoilChain:
     def _ambient_of(self, run: RunInputs, ds) -> np.ndarray:
         """The ambient in `ds`'s references: the run's best estimate (a refined dataset, RunInputs.refined),
         else what each point recorded, else the station's."""
-        if run.ambient is not None and run.recorded_ambient(ds) is not None:
-            return run.ambient.at(ds.columns["t"])
         recorded = run.recorded_ambient(ds)
         if recorded is not None:
-            return recorded
+            return recorded if run.ambient is None else run.ambient.at(ds.columns["t"])
         stated = self.source.ambient_nt
         return np.broadcast_to(np.zeros(3) if isinstance(stated, str) else np.asarray(stated, float),
                                (len(ds), 3))
@@ -281,9 +284,12 @@ class CoilChain:
             out.append(Source("coil geometry", self._geometry_draw, f"+-{source.geometry.tolerance_mm:g} mm"))
         return out
 
+    @functools.cached_property
+    def _matrix_cholesky(self) -> np.ndarray:
+        return np.linalg.cholesky(self.source.commissioned.covariance[:9, :9])
+
     def _commissioned_draw(self, rng: np.random.Generator) -> Draw:
-        chol = np.linalg.cholesky(self.source.commissioned.covariance[:9, :9])
-        return self._with_change(self.by_centre, chol @ rng.normal(0.0, 1.0, 9))
+        return self._with_change(self.by_centre, self._matrix_cholesky @ rng.normal(0.0, 1.0, 9))
 
     def _declared_draw(self, rng: np.random.Generator) -> Draw:
         scale = self.source.constants_uncertainty_ppm * 1e-6 * np.linalg.norm(self.centre, axis=0)
@@ -351,8 +357,12 @@ class TableChain:
                               "its calibration's stated uncertainty"))
         return out
 
+    @functools.cached_property
+    def _axes_cholesky(self) -> np.ndarray:
+        return np.linalg.cholesky(self.source.commissioned.covariance)
+
     def _axes_draw(self, rng: np.random.Generator) -> Draw:
-        step = np.linalg.cholesky(self.source.commissioned.covariance) @ rng.normal(0.0, 1.0, 7)
+        step = self._axes_cholesky @ rng.normal(0.0, 1.0, 7)
         return Draw(ref_nt=self._change(lambda p: _keep_site(p, p + step)))
 
     def _site_draw(self, rng: np.random.Generator) -> Draw:
@@ -367,10 +377,7 @@ class TableChain:
 
 def _keep_site(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """New axes, with the site field still what the reference read at home."""
-    home = table_field_nt(old, [[0.0, 0.0]])[0]
-    out = new.copy()
-    out[:3] = site_from_home(new, home)
-    return out
+    return _with_home(new, table_field_nt(old, [[0.0, 0.0]])[0])
 
 
 def _with_home(params: np.ndarray, home_nt: np.ndarray) -> np.ndarray:
@@ -410,13 +417,7 @@ def reference_map_of(ds, cal: Calibration):
         return None
     from calib.t24 import reference_map
 
-    weights = None if cal.outliers is None or not cal.outliers.any() else (~cal.outliers).astype(float)
-    return reference_map(ds, weights, cal.temp_ref_c)
-
-
-def coil_chain(run: RunInputs, dut: str, ds) -> CoilChain:
-    """A coil station's chain for one DUT: its `currents` and `ambient` per sample, its sources."""
-    return CoilChain(run, dut, ds)
+    return reference_map(ds, fit_weights(cal), cal.temp_ref_c)
 
 
 def _command(target: dict) -> tuple[float, ...]:
