@@ -31,8 +31,8 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
-from rig.campaign import run_campaign  # noqa: E402
-from rig.config import load_campaign  # noqa: E402
+from rig.reference.loading import load_campaign  # noqa: E402
+from rig.run.campaign import run_campaign  # noqa: E402
 from tests.system import browser  # noqa: E402
 
 TICKS_S = os.sysconf("SC_CLK_TCK")

@@ -32,12 +32,12 @@ import yaml
 
 from calib.calibration import Calibration
 from calib.design import information, std_errors
-from rig.campaign import run_campaign
-from rig.config import load_campaign
-from rig.design import design_inputs, design_plan, designed_plan_text
-from rig.plan import compile_plan
-from rig.reader import SessionReader, read_dataset
-from rig.simstation import dut_truths
+from rig.devices.bench import dut_truths
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.schedules.compile import compile_plan
+from rig.schedules.design import design_inputs, design_plan, designed_plan_text
+from rig.session.reader import SessionReader, read_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 PLANS = REPO / "configs" / "plans"
@@ -70,7 +70,7 @@ def step_targets(station: Path, margin: float) -> dict[str, float]:
     DUT at each setpoint, its noise as the station states it). The held-out error of one campaign scatters
     by some 20 % around its expectation, so matching the step plan's precision exactly would fail the
     1.1 x goal on one DUT or another about half the time: the designed plans aim a margin below it."""
-    from rig.design import station_duts
+    from rig.schedules.design import station_duts
 
     campaign = load_campaign(PLANS / "full-campaign.yaml", station)
     points = compile_plan(campaign.plan, campaign.station)
@@ -131,7 +131,7 @@ def expected_held_out_nt(session: Path, validation: Path, dut: str) -> float:
     axes): the expectation around which one campaign's held-out error scatters."""
     from calib.design import covariance, regressors
     from calib.gram import GramAccumulator
-    from rig.lagfit import lag_corrected, session_is_ramp
+    from rig.analysis.lagfit import lag_corrected, session_is_ramp
 
     ds = read_dataset(session, dut)
     if session_is_ramp(session):

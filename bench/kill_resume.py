@@ -18,8 +18,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rig.config import load_campaign  # noqa: E402
-from rig.plan import compile_plan  # noqa: E402
+from rig.reference.loading import load_campaign  # noqa: E402
+from rig.schedules.compile import compile_plan  # noqa: E402
 from tests.system.campaign_helpers import (  # noqa: E402
     DEMO_PLAN,
     SIM_STATION,

@@ -21,8 +21,8 @@ sys.path.insert(0, str(REPO))
 
 import yaml  # noqa: E402
 
-from rig.campaign import run_campaign  # noqa: E402
-from rig.config import load_campaign  # noqa: E402
+from rig.reference.loading import load_campaign  # noqa: E402
+from rig.run.campaign import run_campaign  # noqa: E402
 from tests import pg_server  # noqa: E402
 from tests.system import browser  # noqa: E402
 
@@ -63,7 +63,7 @@ def fleet(page, folder: Path) -> None:
     from rig.fleet.push import push_snapshot
     from rig.fleet.schema import connect
     from rig.fleet.source import session_snapshot
-    from rig.store import Session
+    from rig.session.writer import Session
     from tests.fleet_sessions import Spec, write_session
 
     with pg_server.running() as pg:

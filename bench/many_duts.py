@@ -3,7 +3,7 @@ on one bus, 4 serial magnetometers on two shared lines, a TMP117 beside each; al
 
 1. One point's reading (SAMPLES x every temperature sensor, the coil readback, every DUT) for 1, 4, 16
    and 64 DUTs: each DUT read in turn against the interleaved reading the campaign does
-   (rig/interleave.py); wall and simulated seconds per point.
+   (rig/devices/interleave.py); wall and simulated seconds per point.
 2. A short campaign (the demo plan's 26 fields at two temperatures) on 4 and on 64 DUTs, each in a new
    process: wall time per point in the engine's run and its parts (device I/O, the point's session
    transaction, the live fits, everything else), the live view's render, the post-run fits (T24, P12 per
@@ -33,9 +33,10 @@ import yaml  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from rig import config as cfg  # noqa: E402
-from rig.interleave import read_all  # noqa: E402
-from rig.plan import check_campaign  # noqa: E402
-from rig.station import open_rig  # noqa: E402
+from rig.devices.build import open_rig  # noqa: E402
+from rig.devices.interleave import read_all  # noqa: E402
+from rig.reference.loading import load_campaign  # noqa: E402
+from rig.schedules.compile import check_campaign  # noqa: E402
 
 STATION = REPO / "configs" / "stations" / "sim-64.yaml"
 PLANS = {"demo": REPO / "configs" / "plans" / "demo.yaml",
@@ -125,15 +126,16 @@ def short_plan(tmp: Path) -> Path:
 
 def campaign_figures(n: int) -> dict:
     """The short campaign on n DUTs of sim-64, in this process (run it in a new one: peak memory)."""
-    from rig import campaign, display, sessionfit
-    from rig.engine import Engine
-    from rig.store import Session
+    from rig.analysis import postrun
+    from rig.engine.executor import Engine
+    from rig.run import campaign, display
+    from rig.session.writer import Session
 
     timers = Timers()
     timers.wrap(campaign, "read_all", "device I/O")  # every DUT's and sensor's reading of a sample
     timers.wrap(Session, "record_point", "store")
     timers.wrap(campaign.CampaignRunner, "_feed_live", "live fits")
-    timers.wrap(sessionfit, "fit_session", "post-run fits")
+    timers.wrap(postrun, "fit_session", "post-run fits")
     timers.wrap(Engine, "run", "run")
     renders: list[float] = []
     reading_sim_s: list[float] = []
@@ -168,7 +170,7 @@ def campaign_figures(n: int) -> dict:
         station_path = Path(tmp) / "station.yaml"
         station = subset(cfg.load_station(STATION), n)
         station_path.write_text(yaml.safe_dump(station.model_dump(mode="json", exclude_none=True)))
-        camp = cfg.load_campaign(short_plan(Path(tmp)), station_path)
+        camp = load_campaign(short_plan(Path(tmp)), station_path)
         outcome = campaign.run_campaign(campaign=camp, session_path=Path(tmp) / "s.session",
                                         on_rig=instrument, display_factory=live_view)
     assert outcome.result.status == "completed", outcome.result
@@ -223,7 +225,7 @@ def chamber_minutes() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         plans = {**PLANS, "designed for sim-64": designed_for_sim64(Path(tmp))}
         for name, path in plans.items():
-            check = check_campaign(cfg.load_campaign(path, STATION))
+            check = check_campaign(load_campaign(path, STATION))
             total_min = check.duration_s / 60
             print(f"  {name}: {total_min:.0f} min for {check.n_duts} DUTs = "
                   f"{total_min / check.n_duts:.2f} min per DUT")

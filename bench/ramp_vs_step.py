@@ -21,11 +21,11 @@ import numpy as np
 import yaml
 
 import calib
-from rig.campaign import run_campaign
-from rig.config import load_campaign
-from rig.lagfit import lag_corrected
-from rig.reader import SessionReader, read_dataset
-from rig.simstation import dut_truths
+from rig.analysis.lagfit import lag_corrected
+from rig.devices.bench import dut_truths
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.session.reader import SessionReader, read_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 STATION = REPO / "configs" / "stations" / "sim-4.yaml"

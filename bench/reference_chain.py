@@ -42,12 +42,13 @@ from calib import calfile
 from calib.calibration import Calibration
 from calib.uncertainty import raw_for
 from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
-from rig import budget
-from rig.campaign import run_campaign
-from rig.commission import commission
-from rig.config import load_campaign, load_station
-from rig.reader import SessionReader
-from rig.simstation import dut_truths, true_position_m
+from rig.config import load_station
+from rig.devices.bench import dut_truths, true_position_m
+from rig.reference import budget
+from rig.reference.loading import load_campaign
+from rig.reference.procedure import commission
+from rig.run.campaign import run_campaign
+from rig.session.reader import SessionReader
 
 REPO = Path(__file__).resolve().parents[1]
 STATION = REPO / "configs" / "stations" / "sim-commissioned.yaml"
@@ -85,7 +86,7 @@ def run(station_path: Path, plan_path: Path, out: Path) -> Path:
 
 # --- the truth of a simulated station ---------------------------------------------------------------------
 class Truth:
-    """What the simulated world of a station is made of (the same keywords rig/simstation.py gives it)."""
+    """What the simulated world of a station is made of (the same keywords rig/devices/bench.py gives it)."""
 
     def __init__(self, station):
         world = station.field_source.world_field(station.sim)

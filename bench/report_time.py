@@ -5,7 +5,7 @@
 
 The synthetic session is the size of configs/plans/full-campaign.yaml (8 temperatures x 48 field vectors,
 the cube's 24 rotations at 30 and 60 uT, x 50 samples x 2 DUTs = 38 400 samples). It is written through
-the store API (rig.store.Session) with calib's synthetic T24 data, 1 % outliers and a few flagged samples.
+the store API (rig.session.writer.Session) with calib's synthetic T24 data, 1 % outliers and a few flagged samples.
 Then the report is built from it as `rig report` builds it: three models fitted per DUT (robust), a 5-fold
 held-out comparison of each, the figures and the HTML page. Printed: wall seconds for the session file and
 for the whole report, and where the report's time goes.
@@ -30,7 +30,7 @@ TEMPS_C = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
 
 def field_vectors(n: int):
     """The full campaign's field set: 24 cube rotations at 30 and 60 uT (48); other n: Fibonacci at 50 uT."""
-    from rig import fieldsets
+    from rig.fieldsources import fieldsets
 
     if n == 48:
         return fieldsets.scaled(fieldsets.cube24_directions(), [30_000.0, 60_000.0])

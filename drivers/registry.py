@@ -46,7 +46,7 @@ MODBUS_KINDS = ("modbus_tcp", "modbus_rtu")
 
 class KeyPathError(ValueError):
     """Raised inside a model validator to blame a key below the model, e.g. ("duts", 1, "temp_source");
-    rig/yamlload.py turns it into `FILE: key.path: message (line N)`."""
+    rig/core/yamlload.py turns it into `FILE: key.path: message (line N)`."""
 
     def __init__(self, path: tuple[str | int, ...], message: str):
         super().__init__(message)

@@ -1,4 +1,4 @@
-"""Small synthetic session files for the fleet tests and bench, written through rig.store.Session.
+"""Small synthetic session files for the fleet tests and bench, written through rig.session.writer.Session.
 
 Each session: a few temperature steps x the 6 axis directions x a few samples, for one or more DUTs
 with T24 errors from calib.synthetic. Deterministic from `seed`, so a session can be written in part
@@ -16,8 +16,9 @@ import numpy as np
 
 from calib import synthetic
 from drivers.clock import SimClock
-from rig.plan import point_id
-from rig.store import SampleRow, Session
+from rig.schedules.compile import point_id
+from rig.session.rows import SampleRow
+from rig.session.writer import Session
 
 FIELD_NT = 50_000.0
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -71,7 +72,7 @@ def write_session(path: Path, spec: Spec = Spec(), *, upto: int | None = None, f
     wall = dt.datetime.combine(spec.day, dt.time(8, spec.seed % 60), dt.UTC).timestamp()
     clock = SimClock(start=wall)
     # The store takes the wall-clock start from time.time(); a test session is dated by its spec.
-    with mock.patch("rig.store.time.time", return_value=wall):
+    with mock.patch("rig.session.writer.time.time", return_value=wall):
         session = Session.create(
             path, plan_text=f"name: fleet-synth\nseed: {spec.seed}\n", station_text=f"name: {spec.station}\n",
             plan_name="fleet-synth", station_name=spec.station, points=spec.points(),

@@ -13,7 +13,7 @@ and a reconnect between attempts (so a dropped link recovers, and a late reply t
 cannot be taken for the next one's). pymodbus's own retries are set to 0 so these govern.
 Raw frames are logged at DEBUG on "magrig.transport.modbus"; retries at WARNING on "magrig.transport".
 
-Errors (rig.errors), each naming the device and the operation, e.g.
+Errors (rig.core.errors), each naming the device and the operation, e.g.
     DeviceTimeout  "chamber: write setpoint 85.0 degC: no reply within 1 s (after 3 tries)"
     ProtocolError  "coils: write setpoints: exception reply 3 (illegal data value)"   (not retried,
                    except 5 acknowledge / 6 busy)

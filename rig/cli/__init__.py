@@ -21,7 +21,7 @@ import sys  # noqa: E402
 import click
 
 from rig import __version__
-from rig.errors import ERRORS
+from rig.core.errors import ERRORS
 
 # command name -> the module of rig.cli whose register() adds it (tests/unit/rig/test_cli_startup.py)
 COMMAND_MODULES = {

@@ -9,7 +9,7 @@ import numpy as np
 
 from calib.models import MODELS, REGISTRY
 from rig import __version__
-from rig.sessionfile import looks_like_session
+from rig.session.schema import looks_like_session
 
 MODEL_CHOICE = click.Choice(MODELS)
 
@@ -36,16 +36,16 @@ def _unit_options(f):
 
 def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, column_map: str | None,
                  extra_columns: bool = True):
-    """A Dataset from a session file (by its name or content; via rig.reader) or a CSV file
+    """A Dataset from a session file (by its name or content; via rig.session.reader) or a CSV file
     (extra_columns: keep the columns outside the CSV contract; a fit does not need them)."""
     from calib import csvio
-    from rig.errors import DataError
+    from rig.core.errors import DataError
 
     p = Path(path)
     if not p.is_file():
         raise DataError(f"{p}: no such file")
     if looks_like_session(p):
-        from rig.reader import read_dataset
+        from rig.session.reader import read_dataset
 
         return read_dataset(p, dut)
     if dut is not None:
@@ -120,13 +120,13 @@ def refit(
     session = ds.source.get("kind") == "session"
     inputs, ambient = None, None
     if session:  # every reference with the run's best ambient, as the run's own fits
-        from rig import sessionfit
+        from rig.analysis import postrun
 
-        inputs = sessionfit.run_inputs(data)
-        ds, ambient = sessionfit.refined(inputs, ds)
+        inputs = postrun.run_inputs(data)
+        ds, ambient = postrun.refined(inputs, ds)
     lag_info = None
-    if lag and session:  # a CSV has no ramp: rig.lagfit is not imported for it
-        from rig.lagfit import lag_corrected, session_is_ramp
+    if lag and session:  # a CSV has no ramp: rig.analysis.lagfit is not imported for it
+        from rig.analysis.lagfit import lag_corrected, session_is_ramp
 
         if session_is_ramp(data):
             ds, lag_info = lag_corrected(ds)
@@ -140,14 +140,14 @@ def refit(
         software_version=__version__,
     )
     if lag_info is not None:
-        from rig.lagfit import annotate
+        from rig.analysis.lagfit import annotate
 
         annotate(cal, lag_info)
         click.echo(lag_info["message"])
     if session:
         if ambient is not None:
             cal.stats["ambient"] = ambient
-        sessionfit.state_uncertainty(inputs, ds.source["dut"], ds, cal)
+        postrun.state_uncertainty(inputs, ds.source["dut"], ds, cal)
     else:
         from calib.uncertainty import statistical_only
 
@@ -169,7 +169,7 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
     column mapping default to those the calibration was fitted with.
     """
     from calib import calfile, csvio
-    from rig.errors import DataError
+    from rig.core.errors import DataError
 
     cal = calfile.load(calibration)
     if raw_unit is None:

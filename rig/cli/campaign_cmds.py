@@ -10,7 +10,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from rig.errors import ConfigError
+from rig.core.errors import ConfigError
 
 
 class RunNotCompleted(click.ClickException):
@@ -57,7 +57,7 @@ def _print_summary(outcome) -> None:
                       str(f.get("path") or f.get("error")))
     console.print(table)
     if outcome.verdicts:
-        from rig.acceptance import summary_csv_path
+        from rig.analysis.acceptance import summary_csv_path
 
         table = Table(title=f"acceptance (summary: {summary_csv_path(outcome.session_path)})")
         for col in ("DUT", "model", "verdict", "held-out RMS (nT)", "failed criteria"):
@@ -85,12 +85,12 @@ def register(group: click.Group) -> None:
     @click.option("--no-live", is_flag=True, help="Plain log lines instead of the live display.")
     def run(plan, station, session_path, out_dir, resume_path, no_live):
         """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
-        from rig.campaign import run_campaign
-        from rig.config import load_campaign
-        from rig.display import make_display
-        from rig.engine import COMPLETED, prompt_from_tty
-        from rig.outputs import session_file
-        from rig.plan import located_errors
+        from rig.core.paths import session_file
+        from rig.engine.executor import COMPLETED, prompt_from_tty
+        from rig.reference.loading import load_campaign
+        from rig.run.campaign import run_campaign
+        from rig.run.display import make_display
+        from rig.schedules.compile import located_errors
 
         if resume_path:
             if plan or station or session_path or out_dir:

@@ -27,8 +27,8 @@ def register(group: click.Group) -> None:
         """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
         reference magnetometer and write the commissioning file a station names in
         `field_source: {commissioning: FILE}`."""
-        from rig.commission import commission
-        from rig.commissioning import read
+        from rig.reference.commissioning_file import read
+        from rig.reference.procedure import commission
 
         signal.signal(signal.SIGTERM, _terminate)  # every exit leaves the coils safe (commission's finally)
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from rig.errors import ConfigError
+from rig.core.errors import ConfigError
 
 
 @click.command("design")
@@ -28,9 +28,9 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     """Design the plan that reaches PLAN's targets (stop_when, or acceptance.max_std_error) for every DUT
     of the station in the least chamber time, and write it as a plan file."""
     from calib.atomic import atomic_write
-    from rig.config import load_campaign
-    from rig.design import design_inputs, design_plan, designed_plan_text, schedule_lines
-    from rig.plan import check_campaign, located_errors
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import check_campaign, located_errors
+    from rig.schedules.design import design_inputs, design_plan, designed_plan_text, schedule_lines
 
     campaign = load_campaign(plan_path, station_path)
     if session_path is not None and not session_path.is_file():

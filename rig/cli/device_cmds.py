@@ -55,7 +55,7 @@ def register(group: click.Group) -> None:
         """Connect to every device of STATION.yaml, show its identity and one reading, and say which
         devices fail and why (exit code 1 if any does)."""
         from rig.config import load_station
-        from rig.station import check_devices
+        from rig.devices.build import check_devices
 
         station = load_station(station_path)
         results = check_devices(station)
@@ -89,7 +89,7 @@ def register(group: click.Group) -> None:
         """Which I2C addresses answer on each bus of STATION.yaml (and behind each TCA9548A/PCA9548A switch
         channel), and which serial devices on its ports, each with what it is (its identification
         registers or replies), matched with the station's devices. Or one bus (--bus N) or port (--port)."""
-        from rig.devicescan import scan_station, scan_targets
+        from rig.devices.scan import scan_station, scan_targets
 
         if not (station_path or buses or ports):
             raise click.UsageError("give STATION.yaml, --bus N or --port PATH")

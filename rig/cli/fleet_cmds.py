@@ -11,7 +11,7 @@ import click
 
 from calib.models import MODELS
 from rig import __version__
-from rig.errors import ERRORS, MagrigError
+from rig.core.errors import ERRORS, MagrigError
 from rig.fleet import DATE_FORMATS
 
 DB_OPTION = click.option("--db", "db_url", metavar="URL", envvar="MAGRIG_DB",

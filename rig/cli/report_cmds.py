@@ -8,9 +8,9 @@ import click
 import numpy as np
 
 from rig.cli.fleet_cmds import fleet_filters, list_fleet
-from rig.errors import ERRORS, DataError, SessionError
-from rig.exports import FORMATS
-from rig.sessionfile import SESSION_SUFFIXES
+from rig.core.errors import ERRORS, DataError, SessionError
+from rig.report.exports import FORMATS
+from rig.session.schema import SESSION_SUFFIXES
 
 
 @click.command("report")
@@ -55,7 +55,7 @@ def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path |
     """Export a calibration for firmware (C header) or other tools (JSON, CSV of parameters)."""
     from calib import calfile
     from calib.atomic import atomic_write
-    from rig.exports import export_calibration
+    from rig.report.exports import export_calibration
 
     cal = calfile.load(calibration)
     symbol = name or cal.source.get("dut") or (output.stem if output else calibration.stem)

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from rig.cli.fleet_cmds import DB_OPTION
-from rig.errors import SessionError
+from rig.core.errors import SessionError
 
 DEFAULT_DIR = Path("sessions")
 NICENESS = 10  # the cockpit yields the CPU to a campaign running on the same machine

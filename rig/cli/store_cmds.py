@@ -7,10 +7,10 @@ from pathlib import Path
 import click
 
 from calib.atomic import atomic_write
-from rig.config import load_campaign
-from rig.errors import ConfigError
-from rig.plan import check_campaign
-from rig.reader import SessionReader
+from rig.core.errors import ConfigError
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import check_campaign
+from rig.session.reader import SessionReader
 
 
 @click.command("check")
@@ -40,7 +40,7 @@ def check_cmd(plan_path: Path, station_path: Path | None, figure_path: Path | No
     for line in report.summary_lines():
         click.echo(line)
     if figure_path is not None:
-        from rig.designfig import write_schedule_figure
+        from rig.report.designfig import write_schedule_figure
 
         write_schedule_figure(report.prediction,
                               f"plan {campaign.plan.name} on station {campaign.station.name}",
@@ -71,7 +71,7 @@ def export_cmd(session_path: Path, as_csv: bool, dut: str | None, output: Path,
 
 def _write_csv_atomically(output: Path, rows: list[dict]) -> None:
     """A failure never leaves half a file (nor touches an existing one)."""
-    from rig.exports import write_samples_csv
+    from rig.report.exports import write_samples_csv
 
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(output, "w", newline="") as f:

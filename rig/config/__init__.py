@@ -1,12 +1,12 @@
 """Station and plan files: strict pydantic models (unknown keys rejected), loaded once and passed down.
 
-    campaign = load_campaign("configs/plans/demo.yaml", station_path=None)
+    campaign = read_campaign("configs/plans/demo.yaml", station_path=None)   # the files as they are
     campaign.plan, campaign.station          # validated models
     campaign.plan_text, campaign.station_text, campaign.plan_path, campaign.station_path
 
 The models live beside this file: station.py (what is on the bench, built from the device registry),
 plan.py (what to do), sim.py (the simulated world a station states); the shared pieces (transports, the
-device base) in rig/configbase.py, field sources in rig/fieldsources/. Every error is a one-line
+device base) in rig/core/configbase.py, field sources in rig/fieldsources/. Every error is a one-line
 ConfigError naming the file, the key path and the line.
 """
 
@@ -16,27 +16,16 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.config.plan import (
-    AssumedDut,
+from rig.config.fields import (
     Cube24Fields,
-    DesignedLeg,
-    DesignedTemperatures,
     DirectionFields,
     FibonacciFields,
     FieldSet,
-    Fit,
     GridOrientations,
     ListOrientations,
-    Outputs,
-    Plan,
-    RampTemperatures,
-    SequentialTemperatures,
-    Stability,
-    Temperatures,
-    TempRange,
-    TempStep,
     VectorFields,
 )
+from rig.config.plan import Fit, Outputs, Plan
 from rig.config.sim import SimDut, SimWorld, TruthSpec
 from rig.config.station import (
     Chamber,
@@ -47,9 +36,20 @@ from rig.config.station import (
     TemperatureSensor,
     TemperatureSensorConfig,
 )
-from rig.configbase import I2c, ModbusRtu, ModbusTcp, Serial, Sim, Strict
+from rig.config.temperatures import (
+    AssumedDut,
+    DesignedLeg,
+    DesignedTemperatures,
+    RampTemperatures,
+    SequentialTemperatures,
+    Stability,
+    Temperatures,
+    TempRange,
+    TempStep,
+)
+from rig.core.configbase import I2c, ModbusRtu, ModbusTcp, Serial, Sim, Strict
+from rig.core.yamlload import load_model, read_text
 from rig.fieldsources import Coils, FieldSource, SiteFromModel, SiteFromReference, SiteFromVector, Turntable
-from rig.yamlload import load_model, read_text
 
 CONFIGS_DIR = Path(__file__).resolve().parent.parent.parent / "configs"
 DEFAULT_STATION = CONFIGS_DIR / "stations" / "sim.yaml"
@@ -88,16 +88,14 @@ def resolve_station_path(plan: Plan, plan_path: str | Path, station_path: str | 
     return DEFAULT_STATION
 
 
-def load_campaign(plan_path: str | Path, station_path: str | Path | None = None) -> Campaign:
-    """The plan and its station, the station's commissioning file (if it names one) checked and applied."""
-    from rig import commissioning
-
+def read_campaign(plan_path: str | Path, station_path: str | Path | None = None) -> Campaign:
+    """The plan and its station as their files state them. A run, a check or a design uses
+    rig.reference.loading.load_campaign, which also checks and applies the station's commissioning file."""
     plan_text = read_text(plan_path)
     plan = load_model(Plan, plan_path, plan_text)
     resolved = resolve_station_path(plan, plan_path, station_path)
     station_text = read_text(resolved)
     station = load_model(Station, resolved, station_text)
-    station = commissioning.apply(station, commissioning.load_for_station(station, resolved, station_text))
     return Campaign(plan, station, Path(plan_path), resolved, plan_text, station_text)
 
 
@@ -109,6 +107,6 @@ __all__ = [
     "Sim",
     "SimDut", "SimWorld", "SiteFromModel", "SiteFromReference", "SiteFromVector", "Stability", "Station",
     "Strict", "TempRange", "TempStep", "TemperatureSensor", "TemperatureSensorConfig", "Temperatures",
-    "Turntable", "TruthSpec", "VectorFields", "load_campaign", "load_plan", "load_station",
+    "Turntable", "TruthSpec", "VectorFields", "load_plan", "load_station", "read_campaign",
     "resolve_station_path",
 ]

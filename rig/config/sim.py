@@ -1,7 +1,7 @@
 """The simulated world a station states (`sim:`), used by the devices whose transport is `{kind: sim}`.
 
 Only what the station file says is kept here; a key left out (None) takes the simulator's default
-(drivers/sim/truths.py), applied when rig/simstation.py builds the world.
+(drivers/sim/truths.py), applied when rig/devices/bench.py builds the world.
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from typing import Literal
 
 from pydantic import Field
 
-from rig.configbase import Strict
+from rig.core.configbase import Strict
+from rig.core.numbers import ANGLE_DEG, DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
 from rig.fieldsources.coilgeometry import CoilGeometry
-from rig.numbers import ANGLE_DEG, DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
 
 Row = bounded_vec3(100.0)  # a row of S (scale: 1 is nominal)
 KRow = bounded_vec3(1.0)  # a row of K (per degC)

@@ -22,14 +22,14 @@ from pydantic import Field, create_model, model_validator
 
 from drivers import registry
 from drivers.chamber import ChamberAlarm, ChamberSettings
-from rig import names
 from rig.config.sim import SimWorld
-from rig.configbase import DeviceConfig, Strict, transport_type
-from rig.errors import ConfigError
+from rig.core import names
+from rig.core.configbase import DeviceConfig, Strict, transport_type
+from rig.core.errors import ConfigError
+from rig.core.names import SafeName
+from rig.core.numbers import MODBUS_UNIT, Count, bounded, bounded_vec3
+from rig.core.yamlload import KeyPathError
 from rig.fieldsources import FieldSource
-from rig.names import SafeName
-from rig.numbers import MODBUS_UNIT, Count, bounded, bounded_vec3
-from rig.yamlload import KeyPathError
 
 
 class ChamberConfig(DeviceConfig):
@@ -93,7 +93,7 @@ class DutConfig(DeviceConfig):
 class ReferenceMagnetometerConfig(DutConfig):
     """A calibrated magnetometer at the DUT position that measures the ambient (coils off) or the site
     field (table at home): any magnetometer type, never a DUT (not fitted, not in the outputs). Its
-    calibration file (relative to the station file) is applied to every reading (rig/sitefield.py)."""
+    calibration file (relative to the station file) is applied to every reading (rig/reference/sitefield.py)."""
 
     calibration: str = Field(description="its calibration file, relative to the station file")
     temp_source: str | None = Field(  # type: ignore[assignment]

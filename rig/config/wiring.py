@@ -5,7 +5,7 @@
                            ids or two baud rates on one serial line
 
 A segment is (simulated?, bus, switch address, channel), or (simulated?, bus, None, None) for the devices
-wired to the bus itself. Unmuxed simulated chips each get a bus of their own (rig/simstation.py), so they
+wired to the bus itself. Unmuxed simulated chips each get a bus of their own (rig/devices/bench.py), so they
 never clash. Real serial devices share a line when they name the same port; simulated ones by `line:`.
 """
 

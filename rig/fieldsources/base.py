@@ -5,14 +5,14 @@ A field source is the station's `field_source:` (a pydantic model with `kind:`) 
 - `field_kinds`: the plan field sets (`fields.kind`) it can make; `targets(fields)` expands one;
 - `record(target)`: how a point's target is stored; `point_letter`: F (fields) or O (orientations);
 - `reference(measured_nt)`: the Reference that turns a target into the device's setting and the
-  device's readback into the reference field (rig/reference.py);
+  device's readback into the reference field (rig/fieldsources/fieldmaths.py);
 - `nominal_field_nt(target)`: the field at the sensor for design checks; `move_time_s(targets)`;
   `settle_timeout_s()`; `check_targets(...)`: limit checks for `rig check`;
 - `prepare(device)`: what to do before the first move (home a table); `world_field(sim)`: the simulated
   world's field keywords (drivers/sim/world.py);
 - `station_problems(dut_names, reference_names)`: cross-references into the rest of the station.
 A field source whose reference needs a measured quantity (ambient "measure", a site field from a
-reference magnetometer; rig/sitefield.py does the measuring) says so:
+reference magnetometer; rig/reference/sitefield.py does the measuring) says so:
 - `needs_measurement()`; `measured_name` ("ambient field", "site field"); `measuring_magnetometer(refs)`:
   which reference magnetometer measures it; `measurement_setting()`: the device setting to measure at
   (coils at 0 A, table at home); `drift_max_nt()`: how far it may move between temperature steps;
@@ -29,15 +29,15 @@ import numpy as np
 from pydantic import Field, PrivateAttr
 
 from drivers import registry
-from rig.configbase import DeviceConfig, ModbusTransport
-from rig.errors import ConfigError, LimitError
-from rig.names import SafeName
-from rig.numbers import MODBUS_UNIT, bounded
-from rig.yamlload import blamed
+from rig.core.configbase import DeviceConfig, ModbusTransport
+from rig.core.errors import ConfigError, LimitError
+from rig.core.names import SafeName
+from rig.core.numbers import MODBUS_UNIT, bounded
+from rig.core.yamlload import blamed
 
 if TYPE_CHECKING:
     from rig.config.sim import SimWorld
-    from rig.points import Point
+    from rig.core.points import Point
 
 SETTLE_TIMEOUT_S = 5.0  # readbacks reach their setpoints well within this; movers add their travel
 DRIFT_MAX_NT = 200.0  # a lab's ambient moves a few tens of nT in hours; more means something changed
@@ -64,10 +64,10 @@ class FieldSourceConfig(DeviceConfig):
         None, description="`rig commission`'s file (relative to the station file): what it measured")
     max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
         180.0, description="`rig run` refuses a commissioning file older than this")
-    _commissioned: Any = PrivateAttr(None)  # rig.commissioning.Commissioning, once loaded (rig/config)
+    _commissioned: Any = PrivateAttr(None)  # rig.reference.commissioning_file.Commissioning, once loaded (rig/config)
 
     def with_commissioning(self, commissioned) -> FieldSourceConfig:
-        """A copy that uses what `commissioned` (rig.commissioning.Commissioning) measured."""
+        """A copy that uses what `commissioned` (rig.reference.commissioning_file.Commissioning) measured."""
         copy = self.model_copy()
         copy._commissioned = commissioned
         return copy

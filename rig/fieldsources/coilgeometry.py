@@ -26,8 +26,8 @@ from typing import Literal
 
 import numpy as np
 
-from rig.configbase import Strict
-from rig.numbers import bounded
+from rig.core.configbase import Strict
+from rig.core.numbers import bounded
 
 MU0 = 4e-7 * math.pi  # T m / A
 TESLA_TO_NT = 1e9

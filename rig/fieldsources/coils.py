@@ -1,12 +1,12 @@
-"""Three-axis coils: a field vector is made by currents, B = C I + ambient (rig/reference.py).
+"""Three-axis coils: a field vector is made by currents, B = C I + ambient (rig/fieldsources/fieldmaths.py).
 
 `ambient_nt` is the field with the coils off, in the lab frame; "measure" means a reference magnetometer
 (the station's `reference_magnetometers`, never a DUT) measures it with the coils at 0 A at the start of
-the campaign and again at each temperature step (rig/sitefield.py). Until then `rig check` allows for any
+the campaign and again at each temperature step (rig/reference/sitefield.py). Until then `rig check` allows for any
 ambient up to `ambient_max_nt`; `rig run` checks the plan's currents again with the measured ambient.
 
 The coil matrix C at the centre is the declared `coil_constants_nt_per_a`, or the one `rig commission`
-measured (`commissioning: FILE`, rig/commissioning.py), which replaces it. With a `geometry`, the field at
+measured (`commissioning: FILE`, rig/reference/commissioning_file.py), which replaces it. With a `geometry`, the field at
 each DUT's `position_mm` is the coil field there (rig/fieldsources/coilgeometry.py), scaled and turned to
 match C at the centre; without one the field is taken as uniform.
 """
@@ -18,9 +18,12 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 from pydantic import Discriminator, Field, Tag, model_validator
 
+import rig.fieldsources.fieldsets as fieldsets
 from drivers.coils import CoilOptions
-from rig import fieldsets
-from rig.errors import ConfigError
+from rig.core.errors import ConfigError
+from rig.core.names import SafeName
+from rig.core.numbers import A_MAX, NT, NT_VEC, bounded
+from rig.core.yamlload import KeyPathError
 from rig.fieldsources.base import (
     DRIFT_MAX_NT,
     FieldSourceConfig,
@@ -29,10 +32,7 @@ from rig.fieldsources.base import (
     point_limit_error,
 )
 from rig.fieldsources.coilgeometry import CoilGeometry
-from rig.names import SafeName
-from rig.numbers import A_MAX, NT, NT_VEC, bounded
-from rig.reference import TYPICAL_FIELD_NT, CoilReference, currents_for_field
-from rig.yamlload import KeyPathError
+from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT, CoilReference, currents_for_field
 
 VECTOR_FIELD_KINDS = frozenset({"cube24", "fibonacci", "directions", "vectors"})
 

@@ -20,8 +20,10 @@ import numpy as np
 from pydantic import BaseModel, Discriminator, Field, Tag
 
 from drivers.turntable import TurntableOptions
-from rig.configbase import Strict
-from rig.errors import ConfigError
+from rig.core.configbase import Strict
+from rig.core.errors import ConfigError
+from rig.core.names import SafeName
+from rig.core.numbers import ANGLE_DEG, NT, NT_VEC, bounded
 from rig.fieldsources.base import (
     DRIFT_MAX_NT,
     SETTLE_TIMEOUT_S,
@@ -29,9 +31,7 @@ from rig.fieldsources.base import (
     drift_keywords,
     point_limit_error,
 )
-from rig.names import SafeName
-from rig.numbers import ANGLE_DEG, NT, NT_VEC, bounded
-from rig.reference import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
+from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
 
 ORIENTATION_KINDS = frozenset({"grid", "orientations"})
 HOMING_TRAVEL_DEG = 720.0  # the longest way home: a full turn on each axis
@@ -39,7 +39,7 @@ MOVE_TRAVEL_DEG = 360.0  # the longest move the settle wait allows for
 
 
 class SiteFromReference(Strict):
-    """Measured with the table at home by a reference magnetometer on the table (rig/sitefield.py)."""
+    """Measured with the table at home by a reference magnetometer on the table (rig/reference/sitefield.py)."""
 
     reference_magnetometer: SafeName
     drift_max_nt: NT = Field(

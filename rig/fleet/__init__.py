@@ -8,7 +8,7 @@ batch on a Dask cluster. SQLite session files stay the rigs' own record; this is
     batch.py    refit-all on Dask: one results row per DUT, failures included, Parquet and the database
 """
 
-from rig.errors import MagrigError
+from rig.core.errors import MagrigError
 
 DATE_FORMATS = ("%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S")  # the listing's --since / --until (UTC)
 

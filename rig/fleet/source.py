@@ -2,7 +2,7 @@
 
 Tables and columns are introspected, not listed, so a column or table added to the session schema
 (events' reason codes, an acceptance results table) is carried to the fleet database without a change
-here. When rig.store grows its read-only SessionReader, this is the function to port.
+here. When rig.session.writer grows its read-only SessionReader, this is the function to port.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calib.digest import sha256_text
-from rig.errors import SessionError
-from rig.reader import open_read_only
-from rig.sessionfile import APPLICATION_ID, SESSION_SUFFIXES, is_session_file
+from rig.core.errors import SessionError
+from rig.session.reader import open_read_only
+from rig.session.schema import APPLICATION_ID, SESSION_SUFFIXES, is_session_file
 
 # Suffixes `rig sessions` lists; a file of another name that starts like an SQLite file is taken too.
 

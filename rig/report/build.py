@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.errors import DataError
-from rig.names import collision
-from rig.outputs import inside
+from rig.core.errors import DataError
+from rig.core.names import collision
+from rig.core.paths import inside
 from rig.report.evaluate import analyse_dut
 from rig.report.html import ItemList, Section, Table, images_in, render_html
 from rig.report.page import dut_sections, summary_table
 from rig.report.sources import ReportInputs, from_calibration, from_session
-from rig.sessionfile import looks_like_session
+from rig.session.schema import looks_like_session
 
 
 def build_report(

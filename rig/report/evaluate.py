@@ -8,8 +8,8 @@ import dataclasses
 import numpy as np
 
 from calib.models import MODELS
-from rig.errors import DataError, FitError
-from rig.report import analysis
+from rig.analysis import heldout
+from rig.core.errors import DataError, FitError
 from rig.report.sources import DutInput, StepInfo, listed
 
 
@@ -19,13 +19,13 @@ class DutResult:
     ds: object
     main: object  # the calibration whose residuals are shown
     fits: dict  # model -> Calibration fitted here
-    errors: analysis.Errors
-    scores: list[analysis.ModelScore]
+    errors: heldout.Errors
+    scores: list[heldout.ModelScore]
     fold_text: str
-    steps: list[analysis.StepRow]
+    steps: list[heldout.StepRow]
     warnings: list[str]
     given: bool  # main came from a calibration file, not from a fit made here
-    outliers: np.ndarray  # rows left out of the residuals shown (see analysis.outlier_rows)
+    outliers: np.ndarray  # rows left out of the residuals shown (see heldout.outlier_rows)
     uncertainty: dict | None = None  # the budget to show (DutInput.uncertainty)
     uncertainty_of: str = ""
 
@@ -41,10 +41,10 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
     warnings: list[str] = []
     if len(ds) == 0:
         raise DataError(f"{ds.source.get('path', d.name)}: DUT {d.name}: no usable samples")
-    if analysis.reference_norm_nt(ds) is None:
+    if heldout.reference_norm_nt(ds) is None:
         ds = _with_constant_norm(ds, d, warnings)
     fits, failures = {}, {}
-    for model in analysis.models_for(ds):
+    for model in heldout.models_for(ds):
         try:
             fits[model] = fit_model(ds, model)
         except (FitError, DataError) as exc:
@@ -53,21 +53,21 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
     if main is None:
         detail = "; ".join(f"{m}: {msg}" for m, msg in failures.items()) or "no reference in the data"
         raise FitError(f"{ds.source.get('path', d.name)}: DUT {d.name}: no model can be fitted ({detail})")
-    err = analysis.errors(ds, main)
+    err = heldout.errors(ds, main)
     points = ds.columns.get("point")
-    folds, fold_text = analysis.fold_of_each_row(ds, labels=points if points is not None else ds.group)
-    outliers = analysis.outlier_rows(main, err)
+    folds, fold_text = heldout.fold_of_each_row(ds, labels=points if points is not None else ds.group)
+    outliers = heldout.outlier_rows(main, err)
     # a model that cannot be fitted to all the data is not cross-validated: its row says why
     scores = [
-        analysis.cross_validate(ds, m, fit_model, folds, fits[m], outliers)
+        heldout.cross_validate(ds, m, fit_model, folds, fits[m], outliers)
         if m in fits
-        else analysis.ModelScore(m, note=f"cannot fit: {failures[m]}")
+        else heldout.ModelScore(m, note=f"cannot fit: {failures[m]}")
         for m in MODELS
         if m in fits or m in failures
     ]
-    step_rows = analysis.step_table(ds, outliers, err)
+    step_rows = heldout.step_table(ds, outliers, err)
     direction = ds.ref_nt if ds.ref_nt is not None else err.field_after
-    gaps = analysis.coverage_gaps(direction)
+    gaps = heldout.coverage_gaps(direction)
     warnings += _dut_warnings(d, ds, main, outliers, fits, failures, step_rows, steps_info, gaps)
     return DutResult(
         name=d.name,
@@ -129,8 +129,8 @@ def _dut_warnings(d, ds, main, outliers, fits, failures, step_rows, steps_info, 
     if gaps:
         worst = max(gaps, key=lambda g: g[2])
         out.append(
-            f"direction coverage: {len(gaps)} of {analysis.COVERAGE_PROBES} probe directions have no sample "
-            f"within {analysis.COVERAGE_GAP_DEG:g}°; the largest gap is around az {worst[0]:.0f}°, "
+            f"direction coverage: {len(gaps)} of {heldout.COVERAGE_PROBES} probe directions have no sample "
+            f"within {heldout.COVERAGE_GAP_DEG:g}°; the largest gap is around az {worst[0]:.0f}°, "
             f"el {worst[1]:.0f}° (nearest sample {worst[2]:.0f}° away)"
         )
     planned = {s.temp_index for s in steps_info.values()}

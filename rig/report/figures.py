@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from rig.report.analysis import nearest_sample_deg
+from rig.analysis.heldout import nearest_sample_deg
 
 BEFORE_COLOUR = "tab:orange"
 AFTER_COLOUR = "tab:blue"

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.names import file_stem
-from rig.report import analysis, figures
+from rig.analysis import heldout
+from rig.core.names import file_stem
+from rig.report import figures
 from rig.report.evaluate import DutResult
 from rig.report.html import Image, Section, Table
 from rig.report.sources import StepInfo
@@ -41,8 +42,8 @@ def summary_table(results: list[DutResult]) -> Table:
                 r.main.model.upper(),
                 str(len(r.ds)),
                 "vector" if vec else "|B|",
-                _fmt(analysis.rms(before[kept])),
-                _fmt(analysis.rms(after[kept])),
+                _fmt(heldout.rms(before[kept])),
+                _fmt(heldout.rms(after[kept])),
                 str(int((~kept).sum())),
             ]
         )
@@ -70,7 +71,7 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
     else:
         before, after, labels = e.norm_before[:, None], e.norm_after[:, None], ["|B|"]
     direction = ds.ref_nt if ds.ref_nt is not None else e.field_after
-    dirs, dir_resid, per_point = analysis.systematic_error_by_point(
+    dirs, dir_resid, per_point = heldout.systematic_error_by_point(
         ds.columns.get("point"), direction, after, ~outliers
     )
     resid_label = "|mean residual| of each point (nT)" if per_point else "|residual| after calibration (nT)"
@@ -101,7 +102,7 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
             figures.direction_map(
                 dirs,
                 dir_resid,
-                analysis.COVERAGE_GAP_DEG,
+                heldout.COVERAGE_GAP_DEG,
                 f"{r.name}: field directions ({model})",
                 resid_label,
             ),
@@ -204,7 +205,7 @@ def _uncertainty_blocks(r: DutResult) -> list:
     rows = _budget_rows(r.uncertainty)
     if not rows:
         return ["No uncertainty budget: the calibration states none (calibrations from a campaign carry "
-                "one; see rig/budget.py)."]
+                "one; see rig/reference/budget.py)."]
     u = r.uncertainty
     k = _number(u.get("coverage_factor"))
     table = Table(["input", "standard uncertainty of the field (nT)", "how it was drawn"],
@@ -217,7 +218,7 @@ def _uncertainty_blocks(r: DutResult) -> list:
     return [table, *notes]
 
 
-def _comparison_table(scores: list[analysis.ModelScore]) -> Table:
+def _comparison_table(scores: list[heldout.ModelScore]) -> Table:
     rows = [
         [
             s.model.upper(),
@@ -266,7 +267,7 @@ def _stability(i: StepInfo | None) -> str:
     return f"yes, after {i.settle_timeouts} timeout(s)" if i.settle_timeouts else "yes"
 
 
-def step_table(steps: list[analysis.StepRow], info: dict[int, StepInfo]) -> Table:
+def step_table(steps: list[heldout.StepRow], info: dict[int, StepInfo]) -> Table:
     """One row per temperature step: the data's numbers with what the session recorded about the step;
     planned steps without any sample are listed too."""
     by_step = {s.step: s for s in steps}

@@ -1,12 +1,12 @@
-"""`rig sessions`: one line per session file, from rig.reader.SessionReader.summary (the cockpit's list
+"""`rig sessions`: one line per session file, from rig.session.reader.SessionReader.summary (the cockpit's list
 shows the same cells)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from rig.events import Reason
 from rig.report.sources import utc
+from rig.session.events import Reason
 
 WIDTHS = (28, 17, 16, 16, 18, 12, 14)  # file, started, station, DUTs, points, exit, acceptance; last fit
 
@@ -32,8 +32,8 @@ def session_line(path: Path) -> str:
 
 def session_cells(path: Path) -> list[str]:
     """The COLUMNS of one session (`rig sessions` and the cockpit's list); SessionError as above."""
-    from rig.acceptance import verdict_text
-    from rig.reader import SessionReader
+    from rig.analysis.acceptance import verdict_text
+    from rig.session.reader import SessionReader
 
     with SessionReader(path) as reader:
         s = reader.summary()

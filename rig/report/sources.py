@@ -17,8 +17,8 @@ import numpy as np
 from calib.digest import sha256_file as sha256_of
 from calib.digest import sha256_text
 from rig import __version__
-from rig.errors import DataError, SessionError
-from rig.events import Event, Kind, Reason
+from rig.core.errors import DataError, SessionError
+from rig.session.events import Event, Kind, Reason
 
 MAX_LISTED = 5  # how many point ids a warning names before "and N more"
 
@@ -57,7 +57,7 @@ class ReportInputs:
     steps: dict[int, StepInfo] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     provenance: list[tuple[str, str]] = field(default_factory=list)
-    acceptance: list[dict] = field(default_factory=list)  # the session's verdicts (rig/acceptance.py)
+    acceptance: list[dict] = field(default_factory=list)  # the session's verdicts (rig/analysis/acceptance.py)
 
 
 def utc(t: float | None) -> str:
@@ -83,7 +83,7 @@ def listed(items: list[str]) -> str:
 
 def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     """Everything the report needs from one session file (read-only)."""
-    from rig.reader import SessionReader
+    from rig.session.reader import SessionReader
 
     path = Path(path)
     with SessionReader(path) as reader:

@@ -1,8 +1,8 @@
 """What the cockpit offers for download, each made by the very code of the CLI command that writes it:
 
     calibration file, YAML or JSON      calib.calfile.save              (rig run, rig refit)
-    C header, flight JSON, parameters   rig.exports.export_calibration  (rig export-cal)
-    samples CSV                         rig.exports.write_samples_csv   (rig export)
+    C header, flight JSON, parameters   rig.report.exports.export_calibration  (rig export-cal)
+    samples CSV                         rig.report.exports.write_samples_csv   (rig export)
     report                              rig.report.build.build_report   (rig report)
 
 Calibrations are the fits the session recorded (the last one of each DUT and model). Files are made in the
@@ -20,8 +20,8 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.errors import DataError
-from rig.reader import SessionReader
+from rig.core.errors import DataError
+from rig.session.reader import SessionReader
 
 # kind -> (what the page calls it, file name ending, content type)
 CALIBRATION_KINDS = {
@@ -60,8 +60,8 @@ def calibration(path: Path, dut: str, model: str):
 
 def calibration_download(path: Path, kind: str, dut: str, model: str, scratch: Path) -> Download:
     from calib import calfile
-    from rig.exports import export_calibration
-    from rig.outputs import calibration_file
+    from rig.core.paths import calibration_file
+    from rig.report.exports import export_calibration
 
     label, ending, content_type = CALIBRATION_KINDS[kind]
     cal = calibration(path, dut, model)
@@ -76,8 +76,8 @@ def calibration_download(path: Path, kind: str, dut: str, model: str, scratch: P
 
 def samples_download(path: Path, dut: str) -> Download:
     """One DUT's unflagged samples, as `rig export SESSION --csv --dut DUT` writes them."""
-    from rig.exports import write_samples_csv
-    from rig.names import file_stem
+    from rig.core.names import file_stem
+    from rig.report.exports import write_samples_csv
 
     with SessionReader(path) as reader:
         dut, rows = reader.sample_rows(dut)

@@ -20,7 +20,7 @@ import html
 import ipaddress
 from pathlib import Path
 
-from rig.sessionfile import looks_like_session
+from rig.session.schema import looks_like_session
 
 LOOPBACK_NAMES = ("localhost",)
 
@@ -72,7 +72,7 @@ MIN_TOKEN_LENGTH = 16
 
 def check_token(token: str) -> None:
     """A token must be long enough not to be guessed, and travel in a URL and a cookie unchanged."""
-    from rig.errors import ConfigError
+    from rig.core.errors import ConfigError
 
     if len(token) < MIN_TOKEN_LENGTH or not set(token) <= TOKEN_CHARS:
         raise ConfigError(f"--token / MAGRIG_TOKEN: use at least {MIN_TOKEN_LENGTH} characters of "

@@ -7,7 +7,7 @@
     hub.unsubscribe(live)
 
 A commit shows as a change of the session's write-ahead log (or of the file itself, or of the run that
-holds its lock); only then is the file opened, through rig.reader.SessionReader, and only what is new is
+holds its lock); only then is the file opened, through rig.session.reader.SessionReader, and only what is new is
 read: points that became done (and their samples, for each DUT's running T24 fit), events after the last
 one seen, temperature rows after the last time seen. The campaign process is never waited for: a reader
 beside SQLite's writer costs the writer nothing.
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.errors import ERRORS
-from rig.inbox import running_pid
-from rig.livefit import LiveFit
-from rig.reader import SessionReader
+from rig.analysis.livefit import LiveFit
+from rig.core.errors import ERRORS
+from rig.session.inbox import running_pid
+from rig.session.reader import SessionReader
 
 log = logging.getLogger("magrig.web")
 
@@ -208,7 +208,7 @@ def _static(info: dict, points: list[dict]) -> dict:
     """What never changes during a run: the DUTs, the live fit's reference temperature (as the run's own
     live display takes it) and the plan's acceptance limits on the fit and held-out RMS, if any."""
     from rig import config as cfg
-    from rig.yamlload import load_model
+    from rig.core.yamlload import load_model
 
     acceptance, limits, duts = False, [], []
     with contextlib.suppress(*ERRORS, ValueError):

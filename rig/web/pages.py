@@ -17,8 +17,8 @@ import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.errors import ERRORS
-from rig.inbox import running_pid
+from rig.core.errors import ERRORS
+from rig.session.inbox import running_pid
 from rig.web.guard import Refused, esc, session_file
 
 MAX_EVENTS_SHOWN = 200
@@ -80,7 +80,7 @@ def served_sessions(app) -> list[tuple[int, Path, list[SessionRef | tuple[str, s
     """(folder index, folder, entries) for every served folder: a SessionRef for each session file that
     lies inside it (a symlink pointing out is left out, not followed)."""
     from rig.report.sessions import session_files
-    from rig.sessionfile import SESSION_SUFFIXES
+    from rig.session.schema import SESSION_SUFFIXES
 
     out = []
     for i, root in enumerate(app.roots):
@@ -121,8 +121,8 @@ def sessions_page(app) -> str:
 
 # --- one session -------------------------------------------------------------------------------------------
 def session_page(app, ref: SessionRef) -> str:
-    from rig.acceptance import verdict_text
-    from rig.reader import SessionReader
+    from rig.analysis.acceptance import verdict_text
+    from rig.session.reader import SessionReader
     from rig.web.downloads import CALIBRATION_KINDS, SAMPLES_KIND, recorded_fits
 
     with SessionReader(ref.path) as reader:

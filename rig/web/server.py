@@ -13,7 +13,7 @@ Routes (ROOT is the index of a served folder, NAME a session file's name in it, 
                                         events), /state the same state once, as JSON
     GET  /s/ROOT/NAME/report            its HTML report (rig report)
     GET  /s/ROOT/NAME/download?what=KIND&dut=D&model=M    calibration files, exports, samples CSV
-    POST /s/ROOT/NAME/action            action=pause|abort: a request to the running campaign (rig/inbox.py)
+    POST /s/ROOT/NAME/action            action=pause|abort: a request to the running campaign (rig/session/inbox.py)
     GET  /static/FILE                   the script, style sheet and icon
 
 Every request passes, in this order: the Host check (without a token), the token (with one), the route;
@@ -36,7 +36,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 
-from rig.errors import ERRORS, MagrigError
+from rig.core.errors import ERRORS, MagrigError
 from rig.web import guard, pages
 from rig.web.downloads import CALIBRATION_KINDS, SAMPLES_KIND, Reports, calibration_download, samples_download
 from rig.web.live import Cursor, Hub
@@ -216,7 +216,7 @@ class Handler(BaseHTTPRequestHandler):
         return None if morsel is None else morsel.value
 
     def _action(self, ref: pages.SessionRef) -> None:
-        from rig.inbox import post
+        from rig.session.inbox import post
 
         form = self._form()
         if not guard.same_secret(form.get("csrf"), self.app.csrf_token):

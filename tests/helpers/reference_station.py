@@ -11,8 +11,8 @@ import numpy as np
 import yaml
 
 from calib.digest import sha256_file
-from rig import commissioning
 from rig.config import CONFIGS_DIR
+from rig.reference import commissioning_file
 
 STATION = CONFIGS_DIR / "stations" / "sim-commissioned.yaml"
 REFERENCE_CAL = CONFIGS_DIR / "stations" / "sim-reference-cal.yaml"
@@ -45,8 +45,8 @@ def commissioning_data(station_path: Path, *, matrix=None, covariance=None, stat
     cov = np.eye(12) * 0.02 if covariance is None else np.asarray(covariance, float)
     created = created or dt.datetime.now(dt.UTC)
     return {
-        "format": commissioning.FORMAT_NAME, "format_version": commissioning.FORMAT_VERSION, "kind": "coils",
-        "station": station or data["name"], "created_utc": commissioning.utc_text(created),
+        "format": commissioning_file.FORMAT_NAME, "format_version": commissioning_file.FORMAT_VERSION, "kind": "coils",
+        "station": station or data["name"], "created_utc": commissioning_file.utc_text(created),
         "software_version": "test",
         "reference_magnetometer": {
             "name": ref["name"], "type": ref["type"], "identity": {"model": "MMC5983MA"},
@@ -67,5 +67,5 @@ def commissioned_station(folder: Path, **kwargs) -> tuple[Path, Path]:
     """(station path, commissioning path): the station naming a sealed commissioning file beside it."""
     station = write_station(folder, commissioned=True)
     path = folder / "sim-commissioned.commissioning.yaml"
-    commissioning.save(commissioning_data(station, **kwargs), path)
+    commissioning_file.save(commissioning_data(station, **kwargs), path)
     return station, path

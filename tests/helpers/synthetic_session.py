@@ -14,9 +14,10 @@ import numpy as np
 
 from calib import synthetic
 from drivers.clock import SimClock
-from rig.events import Kind, Reason
-from rig.plan import point_id
-from rig.store import SampleRow, Session
+from rig.schedules.compile import point_id
+from rig.session.events import Kind, Reason
+from rig.session.rows import SampleRow
+from rig.session.writer import Session
 
 FIELD_NT = 50_000.0
 

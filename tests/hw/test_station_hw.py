@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from rig.config import load_station
-from rig.station import check_devices, open_rig
+from rig.devices.build import check_devices, open_rig
 
 pytestmark = pytest.mark.hw
 

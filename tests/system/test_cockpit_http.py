@@ -14,13 +14,14 @@ from types import SimpleNamespace
 import pytest
 
 from drivers.clock import SimClock
-from rig.campaign import run_campaign
 from rig.cli import main
-from rig.config import load_campaign
-from rig.errors import ConfigError, MagrigError
-from rig.events import Kind, Reason
-from rig.inbox import request_path
-from rig.store import SampleRow, Session, TemperatureRow
+from rig.core.errors import ConfigError, MagrigError
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.session.events import Kind, Reason
+from rig.session.inbox import request_path
+from rig.session.rows import SampleRow, TemperatureRow
+from rig.session.writer import Session
 from rig.web.server import Cockpit, make_server
 from tests.system.campaign_helpers import SIM_STATION, small_plan
 

@@ -14,7 +14,7 @@ from drivers.sim.serialmag import SerialMagLine, SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.config import load_station
-from rig.devicescan import scan_station
+from rig.devices.scan import scan_station
 from tests.system.campaign_helpers import REPO, run_rig
 
 STATIONS = REPO / "configs" / "stations"

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rig.campaign import run_campaign
-from rig.config import load_campaign
-from rig.events import HOLD_REASONS, Reason
-from rig.plan import compile_plan
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.schedules.compile import compile_plan
+from rig.session.events import HOLD_REASONS, Reason
 from tests.system.campaign_helpers import (
     DEMO_PLAN,
     REPO,

@@ -182,7 +182,8 @@ def test_new_columns_and_tables_arrive_without_code_changes(tmp_path, fleet_db):
 def test_the_runs_acceptance_and_temperature_tables_are_pushed_whole(tmp_path, fleet_db):
     """Tables the store makes when first needed, several rows per session: acceptance (no key of its
     own) and the cockpit's temperatures."""
-    from rig.store import Session, TemperatureRow
+    from rig.session.rows import TemperatureRow
+    from rig.session.writer import Session
 
     path = write_session(tmp_path / "s.session", Spec(seed=3, duts=("dut1", "dut2")))
     with Session.open(path) as s:

@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from rig.config import load_campaign
-from rig.plan import compile_plan
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import (
     SIM_STATION,
     events,

@@ -10,8 +10,8 @@ import yaml
 
 from drivers.errors import DeviceNotFound, ProtocolError
 from rig import config as cfg
-from rig.errors import ConfigError
-from rig.station import open_rig
+from rig.core.errors import ConfigError
+from rig.devices.build import open_rig
 from tests.system.campaign_helpers import REPO, run_rig, small_plan
 
 SWITCH = "sim i2c-1 switch 0x70"
@@ -159,7 +159,7 @@ def test_acceptance_exit_code_and_summary_csv(tmp_path, acceptance, code, verdic
 
 def test_the_shipped_16_dut_station_loads_and_interleaves(tmp_path):
     """sim-16: 16 DUTs; one interleaved round of readings costs about one DUT's simulated time."""
-    from rig.interleave import read_all
+    from rig.devices.interleave import read_all
 
     station = cfg.load_station(REPO / "configs" / "stations" / "sim-16.yaml")
     assert len(station.duts) == 16

@@ -13,9 +13,9 @@ from calib import calfile
 from calib.lag import estimate_lag
 from drivers.clock import SimClock
 from drivers.sim.world import DutTruth, World
-from rig.campaign import run_campaign
-from rig.config import load_campaign
-from rig.plan import compile_plan
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import (
     SIM_STATION,
     events,

@@ -10,13 +10,13 @@ import yaml
 
 from calib import calfile
 from drivers.sim.world import TableAxes
-from rig import commissioning, referencechain
-from rig.campaign import load_from_session, run_campaign
-from rig.commission import commission
-from rig.config import load_campaign
-from rig.errors import DeviceFault
-from rig.reader import SessionReader
-from rig.reference import TableReference
+from rig.core.errors import DeviceFault
+from rig.fieldsources.fieldmaths import TableReference
+from rig.reference import chain_record, commissioning_file
+from rig.reference.loading import load_campaign
+from rig.reference.procedure import commission
+from rig.run.campaign import load_from_session, run_campaign
+from rig.session.reader import SessionReader
 from tests.helpers.reference_station import write_station
 from tests.system.campaign_helpers import run_rig
 
@@ -48,7 +48,7 @@ def test_commissioning_finds_the_true_coil_matrix_and_leaves_the_coils_safe(tmp_
     path = commission(station, tmp_path, on_rig=seen.append)
     world = seen[0].world
     assert not world.coils_enabled and np.all(world.coil_currents_a == 0)  # safe at the end
-    com = commissioning.read(path)
+    com = commissioning_file.read(path)
     truth = yaml.safe_load(station.read_text())["sim"]
     se_m = np.asarray(com.record.coils.std_errors_matrix_nt_per_a)
     z = (com.matrix_nt_per_a - np.asarray(truth["coil_constants_nt_per_a"])) / se_m
@@ -141,12 +141,12 @@ def test_a_commissioned_campaign_states_its_uncertainty_on_every_calibration(tmp
     assert any(f.startswith("uncertainty ") for f in far.failed)
 
     # the session keeps the commissioning it ran with: a resume or a refit does not need the file
-    matrix = commissioning.read(com).matrix_nt_per_a
+    matrix = commissioning_file.read(com).matrix_nt_per_a
     com.unlink()
     _, restored = load_from_session(session)
     assert np.array_equal(restored.field_source.constants, matrix)
     with SessionReader(session) as reader:
-        chain = reader.snapshot(referencechain.SNAPSHOT)
+        chain = reader.snapshot(chain_record.SNAPSHOT)
         refs = reader.point_references()
     assert chain["commissioning"]["text"] and set(chain["matrices_nt_per_a"]) >= {"dut1", "ref0"}
     assert all("ambient_nt" in r for r in refs.values())
@@ -170,7 +170,7 @@ def test_a_turntable_is_commissioned_and_its_axes_used(tmp_path):
 
     station = write_station(tmp_path, table)
     path = commission(station, tmp_path, repeats=1)
-    com = commissioning.read(path)
+    com = commissioning_file.read(path)
     params = com.record.table.params
     se = com.record.table.std_errors
     assert abs(params["el_axis_tilt_deg"] - 0.3) < 5 * se["el_axis_tilt_deg"] + 0.01

@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from rig import fieldsets
 from rig.cli import main
+from rig.fieldsources import fieldsets
 from tests.helpers.synthetic_session import SynthOptions, build_session
 from tests.unit.report.ccheck import max_relative_error, run_header
 
@@ -104,8 +104,8 @@ def test_sessions_lists_it(session, capsys):
 def test_report_of_a_simulated_campaign(tmp_path, capsys):
     """The demo plan run by the campaign engine on the simulated station, then reported."""
     from drivers.clock import SimClock
-    from rig.campaign import run_campaign
-    from rig.config import load_campaign
+    from rig.reference.loading import load_campaign
+    from rig.run.campaign import run_campaign
 
     session = tmp_path / "demo.session"
     outcome = run_campaign(

@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 from calib import calfile
-from rig.campaign import run_campaign
-from rig.config import load_campaign
-from rig.plan import compile_plan
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import SIM_STATION, popen_rig, query, run_rig, session_counts
 
 pytestmark = pytest.mark.system
@@ -154,7 +154,7 @@ def test_kill_9_during_a_sequential_campaign_then_resume(tmp_path):
 
 
 def test_a_designed_plan_aborted_in_a_leg_resumes_without_a_stability_wait(tmp_path):
-    """Designed legs (rig/legplan.py) start ramping from wherever the air is, also on a resume."""
+    """Designed legs (rig/schedules/designed.py) start ramping from wherever the air is, also on a resume."""
     plan = {"name": "legs",
             "temperatures": {"mode": "designed", "rate_c_per_min": 3.0,
                              "legs": [{"to_c": 18, "sweeps": 4}, {"to_c": 22, "sweeps": 3, "check": True},

@@ -16,7 +16,7 @@ from drivers.serialmag import SerialMagnetometer
 from drivers.sim.serialmag import SerialMagLine, SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
-from rig.errors import DeviceNotFound, DeviceTimeout
+from rig.core.errors import DeviceNotFound, DeviceTimeout
 
 pytestmark = pytest.mark.system
 

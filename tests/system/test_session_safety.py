@@ -10,8 +10,8 @@ import subprocess
 
 import pytest
 
-from rig.events import Kind
-from rig.reader import SessionReader
+from rig.session.events import Kind
+from rig.session.reader import SessionReader
 from tests.system.campaign_helpers import REPO, SIM_STATION, rig_cmd, run_rig, small_plan
 
 pytestmark = pytest.mark.system

@@ -14,10 +14,11 @@ import pytest
 import yaml
 
 from calib import calfile
-from rig.campaign import run_campaign
-from rig.config import load_campaign, load_station
-from rig.events import Reason
-from rig.simstation import dut_truths
+from rig.config import load_station
+from rig.devices.bench import dut_truths
+from rig.reference.loading import load_campaign
+from rig.run.campaign import run_campaign
+from rig.session.events import Reason
 from tests.system.campaign_helpers import (
     DEMO_PLAN,
     REPO,

@@ -8,9 +8,9 @@ import pytest
 import yaml
 
 from rig import config as cfg
-from rig.errors import ConfigError
-from rig.interleave import read_all
-from rig.station import open_rig
+from rig.core.errors import ConfigError
+from rig.devices.build import open_rig
+from rig.devices.interleave import read_all
 from tests.system.campaign_helpers import REPO
 
 STATION = REPO / "configs" / "stations" / "sim-64.yaml"

@@ -1,5 +1,5 @@
 """The layers hold: calib imports neither rig nor drivers, and its own imports point one way; drivers
-import no rig, only rig/simstation.py imports drivers.sim, and nothing in rig/ asks which concrete device
+import no rig, only rig/devices/bench.py imports drivers.sim, and nothing in rig/ asks which concrete device
 or field source it holds."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from drivers.base import Device
 from rig.fieldsources.base import FieldSourceConfig
 
 REPO = Path(__file__).resolve().parents[2]
-STATION_BUILDER = "rig/simstation.py"  # the one production module that may import drivers.sim
+STATION_BUILDER = "rig/devices/bench.py"  # the one production module that may import drivers.sim
 
 
 def sources(*folders: str) -> list[Path]:
@@ -142,7 +142,7 @@ def test_the_kind_question_detector_detects(tmp_path):
     sample.write_text("def f(x, y):\n"
                       "    return isinstance(x, (int, WatlowF4T)) or isinstance(y, cfg.Coils | str)\n")
     assert len(kind_questions(sample, concrete_names())) == 2
-    assert kind_questions(REPO / "rig" / "yamlload.py", concrete_names()) == []  # isinstance on data is fine
+    assert kind_questions(REPO / "rig" / "core" / "yamlload.py", concrete_names()) == []  # isinstance on data is fine
 
 
 @pytest.mark.parametrize("role", registry.ROLES)

@@ -10,7 +10,7 @@ import yaml
 import calib
 from calib import calfile, csvio, synthetic
 from rig.cli import main
-from rig.errors import DataError
+from rig.core.errors import DataError
 
 
 @pytest.fixture
@@ -199,9 +199,10 @@ def test_refit_reads_a_real_session_file(tmp_path, capsys):
     from pathlib import Path
 
     from drivers.clock import SimClock
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
-    from rig.store import SampleRow, Session
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
+    from rig.session.rows import SampleRow
+    from rig.session.writer import Session
 
     demo = Path(__file__).resolve().parents[3] / "configs" / "plans" / "demo.yaml"
     campaign = load_campaign(demo)

@@ -8,10 +8,10 @@ import pytest
 import calib
 from calib import models, synthetic
 from calib.errors import DataError
+from rig.analysis.heldout import models_for
 from rig.cli.calib_cmds import MODEL_CHOICE
 from rig.config import Fit
-from rig.errors import ConfigError
-from rig.report.analysis import models_for
+from rig.core.errors import ConfigError
 
 
 def test_every_reader_of_the_model_list_agrees_with_the_registry():

@@ -12,12 +12,13 @@ import pytest
 import calib
 from rig import __version__
 from rig.cli import main
-from rig.errors import SessionError
+from rig.core.errors import SessionError
 from rig.fleet.push import dut_serials, verdict
 from rig.fleet.refit import dut_datasets, refit_file
 from rig.fleet.source import session_snapshot
-from rig.reader import read_dataset
-from rig.store import SampleRow, Session
+from rig.session.reader import read_dataset
+from rig.session.rows import SampleRow
+from rig.session.writer import Session
 from tests.fleet_sessions import Spec, record_points, write_session
 
 
@@ -89,7 +90,7 @@ def test_not_a_session_is_refused_with_its_name(tmp_path):
 
 
 def test_datasets_from_rows_match_read_dataset(tmp_path):
-    """Flagged samples, a failed point and a missing DUT temperature handled as rig.store does."""
+    """Flagged samples, a failed point and a missing DUT temperature handled as rig.session.writer does."""
     spec = Spec(duts=("dut1", "dut2"), directions=6)
     path = write_session(tmp_path / "a.session", spec, upto=14, finish=False)
     points = spec.points()

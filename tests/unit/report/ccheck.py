@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.exports import c_identifier
+from rig.report.exports import c_identifier
 
 DRIVER_C = """
 #include <stdio.h>

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from rig.errors import DataError
-from rig.exports import c_header, c_identifier, csv_export, inverse_form, json_export, t24_form
+from rig.core.errors import DataError
+from rig.report.exports import c_header, c_identifier, csv_export, inverse_form, json_export, t24_form
 from tests.unit.report.ccheck import max_relative_error, run_header
 
 

@@ -13,7 +13,7 @@ import pytest
 import calib
 from calib import calfile, synthetic
 from rig.cli import main
-from rig.names import c_identifier, header_guard
+from rig.core.names import c_identifier, header_guard
 from tests.unit.report.ccheck import max_relative_error, run_header
 
 HOSTILE = [

@@ -9,9 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from rig.config import load_campaign, load_station
-from rig.errors import ConfigError, LimitError
-from rig.plan import check_campaign
+from rig.config import load_station
+from rig.core.errors import ConfigError, LimitError
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import check_campaign
 from tests.helpers.reference_station import commissioned_station, commissioning_data, write_station
 from tests.helpers.small_plan import PLAN
 
@@ -166,7 +167,7 @@ def test_commissioning_data_helper_round_trips(tmp_path):
 
 
 def test_commissioning_needs_a_reference_magnetometer(tmp_path):
-    from rig.commission import commission
+    from rig.reference.procedure import commission
 
     def no_reference(data):
         data["field_source"]["ambient_nt"] = [16200, -350, 43100]
@@ -182,7 +183,7 @@ def test_commissioning_needs_a_reference_magnetometer(tmp_path):
 
 
 def test_an_off_centre_reference_needs_the_geometry(tmp_path):
-    from rig.commission import commission
+    from rig.reference.procedure import commission
 
     def off_centre(data):
         data["reference_magnetometers"][0]["position_mm"] = [20, 0, 0]

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from rig.config import CONFIGS_DIR, DEFAULT_STATION, Plan, Station, load_campaign, load_plan, load_station
-from rig.errors import ConfigError
-from rig.reference import TYPICAL_FIELD_NT
-from rig.simstation import dut_truths
+from rig.config import CONFIGS_DIR, DEFAULT_STATION, Plan, Station, load_plan, load_station
+from rig.core.errors import ConfigError
+from rig.devices.bench import dut_truths
+from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
+from rig.reference.loading import load_campaign
 
 PLAN = """\
 name: t

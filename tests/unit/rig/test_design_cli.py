@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from rig.cli import main
-from rig.config import load_campaign
-from rig.plan import check_campaign, compile_plan
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import check_campaign, compile_plan
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 SIM4 = CONFIGS / "stations" / "sim-4.yaml"
@@ -80,7 +80,7 @@ def test_design_from_a_sequential_plan_and_the_shipped_designed_plan_check(capsy
 
 
 def test_design_uses_an_earlier_sessions_noise(tmp_path, capsys):
-    from rig.campaign import run_campaign
+    from rig.run.campaign import run_campaign
 
     small = write_plan(tmp_path, "small", temperatures={"steps": [20, 30], "stability": {"dwell_s": 30}},
                        fields={"kind": "directions", "magnitude_nt": 50000,

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 from rich.console import Console
 
-from rig.display import MAX_DUT_ROWS, LiveDisplay, fit_rows, temperatures_text
-from rig.engine import RunStatus
+from rig.engine.executor import RunStatus
+from rig.run.display import MAX_DUT_ROWS, LiveDisplay, fit_rows, temperatures_text
 
 
 def _runner(n: int):

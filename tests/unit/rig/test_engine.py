@@ -10,21 +10,11 @@ from types import SimpleNamespace
 import pytest
 
 from drivers.clock import SimClock
-from rig.engine import (
-    ABORTED,
-    COMPLETED,
-    FAILED,
-    Checkpoint,
-    CollectPoint,
-    Engine,
-    Hold,
-    MoveField,
-    SetChamber,
-    Task,
-)
-from rig.errors import DeviceTimeout
-from rig.reader import SessionReader
-from rig.store import Session
+from rig.core.errors import DeviceTimeout
+from rig.engine.commands import Checkpoint, CollectPoint, Hold, MoveField, SetChamber, Task
+from rig.engine.executor import ABORTED, COMPLETED, FAILED, Engine
+from rig.session.reader import SessionReader
+from rig.session.writer import Session
 
 
 def session_tables(path) -> dict:
@@ -45,7 +35,7 @@ class FakeDevice:
 
 
 class RecordingSession:
-    """A real session file (rig.store) with helpers to read back what the engine recorded."""
+    """A real session file (rig.session.writer) with helpers to read back what the engine recorded."""
 
     def __init__(self, path, ids):
         points = [SimpleNamespace(id=pid, index=i, temp_index=1, setpoint_c=25.0, field_index=i + 1,
@@ -289,10 +279,10 @@ def test_a_real_sigint_pauses_at_the_next_safe_point_instead_of_raising(new_sess
 
 
 def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_session):
-    from rig.errors import LimitError
-    from rig.events import Kind, Reason
+    from rig.core.errors import LimitError
     from rig.report.sources import from_session
-    from rig.store import SampleRow
+    from rig.session.events import Kind, Reason
+    from rig.session.rows import SampleRow
 
     session = new_session()
     rig = Rig(session, faults={
@@ -320,7 +310,7 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
 
 
 def test_tasks_added_during_the_run_are_run_in_order_and_counted(new_session):
-    """A schedule decided during the run (rig/seqrun.py) appends its next points from a checkpoint."""
+    """A schedule decided during the run (rig/schedules/sequential_run.py) appends its next points from a checkpoint."""
     session = new_session()
     extra = ["T03-F01", "T03-F02"]
     rig = Rig(session)

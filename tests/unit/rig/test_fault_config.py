@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from rig.config import Station
-from rig.errors import ConfigError
-from rig.frozen import FrozenReadings
-from rig.yamlload import load_model
+from rig.core.errors import ConfigError
+from rig.core.yamlload import load_model
+from rig.engine.frozen import FrozenReadings
 
 REPO = Path(__file__).resolve().parents[3]
 SIM = yaml.safe_load((REPO / "configs" / "stations" / "sim.yaml").read_text())

@@ -196,9 +196,9 @@ def test_run_writes_nothing_outside_out(name, tmp_path, capsys):
 
 def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsys):
     """A session recorded before the names rule: its station is reread through the same checks."""
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
-    from rig.store import Session
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
+    from rig.session.writer import Session
 
     (tmp_path / "plan.yaml").write_text(PLAN)
     (tmp_path / "station.yaml").write_text(STATION)
@@ -218,12 +218,12 @@ def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsy
 @pytest.mark.parametrize("case", [("plan", c) for c in PLANS] + [("station", c) for c in STATIONS])
 def test_run_refuses_every_hostile_config_in_the_line_check_gives(case, tmp_path, capsys, monkeypatch):
     """`rig run` says what `rig check` says, and never reaches the point of opening a device."""
-    import rig.campaign
+    import rig.run.campaign
 
     def refuse(*args, **kwargs):
         raise AssertionError("open_rig was reached")
 
-    monkeypatch.setattr(rig.campaign, "open_rig", refuse)
+    monkeypatch.setattr(rig.run.campaign, "open_rig", refuse)
     document, name = case
     plan, station = tmp_path / "plan.yaml", tmp_path / "station.yaml"
     plan.write_text(PLANS[name][0] if document == "plan" else PLAN)

@@ -8,10 +8,10 @@ import os
 
 import pytest
 
-from rig.engine import ABORTED
-from rig.errors import SessionError
-from rig.events import Reason
-from rig.inbox import Inbox, post, request_path, running_pid
+from rig.core.errors import SessionError
+from rig.engine.executor import ABORTED
+from rig.session.events import Reason
+from rig.session.inbox import Inbox, post, request_path, running_pid
 from tests.unit.rig.test_engine import IDS, RecordingSession, Rig, make_engine
 
 
@@ -29,7 +29,7 @@ def new_session(tmp_path):
 
 
 def live_run(session_path, pid: int | None = None) -> None:
-    """A lock file naming a live process, as a running `rig run` leaves it (rig/lock.py)."""
+    """A lock file naming a live process, as a running `rig run` leaves it (rig/session/lock.py)."""
     session_path.parent.joinpath(f"{session_path.name}.lock").write_text(f"{pid or os.getpid()}\n")
 
 

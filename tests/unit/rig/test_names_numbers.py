@@ -1,5 +1,5 @@
-"""The names rule (rig/names.py), the config number types (rig/numbers.py) and the output-folder
-check (rig/outputs.py), on their own."""
+"""The names rule (rig/core/names.py), the config number types (rig/core/numbers.py) and the output-folder
+check (rig/core/paths.py), on their own."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ import pydantic
 import pytest
 
 from drivers import registry
-from rig import config, names, numbers
-from rig.errors import ConfigError
-from rig.outputs import calibration_file, inside, session_file
+from rig import config
+from rig.core import names, numbers
+from rig.core.errors import ConfigError
+from rig.core.paths import calibration_file, inside, session_file
 
 
 @pytest.mark.parametrize("good", ["m0", "MMC-0", "a.b_c", "7", "x" * 64])
@@ -110,7 +111,7 @@ def _plain_numbers(tp) -> list:
 
 
 def test_every_number_field_of_the_config_models_has_a_finite_type():
-    """Station and plan models: each number is a rig/numbers.py type; a driver's options model (which
+    """Station and plan models: each number is a rig/core/numbers.py type; a driver's options model (which
     cannot import rig) is covered by drivers/registry.py's Options base instead."""
     seen: set = set()
     _models(config.Station, seen)

@@ -7,10 +7,10 @@ import itertools
 import numpy as np
 import pytest
 
-from rig import fieldsets
 from rig.config import DEFAULT_STATION, Plan, Station, load_station
-from rig.errors import ConfigError, LimitError
-from rig.plan import check_plan, compile_plan, point_id
+from rig.core.errors import ConfigError, LimitError
+from rig.fieldsources import fieldsets
+from rig.schedules.compile import check_plan, compile_plan, point_id
 
 
 def make_plan(**overrides) -> Plan:

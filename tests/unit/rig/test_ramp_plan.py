@@ -5,11 +5,12 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from rig.config import Plan, load_campaign
-from rig.errors import ConfigError, LimitError
-from rig.plan import check_campaign, check_plan, compile_plan
-from rig.rampplan import MAX_SWEEP_SPAN_FRACTION
-from rig.yamlload import load_model
+from rig.config import Plan
+from rig.core.errors import ConfigError, LimitError
+from rig.core.yamlload import load_model
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import check_campaign, check_plan, compile_plan
+from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION
 from tests.unit.rig.test_plan import coil_station, make_plan
 
 RAMP = {"mode": "ramp", "range_c": [-30, 70], "rate_c_per_min": 2.0, "cycles": 1}

@@ -1,4 +1,4 @@
-"""A chamber without a ramp of its own gets its set point stepped at the ramp's pace (rig/ramp.py)."""
+"""A chamber without a ramp of its own gets its set point stepped at the ramp's pace (rig/schedules/moving_tasks.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ from types import SimpleNamespace
 import pytest
 
 from drivers.clock import SimClock
-from rig.engine import RunStatus
-from rig.ramp import STEP_C, RampMode, StartRamp
+from rig.engine.commands import StartRamp
+from rig.engine.executor import RunStatus
+from rig.schedules.moving_tasks import STEP_C, RampMode
 
 
 class SteppedChamber:

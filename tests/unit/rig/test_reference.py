@@ -10,8 +10,8 @@ import pytest
 from drivers.clock import SimClock
 from drivers.sim.world import World
 from rig.config import DEFAULT_STATION, Station, load_station
-from rig.errors import ConfigError
-from rig.reference import (
+from rig.core.errors import ConfigError
+from rig.fieldsources.fieldmaths import (
     CoilReference,
     TableReference,
     coil_field_nt,

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-import rig.campaign
+import rig.run.campaign
 from rig.cli import main
-from rig.config import load_campaign
-from rig.reader import SessionReader
-from rig.store import Session
+from rig.reference.loading import load_campaign
+from rig.session.reader import SessionReader
+from rig.session.writer import Session
 from tests.helpers.small_plan import PLAN
 from tests.helpers.small_plan import plan_with as _plan
 
@@ -53,7 +53,7 @@ def opened(monkeypatch) -> list:
         calls.append(args)
         raise AssertionError("open_rig was reached: a device could have been commanded")
 
-    monkeypatch.setattr(rig.campaign, "open_rig", refuse)
+    monkeypatch.setattr(rig.run.campaign, "open_rig", refuse)
     return calls
 
 
@@ -96,7 +96,7 @@ def test_resume_refuses_a_recorded_plan_beyond_the_limits(case, tmp_path, capsys
     good = load_campaign(tmp_path / "plan.yaml", STATION)
     hostile = type(good)(good.plan, good.station, good.plan_path, good.station_path, text, good.station_text)
     session = tmp_path / "old.session"
-    Session.create_for(session, hostile, rig.campaign.checked_points(good)).close()
+    Session.create_for(session, hostile, rig.run.campaign.checked_points(good)).close()
     (tmp_path / "plan.yaml").write_text(text)  # the file as it was recorded (a resume checks that)
     m = _refused(capsys, ["run", "--resume", session, "--no-live"])
     assert (m["file"], m["path"], int(m["line"])) == (f"{session} (recorded plan)", path, line)
@@ -128,7 +128,7 @@ def _turntable_station(tmp_path: Path) -> Path:
 @pytest.mark.parametrize("which", ["coils", "turntable"])
 def test_the_drivers_are_built_with_the_station_limits(which, tmp_path):
     from rig.config import load_station
-    from rig.station import build_devices
+    from rig.devices.build import build_devices
 
     station = load_station(STATION if which == "coils" else _turntable_station(tmp_path))
     built = build_devices(station)

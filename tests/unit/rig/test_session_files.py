@@ -18,12 +18,15 @@ import pytest
 
 from drivers.clock import SimClock
 from rig.cli import main
-from rig.engine import FAILED, CollectPoint, Engine, Task
-from rig.errors import SessionError
-from rig.events import Kind, Reason
-from rig.reader import SessionReader
+from rig.core.errors import SessionError
+from rig.engine.commands import CollectPoint, Task
+from rig.engine.executor import FAILED, Engine
 from rig.report.sources import from_session
-from rig.store import SCHEMA_VERSION, SampleRow, Session
+from rig.session.events import Kind, Reason
+from rig.session.reader import SessionReader
+from rig.session.rows import SampleRow
+from rig.session.schema import SCHEMA_VERSION
+from rig.session.writer import Session
 from tests.helpers.readonly import without_override
 from tests.helpers.v1_session import write_v1_session
 
@@ -34,9 +37,10 @@ DEMO = REPO / "configs" / "plans" / "demo.yaml"
 # the file keeps a write-ahead log that was never checkpointed into it, and the log's index (-shm).
 KILLED_WRITER = textwrap.dedent("""
     import os, sys
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
-    from rig.store import SampleRow, Session
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
+    from rig.session.rows import SampleRow
+    from rig.session.writer import Session
     campaign = load_campaign(sys.argv[2])
     points = compile_plan(campaign.plan, campaign.station)
     s = Session.create_for(sys.argv[1], campaign, points)
@@ -90,7 +94,7 @@ def test_readers_create_nothing_beside_a_session_in_any_state(tmp_path, capsys):
 
 READ_ALL = textwrap.dedent("""
     import sys
-    from rig.reader import SessionReader
+    from rig.session.reader import SessionReader
     for path in sys.argv[1:]:
         with SessionReader(path) as r:
             print(r.summary()["points_done"], len(r.dataset("mmc0")))

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from rig.errors import SessionError
-from rig.lock import SessionLock
-from rig.reader import SessionReader
-from rig.store import Session
+from rig.core.errors import SessionError
+from rig.session.lock import SessionLock
+from rig.session.reader import SessionReader
+from rig.session.writer import Session
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
@@ -76,7 +76,7 @@ def test_a_dead_holder_is_reported_and_a_live_one_named(tmp_path):
     session = tmp_path / "run.session"
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import sys, time
-        from rig.lock import SessionLock
+        from rig.session.lock import SessionLock
         lock = SessionLock({str(session)!r}); lock.acquire()
         print("held", flush=True); time.sleep(60)
     """)], stdout=subprocess.PIPE, text=True, cwd=REPO)
@@ -96,9 +96,9 @@ def test_a_dead_holder_is_reported_and_a_live_one_named(tmp_path):
 
 CREATOR = textwrap.dedent("""
     import sys, time
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
-    from rig.store import Session
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
+    from rig.session.writer import Session
     campaign = load_campaign(sys.argv[2])
     points = compile_plan(campaign.plan, campaign.station)
 
@@ -127,8 +127,8 @@ def test_kill_9_during_creation_leaves_no_session_and_the_name_can_be_used_again
     leftovers = [p.name for p in tmp_path.iterdir()]
     assert leftovers and all(name.startswith(".run.session.") for name in leftovers)
 
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
 
     campaign = load_campaign(DEMO)
     points = compile_plan(campaign.plan, campaign.station)

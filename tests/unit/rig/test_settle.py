@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from rig.settle import SETTLING, STABLE, TIMEOUT, SettleCriteria, StabilityDetector, slope_per_s
+from rig.engine.stability import SETTLING, STABLE, TIMEOUT, SettleCriteria, StabilityDetector, slope_per_s
 
 CRIT = SettleCriteria(band_c=0.5, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=7200.0)
 

@@ -15,11 +15,12 @@ import yaml
 from calib import calfile
 from drivers.clock import SimClock
 from drivers.sim.world import World
-from rig.config import CONFIGS_DIR, Station, load_campaign, load_station
-from rig.errors import ConfigError, LimitError
-from rig.plan import compile_plan
-from rig.simstation import reference_truths
-from rig.sitefield import load_reference_calibrations
+from rig.config import CONFIGS_DIR, Station, load_station
+from rig.core.errors import ConfigError, LimitError
+from rig.devices.bench import reference_truths
+from rig.reference.loading import load_campaign
+from rig.reference.sitefield import load_reference_calibrations
+from rig.schedules.compile import compile_plan
 
 STATION = CONFIGS_DIR / "stations" / "sim-measured-ambient.yaml"
 REFERENCE_CAL = CONFIGS_DIR / "stations" / "sim-reference-cal.yaml"

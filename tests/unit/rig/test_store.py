@@ -17,12 +17,14 @@ import pytest
 from calib.dataset import Dataset
 from drivers.base import FieldSample
 from drivers.clock import SimClock
-from rig.config import load_campaign
-from rig.errors import SessionError
-from rig.events import Kind, Reason
-from rig.plan import compile_plan
-from rig.reader import SessionReader, read_dataset
-from rig.store import SCHEMA_VERSION, SampleRow, Session
+from rig.core.errors import SessionError
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import compile_plan
+from rig.session.events import Kind, Reason
+from rig.session.reader import SessionReader, read_dataset
+from rig.session.rows import SampleRow
+from rig.session.schema import SCHEMA_VERSION
+from rig.session.writer import Session
 
 DEMO = Path(__file__).resolve().parents[3] / "configs" / "plans" / "demo.yaml"
 
@@ -115,9 +117,10 @@ def test_a_failure_inside_the_point_leaves_nothing(tmp_path, campaign, points):
 
 WRITER = textwrap.dedent("""
     import sys, time
-    from rig.config import load_campaign
-    from rig.plan import compile_plan
-    from rig.store import SampleRow, Session
+    from rig.reference.loading import load_campaign
+    from rig.schedules.compile import compile_plan
+    from rig.session.rows import SampleRow
+    from rig.session.writer import Session
     campaign = load_campaign(sys.argv[2])
     points = compile_plan(campaign.plan, campaign.station)
     s = Session.create_for(sys.argv[1], campaign, points)
@@ -312,7 +315,7 @@ def test_a_decision_is_stored_with_its_point_or_not_at_all(tmp_path, campaign, p
     """A sequential schedule's decision (the next sweep's points) goes in the point's own transaction."""
     from types import SimpleNamespace
 
-    from rig.store import Decision
+    from rig.session.rows import Decision
 
     s = new_session(tmp_path, campaign, points[:2])
     nxt = [SimpleNamespace(id=f"L01-S0002-F0{i}", index=2 + i, temp_index=2, setpoint_c=20.0, field_index=i,

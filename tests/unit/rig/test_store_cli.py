@@ -11,10 +11,11 @@ import pytest
 from calib import calfile, csvio
 from drivers.sim.world import DutTruth
 from rig.cli import main
-from rig.config import load_campaign
-from rig.plan import compile_plan
-from rig.reader import read_dataset
-from rig.store import SampleRow, Session
+from rig.reference.loading import load_campaign
+from rig.schedules.compile import compile_plan
+from rig.session.reader import read_dataset
+from rig.session.rows import SampleRow
+from rig.session.writer import Session
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 DEMO = CONFIGS / "plans" / "demo.yaml"

@@ -8,9 +8,9 @@ from types import SimpleNamespace
 
 from drivers.chamber import ChamberReading
 from drivers.clock import SimClock
-from rig.reader import SessionReader
-from rig.store import Session
-from rig.telemetry import EVERY_S, FLUSH_S, TemperatureLog
+from rig.session.reader import SessionReader
+from rig.session.temperature_log import EVERY_S, FLUSH_S, TemperatureLog
+from rig.session.writer import Session
 
 
 def new_session(path):

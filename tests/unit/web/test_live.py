@@ -1,5 +1,5 @@
 """The cockpit's live view of a session file: it reads only what is new since it last looked, gives each
-client what that client has not seen, and its running fit is the run's own (rig/livefit.py)."""
+client what that client has not seen, and its running fit is the run's own (rig/analysis/livefit.py)."""
 
 from __future__ import annotations
 
@@ -13,9 +13,10 @@ import pytest
 from calib import synthetic
 from drivers.chamber import ChamberReading
 from drivers.clock import SimClock
-from rig.events import Kind, Reason
-from rig.livefit import LiveFit
-from rig.store import SampleRow, Session, TemperatureRow
+from rig.analysis.livefit import LiveFit
+from rig.session.events import Kind, Reason
+from rig.session.rows import SampleRow, TemperatureRow
+from rig.session.writer import Session
 from rig.web.live import Cursor, LiveSession
 
 REPO = Path(__file__).resolve().parents[3]
@@ -106,7 +107,7 @@ def test_a_run_holding_the_lock_is_running_with_its_current_point(writer):
 
 
 def test_a_chamber_reading_row_is_what_the_plot_gets(writer):
-    from rig.telemetry import TemperatureLog
+    from rig.session.temperature_log import TemperatureLog
 
     live = LiveSession(writer.path)
     log = TemperatureLog(writer)

@@ -1,0 +1,201 @@
+"""The simulated part of a station: ONE world on the campaign clock, and a simulator for every device
+whose transport is `{kind: sim}`. The only production module that imports drivers.sim.
+
+    bench = SimBench(station, clock)
+    link = bench.link(device_config)        # starts the device's simulator; the SAME driver is built on it
+    bench.i2c_bus(1)                        # the shared simulated bus 1 (its switches), for the safe state
+    bench.stop()
+
+Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
+field source (`world_field`), the DUT truths and the simulator's defaults from drivers/sim/truths.py.
+A station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share
+the world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads
+a mount that follows the simulated air.
+
+A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
+(drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.
+Muxed simulated chips (`{kind: sim, bus: 0, address: 0x30, mux: {address: 0x70, channel: 3}}`) share ONE
+simulated bus per bus number, with a TCA9548A model per switch, so the channel switching is exercised;
+simulated serial devices naming the same `line:` share one pty (SerialMagLine), each by its device id.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+import numpy as np
+
+from drivers.clock import Clock
+from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
+from drivers.sim.faults import DeviceFaults, Window
+from drivers.sim.i2c_bus import FakeSMBus
+from drivers.sim.serialmag import SerialMagLine
+from drivers.sim.truths import AIR_C, CHAMBER_RAMP_C_PER_MIN, dut_truth, mount_truth
+from drivers.sim.world import DutTruth, World
+from drivers.transports.serial import SerialLine
+from rig.core.configbase import ModbusTcp
+from rig.devices.links import muxed, open_link
+
+LOOPBACK = "127.0.0.1"
+FAULTY_TIMEOUT_S = 0.3  # a simulator answers within ms: a lost reply need not cost the usual second
+
+
+def dut_truths(station) -> dict[str, DutTruth]:
+    """{DUT name: truth} for the simulated DUTs, from the station's `sim.duts` (defaults applied)."""
+    out = {}
+    for position, dut in enumerate(station.duts):
+        if not dut.simulated:
+            continue
+        spec = station.sim.duts.get(dut.name)
+        if spec is None:
+            out[dut.name] = dut_truth(station.sim.seed, position)
+        else:
+            truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
+            out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
+            out[dut.name].sensor_lag_s = spec.sensor_lag_s
+        out[dut.name].position_m = true_position_m(station, dut)
+    return out
+
+
+def true_position_m(station, device) -> np.ndarray:
+    """Where a simulated sensor really sits (m): its stated position_mm plus sim.duts' position_error_mm."""
+    stated = np.zeros(3) if device.position_mm is None else np.asarray(device.position_mm, float)
+    spec = station.sim.duts.get(device.name)
+    error = np.zeros(3) if spec is None else np.asarray(spec.position_error_mm, float)
+    return (stated + error) / 1000.0
+
+
+def reference_truths(station) -> dict[str, DutTruth]:
+    """{name: truth} of the simulated reference magnetometers. A reference's calibration file is its
+    truth, so it is never drawn at random: `sim.duts` states it (S, b_nt...) to match the shipped file,
+    or it is an ideal sensor (what an identity calibration file describes)."""
+    out = {}
+    for ref in station.reference_magnetometers:
+        if not ref.simulated:
+            continue
+        spec = station.sim.duts.get(ref.name)
+        if spec is None or spec.truth == "random":
+            out[ref.name] = dut_truth(station.sim.seed, 0, {"S": np.eye(3)},
+                                      None if spec is None else spec.noise_nt,
+                                      None if spec is None else spec.thermal_lag_s)
+        else:
+            out[ref.name] = dut_truth(station.sim.seed, 0, spec.truth.model_dump(), spec.noise_nt,
+                                      spec.thermal_lag_s)
+        out[ref.name].position_m = true_position_m(station, ref)
+    return out
+
+
+def chamber_ramp_c_per_min() -> float:
+    """The fastest the simulated chamber's air moves, whatever ramp it is told."""
+    return CHAMBER_RAMP_C_PER_MIN
+
+
+def make_world(station, clock: Clock) -> World:
+    air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
+    world = World(clock, air_c=air_c, seed=station.sim.seed, ramp_c_per_min=CHAMBER_RAMP_C_PER_MIN,
+                  **station.field_source.world_field(station.sim))
+    for name, truth in (dut_truths(station) | reference_truths(station)).items():
+        world.add_dut(name, truth)
+    for sensor in station.temperature_sensors:
+        if sensor.simulated and sensor.beside not in world.duts:
+            world.add_dut(sensor.beside, mount_truth())
+    return world
+
+
+def _window(spec) -> Window | None:
+    return None if spec is None else Window(spec.after_s, spec.for_s)
+
+
+class SimBench:
+    def __init__(self, station, clock: Clock):
+        self.clock = clock
+        self.seed = station.sim.seed
+        self.station = station
+        self.world = make_world(station, clock)
+        self.running: list[Any] = []
+        self.buses: dict[int, FakeSMBus] = {}  # simulated buses with switches, by bus number
+        self.lines: dict[str, tuple[SerialLine, float]] = {}  # shared serial lines by `line:` name
+
+    def link(self, dev_cfg):
+        """Start the device's simulator and return the link its driver is built on."""
+        t = dev_cfg.transport
+        if getattr(t, "line", None) is not None:
+            line, timeout_s = self._line(t.line)
+            return SerialLink(line.port, line.baudrate, timeout_s, line=line)
+        endpoint = dev_cfg.spec.load_simulator()(dev_cfg.sim_request(self.world))
+        faults = self.faults_of(dev_cfg)
+        match endpoint:
+            case SimModbus(server=server):
+                server.faults = faults
+                loopback = ModbusTcp(kind="modbus_tcp", host=LOOPBACK, port=self._start(server))
+                if faults is not None:
+                    loopback.timeout_s = FAULTY_TIMEOUT_S
+                return open_link(dev_cfg, loopback, self.clock)
+            case SimSerial(firmware=firmware, baudrate=baudrate, timeout_s=timeout_s):
+                firmware.faults = faults
+                timeout_s = timeout_s if faults is None else min(timeout_s, FAULTY_TIMEOUT_S)
+                return SerialLink(self._start(firmware), baudrate, timeout_s)
+            case SimI2c(chip=chip, address=address):
+                address = t.address if t.address is not None else address
+                if t.mux is not None:  # ONE bus per bus number, the chip behind its switch channel
+                    if faults is not None:  # the chip's own faults; bus-level NACKs would hit its neighbours
+                        chip.faults = faults
+                    bus = self.i2c_bus(t.bus)
+                    bus.chips[t.mux.address].attach(t.mux.channel, address, chip)
+                    return I2cLink(muxed(bus, t.bus, t.mux, simulated=True), address)
+                bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
+                bus.attach(address, chip)
+                if faults is not None:
+                    chip.faults = faults
+                    bus.set_faults(address, faults)
+                return I2cLink(bus, address)
+        raise TypeError(f"{dev_cfg.name}: simulator returned {endpoint!r}")
+
+    def faults_of(self, dev_cfg) -> DeviceFaults | None:
+        """The device's fault schedule from its `transport: {kind: sim, faults: ...}` (None: no faults),
+        seeded by the station's `sim.seed`; also kept in world.faults under the device's name."""
+        spec = getattr(dev_cfg.transport, "faults", None)
+        if spec is None:
+            return None
+        stuck = spec.stuck_temperature
+        faults = DeviceFaults(
+            dev_cfg.name, self.clock, seed=self.seed,
+            one_in={k: getattr(spec, k) for k in ("no_reply", "exception", "garbled", "nack")
+                    if getattr(spec, k) is not None},
+            unplug=_window(spec.unplug), alarm=_window(spec.alarm),
+            stuck=Window() if stuck is True else _window(stuck))
+        self.world.faults[dev_cfg.name] = faults
+        return faults
+    def i2c_bus(self, number: int) -> FakeSMBus:
+        """Simulated bus `number` with every switch the station puts on it (all channels off)."""
+        if number not in self.buses:
+            bus = self.buses[number] = FakeSMBus(number)
+            for dev_cfg in self.station.devices():
+                t = dev_cfg.transport
+                mux = getattr(t, "mux", None)
+                if dev_cfg.simulated and mux is not None and t.bus == number and mux.address not in bus.chips:
+                    bus.add_switch(mux.address)
+        return self.buses[number]
+
+    def _line(self, name: str) -> tuple[SerialLine, float]:
+        """One pty with every simulated device naming `line: name` behind it (SerialMagLine)."""
+        if name not in self.lines:
+            members = [d for d in self.station.devices()
+                       if d.simulated and getattr(d.transport, "line", None) == name]
+            endpoints = [d.spec.load_simulator()(d.sim_request(self.world)) for d in members]
+            firmware = SerialMagLine([e.firmware for e in endpoints])
+            port = self._start(firmware)
+            line = SerialLine(port, baudrate=endpoints[0].baudrate)
+            self.lines[name] = (line, endpoints[0].timeout_s)
+        return self.lines[name]
+
+    def _start(self, sim) -> Any:
+        self.running.append(sim)
+        return sim.start()
+
+    def stop(self) -> None:
+        for sim in reversed(self.running):
+            with contextlib.suppress(Exception):
+                sim.stop()
+        self.running.clear()

@@ -1,0 +1,101 @@
+"""Open the link a device's driver is built on, from the station's transport settings.
+
+    link = open_link(device_config, device_config.transport, clock)
+
+Modbus TCP/RTU -> a ModbusTransport (retries, reconnects, raw-frame log); I2C -> an I2cLink on
+/dev/i2c-N (one per bus number, shared; behind a `mux:` switch a MuxedBus on it); serial -> a
+SerialLink on the port's one SerialLine (devices naming the same port share it, each by its device id).
+Simulated devices get the same kinds of link from rig/devices/bench.py (a Modbus server on 127.0.0.1, a
+pty, a simulated I2C bus). `switch_banks` gives the I2C switches as devices (safe state: channels off).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from drivers.clock import Clock
+from drivers.registry import I2cLink, SerialLink
+from drivers.tca9548a import MuxedBus, SwitchBank
+from drivers.transports.modbus import ModbusTransport
+from drivers.transports.serial import SerialLine
+
+MODBUS_TRIES = 3
+
+
+def _modbus_tcp(dev_cfg, t, clock: Clock, shared: Shared | None = None) -> ModbusTransport:
+    return ModbusTransport(host=t.host, port=t.port, timeout_s=t.timeout_s, name=dev_cfg.name,
+                           unit=dev_cfg.unit, clock=clock, tries=MODBUS_TRIES)
+
+
+def _modbus_rtu(dev_cfg, t, clock: Clock, shared: Shared | None = None) -> ModbusTransport:
+    return ModbusTransport(serial_port=t.port, baudrate=t.baudrate, parity=t.parity, timeout_s=t.timeout_s,
+                           name=dev_cfg.name, unit=dev_cfg.unit, clock=clock, tries=MODBUS_TRIES)
+
+
+class Shared:
+    """What the devices of one station build share: each /dev/i2c-N opened once (devices and switches
+    on one bus share it), one SerialLine per port (devices on it share its lock and port)."""
+
+    def __init__(self) -> None:
+        self.i2c: dict[int, Any] = {}
+        self.lines: dict[str, SerialLine] = {}
+
+    def i2c_bus(self, number: int) -> Any:
+        from drivers.transports.i2c import open_smbus
+
+        if number not in self.i2c:
+            self.i2c[number] = open_smbus(number)
+        return self.i2c[number]
+
+    def serial_line(self, port: str, baudrate: int) -> SerialLine:
+        if port not in self.lines:
+            self.lines[port] = SerialLine(port, baudrate=baudrate)
+        return self.lines[port]
+
+
+def switch_name(bus: int, address: int, simulated: bool = False) -> str:
+    return f"{'sim ' if simulated else ''}i2c-{bus} switch 0x{address:02X}"
+
+
+def muxed(bus: Any, number: int, mux, simulated: bool = False) -> Any:
+    """The bus as a device behind switch `mux` sees it (a MuxedBus), or the bus itself without a mux."""
+    if mux is None:
+        return bus
+    return MuxedBus(bus, mux.address, mux.channel, name=switch_name(number, mux.address, simulated))
+
+
+def _i2c(dev_cfg, t, clock: Clock, shared: Shared) -> I2cLink:
+    return I2cLink(muxed(shared.i2c_bus(t.bus), t.bus, t.mux), t.address)
+
+
+def _serial(dev_cfg, t, clock: Clock, shared: Shared) -> SerialLink:
+    return SerialLink(t.port, t.baudrate, t.timeout_s, line=shared.serial_line(t.port, t.baudrate))
+
+
+def switch_banks(station, shared: Shared, sim_bus: Callable[[int], Any] | None = None) -> list[SwitchBank]:
+    """One SwitchBank per bus with switches on it (real, and simulated through `sim_bus(number)`): the
+    station's safe state switches every channel off at the end."""
+    found: dict[tuple[bool, int], set[int]] = {}
+    for dev_cfg in station.devices():
+        mux = getattr(dev_cfg.transport, "mux", None)
+        if mux is not None:
+            found.setdefault((dev_cfg.simulated, dev_cfg.transport.bus), set()).add(mux.address)
+    banks = []
+    for (simulated, number), addresses in sorted(found.items()):
+        if simulated and sim_bus is None:
+            continue
+        bus = sim_bus(number) if simulated else shared.i2c_bus(number)
+        names = {a: switch_name(number, a, simulated) for a in sorted(addresses)}
+        banks.append(SwitchBank(bus, names, name=f"{'sim ' if simulated else ''}i2c-{number} switches"))
+    return banks
+
+
+OPENERS = {"modbus_tcp": _modbus_tcp, "modbus_rtu": _modbus_rtu, "i2c": _i2c, "serial": _serial}
+
+
+def open_link(dev_cfg, transport, clock: Clock, shared: Shared | None = None):
+    """The link for a real transport (`kind` other than sim). Opening a real I2C bus may fail
+    (DeviceNotFound naming the bus); the others open when the driver connects. Devices built with the
+    same `shared` share buses and serial lines."""
+    return OPENERS[transport.kind](dev_cfg, transport, clock, shared or Shared())

@@ -1,0 +1,213 @@
+"""`rig devices scan`: what answers on a station's I2C buses (on the bus and behind each switch channel)
+and on its serial ports, with what each is: what an operator needs before writing `address:` and `mux:`
+into a station file. The scanning itself is drivers/busscan.py; this module picks the buses and ports.
+
+    report = scan_station(station)           # every bus and port its devices name, simulated ones too
+    report = scan_targets(buses=[1], ports=[("/dev/ttyUSB0", 9600)])   # /dev/i2c-1 and one port
+    report.lines() -> the text `rig devices scan` prints; report.problems -> [...]
+
+Against a station, each finding is matched with the station device configured there, and station
+devices that do not answer are listed. Simulated devices are scanned on their simulated buses and lines
+(one simulated bus per bus number with its switches; a simulated chip without a switch has a bus of its
+own). Modbus devices are not scanned: `rig devices check` talks to them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers import busscan
+from drivers.clock import SimClock
+from drivers.errors import DeviceError
+from drivers.transports.serial import SerialLine
+from rig.core.errors import ERRORS
+
+SERIAL_TIMEOUT_S = 0.05  # an HMR2300 answers in about 2 ms; a USB adapter adds a few
+
+
+@dataclass
+class BusReport:
+    label: str
+    scan: busscan.I2cScan | None = None
+    error: str | None = None
+    expected: dict[tuple, str] = field(default_factory=dict)  # (switch, channel, address) -> device name
+
+
+@dataclass
+class PortReport:
+    label: str
+    port: str
+    baudrate: int
+    found: list[busscan.SerialFound] = field(default_factory=list)
+    error: str | None = None
+    expected: dict[int, str] = field(default_factory=dict)  # device id -> device name
+
+
+@dataclass
+class ScanReport:
+    buses: list[BusReport] = field(default_factory=list)
+    ports: list[PortReport] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # devices not scanned (Modbus), by name
+
+    @property
+    def problems(self) -> list[str]:
+        """Buses or ports that could not be scanned, and station devices that did not answer."""
+        out = [f"{b.label}: {b.error}" for b in self.buses if b.error]
+        out += [f"{p.label}: {p.error}" for p in self.ports if p.error]
+        out += [f"{name} not found ({b.label} {_where(*key)})" for b in self.buses if b.scan is not None
+                for key, name in b.expected.items() if key not in _keys(b.scan)]
+        out += [f"{name} not found ({p.label} id {i:02d})" for p in self.ports if not p.error
+                for i, name in p.expected.items() if i not in {f.device_id for f in p.found}]
+        return out
+
+    def lines(self) -> list[str]:
+        out: list[str] = []
+        for b in self.buses:
+            out.append(b.label)
+            if b.error:
+                out.append(f"  cannot scan: {b.error}")
+                continue
+            found = b.scan.found
+            if not found:
+                out.append("  nothing answers")
+            for f in sorted(found, key=_order):
+                station = b.expected.get((f.switch, f.channel, f.address))
+                out.append(f"  0x{f.address:02X}  {f.where:<22} {f.what}" + _station(station))
+            out += [f"  note: {n}" for n in b.scan.notes]
+        for p in self.ports:
+            out.append(f"{p.label} ({p.port})")
+            if p.error:
+                out.append(f"  cannot scan: {p.error}")
+                continue
+            if not p.found:
+                out.append(f"  nothing answers (ids asked at {p.baudrate} baud, then at the other rates)")
+            for f in p.found:
+                info = f.info
+                extra = ", ".join(f"{k.replace('_', ' ')} {info[k]}" for k in ("serial_number", "firmware")
+                                  if info.get(k))
+                out.append(f"  id {f.device_id:02d}  {f.baudrate} baud  {info['model']}"
+                           + (f", {extra}" if extra else "") + _station(p.expected.get(f.device_id)))
+        if self.skipped:
+            out.append(f"not scanned (Modbus; see rig devices check): {', '.join(self.skipped)}")
+        return out
+
+
+def _order(f: busscan.Found) -> tuple:
+    return (f.switch is not None, f.switch or 0, f.channel or 0, f.address)
+
+
+def _station(name: str | None) -> str:
+    return f"  [station: {name}]" if name else ""
+
+
+def _keys(scan: busscan.I2cScan) -> set[tuple]:
+    return {(f.switch, f.channel, f.address) for f in scan.found}
+
+
+def _where(switch, channel, address) -> str:
+    return f"0x{address:02X}" + ("" if switch is None else f" behind switch 0x{switch:02X} channel {channel}")
+
+
+# --- what to scan -------------------------------------------------------------------------------------------
+def scan_targets(buses: list[int] = (), ports: list[tuple[str, int]] = (), *, device_ids=None,
+                 timeout_s: float = SERIAL_TIMEOUT_S) -> ScanReport:
+    """Real buses /dev/i2c-N and serial ports, with no station to compare against."""
+    report = ScanReport()
+    for number in buses:
+        report.buses.append(_scan_real_bus(number))
+    for port, baud in ports:
+        report.ports.append(_scan_port(PortReport("serial port", port, baud), device_ids, timeout_s))
+    return report
+
+
+def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_S) -> ScanReport:
+    report = ScanReport()
+    real_buses: dict[int, BusReport] = {}
+    sim_buses: dict[Any, BusReport] = {}
+    ports: dict[str, PortReport] = {}
+    bench = None
+    if any(d.simulated for d in station.devices()):
+        from rig.devices.bench import SimBench
+
+        bench = SimBench(station, SimClock())
+    try:
+        for dev in station.devices():
+            t = dev.transport
+            kinds = dev.spec.transports
+            mux = getattr(t, "mux", None)
+            key_switch = (None, None) if mux is None else (mux.address, mux.channel)
+            if "i2c" in kinds and dev.simulated:
+                link = bench.link(dev)
+                if mux is not None:
+                    bus = bench.i2c_bus(t.bus)
+                    entry = sim_buses.setdefault(bus, BusReport(f"i2c-{t.bus} (simulated)"))
+                else:
+                    entry = sim_buses.setdefault(link.bus, BusReport(f"simulated bus of {dev.name}"))
+                entry.expected[(*key_switch, link.address)] = dev.name
+            elif "i2c" in kinds:
+                entry = real_buses.setdefault(t.bus, BusReport(f"i2c-{t.bus} (/dev/i2c-{t.bus})"))
+                entry.expected[(*key_switch, t.address)] = dev.name
+            elif "serial" in kinds and dev.simulated:
+                link = bench.link(dev)
+                label = f"serial line {t.line} (simulated)" if getattr(t, "line", None) else \
+                    f"serial port of {dev.name} (simulated)"
+                entry = ports.setdefault(link.port, PortReport(label, link.port, link.baudrate))
+                entry.expected[getattr(dev.device_options, "device_id", 0)] = dev.name
+            elif "serial" in kinds:
+                entry = ports.setdefault(t.port, PortReport("serial port", t.port, t.baudrate))
+                entry.expected[getattr(dev.device_options, "device_id", 0)] = dev.name
+            else:
+                report.skipped.append(dev.name)
+        for number, entry in real_buses.items():
+            scanned = _scan_real_bus(number)
+            entry.scan, entry.error = scanned.scan, scanned.error
+            report.buses.append(entry)
+        for bus, entry in sim_buses.items():
+            entry.scan = busscan.scan_i2c(bus)
+            report.buses.append(entry)
+        for entry in ports.values():
+            report.ports.append(_scan_port(entry, device_ids, timeout_s))
+    finally:
+        if bench is not None:
+            bench.stop()
+    return report
+
+
+def _scan_real_bus(number: int) -> BusReport:
+    from drivers.transports.i2c import open_smbus
+
+    entry = BusReport(f"i2c-{number} (/dev/i2c-{number}{_adapter_name(number)})")
+    try:
+        bus = open_smbus(number)
+    except DeviceError as exc:
+        entry.error = exc.detail
+        return entry
+    try:
+        entry.scan = busscan.scan_i2c(bus)
+    finally:
+        with contextlib.suppress(Exception):
+            bus.close()
+    return entry
+
+
+def _adapter_name(number: int) -> str:
+    """The kernel's name of the adapter (e.g. "MCP2221 usb-i2c bridge"), where sysfs tells it."""
+    try:
+        with open(f"/sys/class/i2c-dev/i2c-{number}/name", encoding="utf-8") as f:
+            return f": {f.read().strip()}"
+    except OSError:
+        return ""
+
+
+def _scan_port(entry: PortReport, device_ids, timeout_s: float) -> PortReport:
+    line = SerialLine(entry.port, baudrate=entry.baudrate)
+    try:
+        entry.found = busscan.scan_serial(line, device_ids=device_ids, timeout_s=timeout_s)
+    except (*ERRORS, OSError) as exc:
+        entry.error = getattr(exc, "detail", None) or str(exc)
+    finally:
+        line.close_port()
+    return entry
+

@@ -1,0 +1,278 @@
+"""Commissioning files: what `rig commission` measured of a station's field source, and the checks a
+station's `field_source: {commissioning: FILE}` must pass before the rig trusts it.
+
+    commissioning = load_for_station(station, station_path, station_text)   # None without one
+    station = apply(station, commissioning)      # the field source now uses the measured matrix / axes
+
+The file (YAML, `<station>.commissioning.yaml`) states the station, the date, the reference magnetometer
+(identity, its calibration file's sha256, its position), the fitted coil matrix and ambient (or the
+table's axes) with their covariance, the residuals, linearity, hysteresis and drift, and every setting
+it was measured at. `content_sha256` seals it: a file edited after it was written is refused, as are one
+of another station, one older than the field source's `max_age_days`, one whose reference calibration
+has changed since, a singular matrix and a covariance that is not positive definite. Each refusal is one
+line naming the file, the key and its line.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from pydantic import Field
+
+from calib.atomic import atomic_write
+from calib.digest import sha256_file, sha256_text
+from rig.core.configbase import Strict
+from rig.core.errors import ConfigError
+from rig.core.numbers import NT_VEC, FiniteFloat, Vec3
+from rig.core.yamlload import KeyPath, load_model, locate_in_text, read_text
+
+FORMAT_NAME = "magrig-commissioning"
+FORMAT_VERSION = 1
+MAX_CONDITION = 1e6  # a coil matrix worse conditioned than this cannot be inverted for currents
+
+
+class ReferenceRecord(Strict):
+    name: str
+    type: str
+    identity: dict = {}
+    calibration: str
+    calibration_sha256: str
+    position_mm: Vec3 = (0.0, 0.0, 0.0)
+
+
+class SettingRecord(Strict):
+    setting: list[FiniteFloat]  # currents (A) or table angles [az, el] (deg)
+    mean_nt: Vec3
+    se_nt: Vec3
+    n: int
+
+
+class CoilsRecord(Strict):
+    matrix_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC]
+    ambient_nt: NT_VEC
+    covariance: list[list[FiniteFloat]] = Field(description="12x12: the matrix row by row, then the ambient")
+    std_errors_matrix_nt_per_a: tuple[Vec3, Vec3, Vec3]
+    std_errors_ambient_nt: Vec3
+    residual_rms_nt: Vec3
+    nonlinearity_ppm: Vec3
+    hysteresis_nt: FiniteFloat
+    drift_nt: FiniteFloat
+    current_a: FiniteFloat
+    repeats: int
+
+
+class TableRecord(Strict):
+    params: dict[str, FiniteFloat]
+    covariance: list[list[FiniteFloat]] = Field(description="7x7 in the order of `params`")
+    std_errors: dict[str, FiniteFloat]
+    residual_rms_nt: FiniteFloat
+    drift_nt: FiniteFloat
+    repeats: int
+
+
+class CommissioningFile(Strict):
+    format: Literal["magrig-commissioning"]
+    format_version: Literal[1]
+    kind: Literal["coils", "turntable"]
+    station: str
+    created_utc: str
+    software_version: str
+    reference_magnetometer: ReferenceRecord
+    coils: CoilsRecord | None = None
+    table: TableRecord | None = None
+    settings: list[SettingRecord]
+    content_sha256: str
+
+
+@dataclass
+class Commissioning:
+    """A commissioning file that passed every check, as the rig uses it."""
+
+    path: Path
+    text: str
+    record: CommissioningFile
+
+    @property
+    def kind(self) -> str:
+        return self.record.kind
+
+    @property
+    def matrix_nt_per_a(self) -> np.ndarray:
+        return np.asarray(self.record.coils.matrix_nt_per_a, float)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        section = self.record.coils if self.kind == "coils" else self.record.table
+        return np.asarray(section.covariance, float)
+
+    @property
+    def table_params(self) -> np.ndarray:
+        from calib.tablefit import PARAM_NAMES
+
+        return np.array([self.record.table.params[n] for n in PARAM_NAMES], float)
+
+    @property
+    def created(self) -> dt.datetime:
+        return parse_utc(self.record.created_utc)
+
+    def age_days(self, now: dt.datetime | None = None) -> float:
+        now = now or dt.datetime.now(dt.UTC)
+        return (now - self.created).total_seconds() / 86_400.0
+
+    def residual_rms_nt(self) -> list[float]:
+        section = self.record.coils if self.kind == "coils" else self.record.table
+        value = section.residual_rms_nt
+        return list(value) if isinstance(value, tuple | list) else [value]
+
+    def summary(self, max_age_days: float | None = None) -> str:
+        """One line for `rig check`: the file, its age, its residual and its reference."""
+        ref = self.record.reference_magnetometer
+        rms = ", ".join(f"{v:.2f}" for v in self.residual_rms_nt())
+        limit = "" if max_age_days is None else f" (max_age_days {max_age_days:g})"
+        return (f"commissioning {self.path}: written {self.record.created_utc}, {self.age_days():.1f} days "
+                f"old{limit}; residual rms ({rms}) nT; reference {ref.name} ({ref.type})")
+
+    def as_record(self) -> dict:
+        """What a session records of it (a resume uses exactly this)."""
+        return {"path": str(self.path), "sha256": sha256_text(self.text), "text": self.text}
+
+
+def parse_utc(text: str) -> dt.datetime:
+    return dt.datetime.strptime(text, "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=dt.UTC)
+
+
+def utc_text(moment: dt.datetime) -> str:
+    return moment.astimezone(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def content_digest(data: dict) -> str:
+    """sha256 of everything but the seal, in a canonical form (key order and YAML layout do not count)."""
+    body = {k: v for k, v in data.items() if k != "content_sha256"}
+    return sha256_text(json.dumps(body, sort_keys=True, separators=(",", ":")))
+
+
+class _PlainDumper(yaml.SafeDumper):
+    """Every value written out where it stands: no `&anchor`/`*alias` (the loader refuses them)."""
+
+    def ignore_aliases(self, data) -> bool:
+        return True
+
+
+def save(data: dict, path: Path) -> None:
+    """Seal and write atomically: the file appears whole or not at all."""
+    sealed = {**data, "content_sha256": content_digest(data)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as f:
+        yaml.dump(sealed, f, Dumper=_PlainDumper, sort_keys=False, default_flow_style=None, width=120)
+
+
+def file_path(station_path: str | Path, name: str) -> Path:
+    path = Path(name)
+    return path if path.is_absolute() else Path(station_path).parent / path
+
+
+def read(path: Path, text: str | None = None) -> Commissioning:
+    """Parse and check the file on its own (format, seal, a usable matrix or axes); ConfigError naming
+    the file, the key and its line."""
+    text = read_text(path) if text is None else text
+    record = load_model(CommissioningFile, path, text)
+
+    def refuse(key: KeyPath, what: str) -> ConfigError:
+        return ConfigError(locate_in_text(str(path), text, key, what))
+
+    data = yaml.safe_load(text)
+    if content_digest(data) != record.content_sha256:
+        raise refuse(("content_sha256",), "the file was edited after `rig commission` wrote it: commission "
+                     "the station again")
+    try:
+        parse_utc(record.created_utc)
+    except ValueError:
+        raise refuse(("created_utc",),
+                     f"{record.created_utc!r} is not a UTC time like 2026-01-31T12:00:00Z") from None
+    if record.kind == "coils":
+        section, size, key = record.coils, 12, "coils"
+        if section is None:
+            raise refuse(("coils",), "a coils commissioning needs its `coils:` section")
+        matrix = np.asarray(section.matrix_nt_per_a, float)
+        if np.linalg.cond(matrix) > MAX_CONDITION:
+            raise refuse(("coils", "matrix_nt_per_a"), "the matrix is singular (coil axes not independent)")
+    else:
+        section, size, key = record.table, 7, "table"
+        if section is None:
+            raise refuse(("table",), "a turntable commissioning needs its `table:` section")
+    cov = np.asarray(section.covariance, float)
+    if cov.shape != (size, size):
+        raise refuse((key, "covariance"), f"must be {size}x{size}, got {'x'.join(map(str, cov.shape))}")
+    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
+        raise refuse((key, "covariance"), "is not positive definite (not a covariance)")
+    return Commissioning(Path(path), text, record)
+
+
+def load_for_station(station, station_path: str | Path, station_text: str, *,
+                     now: dt.datetime | None = None) -> Commissioning | None:
+    """The station's commissioning file, read and checked against the station and its reference."""
+    source = station.field_source
+    name = source.commissioning
+    if name is None:
+        return None
+
+    def refuse_station(key: str, what: str) -> ConfigError:
+        return ConfigError(locate_in_text(str(station_path), station_text, ("field_source", key), what))
+
+    path = file_path(station_path, name)
+    if not path.is_file():
+        raise refuse_station("commissioning", f"{path}: file not found (write it with `rig commission "
+                             f"{station_path} --out {path.parent}`)")
+    com = read(path)
+
+    def refuse(key: KeyPath, what: str) -> ConfigError:
+        return ConfigError(locate_in_text(str(path), com.text, key, what))
+
+    record = com.record
+    if record.station != station.name:
+        raise refuse(("station",), f"made for station {record.station!r}, not {station.name!r}")
+    if record.kind != source.kind:
+        raise refuse(("kind",), f"commissions {record.kind}; station {station.name} has {source.kind}")
+    age = com.age_days(now)
+    if age > source.max_age_days:
+        raise refuse(("created_utc",), f"written {age:.0f} days ago, older than field_source.max_age_days "
+                     f"{source.max_age_days:g}: commission the station again")
+    _check_reference(station, station_path, record.reference_magnetometer, refuse)
+    return com
+
+
+def _check_reference(station, station_path, ref: ReferenceRecord, refuse) -> None:
+    """The reference it was measured with is still the station's, with the same calibration file."""
+    refs = {r.name: r for r in station.reference_magnetometers}
+    current = refs.get(ref.name)
+    if current is None:
+        raise refuse(("reference_magnetometer", "name"),
+                     f"measured with reference magnetometer {ref.name!r}, which the station no longer has")
+    cal_path = file_path(station_path, current.calibration)
+    try:
+        digest = sha256_file(cal_path)
+    except OSError:
+        digest = None
+    if digest != ref.calibration_sha256:
+        raise refuse(("reference_magnetometer", "calibration_sha256"),
+                     f"the calibration of {ref.name} ({cal_path}) has changed since commissioning: "
+                     "commission the station again")
+
+
+def apply(station, commissioning: Commissioning | None):
+    """The station with its field source using the commissioned matrix or axes (unchanged without)."""
+    if commissioning is None:
+        return station
+    return station.model_copy(update={"field_source": station.field_source.with_commissioning(commissioning)})
+
+
+def from_record(data: dict) -> Commissioning:
+    """A commissioning as a session recorded it (its seal still checked)."""
+    return read(Path(data["path"]), data["text"])
+

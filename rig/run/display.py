@@ -1,0 +1,141 @@
+"""What the operator sees while a campaign runs.
+
+LiveDisplay: a rich Live panel refreshed a few times a second: current point and step, chamber and DUT
+temperatures, settling state, recent events, ETA, and the streaming T24 fit of each DUT.
+PlainLog: one line per recorded point (stdout is not a terminal, or --no-live).
+Both are context managers built by `make_display(status, runner, live=...)`; the runner calls their
+`point_done(point_id)` after each stored point.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from rig.engine.executor import RunStatus
+
+# DUT rows the live panel shows; with more DUTs it shows those with the largest live residual and a count
+# (a 64-DUT table fills no screen, and redrawing it four times a second cost a third of a core)
+MAX_DUT_ROWS = 8
+
+
+def temperatures_text(temps_c: dict[str, float]) -> str:
+    """Each DUT's temperature, or their count and range when there are more than MAX_DUT_ROWS."""
+    if len(temps_c) > MAX_DUT_ROWS:
+        values = temps_c.values()
+        return f"{len(temps_c)} DUTs, {min(values):.2f} .. {max(values):.2f} C"
+    return ", ".join(f"{k} {v:.2f} C" for k, v in temps_c.items()) or "-"
+
+
+def fit_rows(summaries: dict[str, str], live: dict) -> list[tuple[str, str]]:
+    """(DUT, live fit text) rows: every DUT, or the MAX_DUT_ROWS with the largest residual and a count."""
+    if len(summaries) <= MAX_DUT_ROWS:
+        return list(summaries.items())
+
+    def rms(dut: str) -> float:
+        value = getattr(live.get(dut), "rms_nt", None)
+        return -1.0 if value is None else value
+
+    worst = sorted(summaries, key=rms, reverse=True)[:MAX_DUT_ROWS]
+    return [(dut, summaries[dut]) for dut in worst] + [
+        (f"+{len(summaries) - MAX_DUT_ROWS} more", "(largest live residual first; every DUT in the session)")]
+
+
+class _Progress:
+    """Points done and a wall-clock ETA from the pace of the points taken in this process."""
+
+    def __init__(self, status: RunStatus):
+        self.status = status
+        self.wall0 = time.perf_counter()
+        self.done0: int | None = None
+
+    def eta_text(self) -> str:
+        s = self.status
+        if self.done0 is None:
+            self.done0 = s.points_done
+        taken = s.points_done - self.done0
+        left = s.points_total - s.points_done
+        if taken <= 0 or left <= 0:
+            return "-" if left else "0 s"
+        per_point = (time.perf_counter() - self.wall0) / taken
+        return f"{per_point * left:.0f} s"
+
+
+class LiveDisplay:
+    def __init__(self, status: RunStatus, runner, console: Console | None = None):
+        self.status = status
+        self.runner = runner
+        self.progress = _Progress(status)
+        self.live = Live(get_renderable=self.render, console=console, refresh_per_second=4, transient=False)
+
+    def render(self):
+        s = self.status
+        head = Table.grid(padding=(0, 2))
+        head.add_row("point", f"{s.point_id or '-'}  ({s.points_done}/{s.points_total} done)",
+                     "command", s.command or "-")
+        chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f} C"
+        head.add_row("chamber", chamber, "DUTs", temperatures_text(s.dut_temps_c))
+        head.add_row("settling", s.settling or "-", "ETA", self.progress.eta_text())
+        fits = Table("DUT", "live T24 fit", box=None)
+        for dut, text in fit_rows(self.runner.live_summaries, getattr(self.runner, "live", {})):
+            fits.add_row(dut, text)
+        events = Text("\n".join(list(s.events)[-6:]) or "-", style="dim")
+        return Group(head, fits, Text("recent events:", style="bold"), events)
+
+    def point_done(self, point_id: str) -> None:
+        pass  # the panel refreshes itself
+
+    def suspended(self, prompt):
+        """`prompt` wrapped so that the panel stops while the operator answers."""
+        def ask(message: str) -> str:
+            self.live.stop()
+            try:
+                return prompt(message)
+            finally:
+                self.live.start()
+        return ask
+
+    def __enter__(self):
+        self.progress.eta_text()
+        self.runner.on_point.append(self.point_done)
+        self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.live.__exit__(*exc)
+
+
+class PlainLog:
+    def __init__(self, status: RunStatus, runner, stream=None):
+        self.status = status
+        self.runner = runner
+        self.progress = _Progress(status)
+        self.stream = stream or sys.stdout
+
+    def point_done(self, point_id: str) -> None:
+        s = self.status
+        temps = (temperatures_text(s.dut_temps_c) if len(s.dut_temps_c) > MAX_DUT_ROWS
+                 else " ".join(f"{k}={v:.2f}C" for k, v in s.dut_temps_c.items()))
+        chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f}C"
+        print(f"{point_id} done ({s.points_done + 1}/{s.points_total}) chamber={chamber} {temps} "
+              f"eta={self.progress.eta_text()}", file=self.stream, flush=True)
+
+    def __enter__(self):
+        self.progress.eta_text()
+        self.runner.on_point.append(self.point_done)
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+
+def make_display(status: RunStatus, runner, *, live: bool):
+    """The live panel when asked for and stdout is a terminal; plain per-point lines otherwise."""
+    if live and sys.stdout.isatty():
+        return LiveDisplay(status, runner)
+    return PlainLog(status, runner)

@@ -1,0 +1,295 @@
+"""Running a sequential schedule (rig/schedules/sequential.py): after the last point of each sweep, decide the next.
+
+A point runs as on a continuous ramp (rig/schedules/moving_tasks.py: StartRamp when its leg begins, AwaitAir, MoveField,
+Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from wherever the air is.
+CollectPoint of a sweep's last point calls `decide` with the point's rows before storing them:
+
+1. each DUT's data so far, its temperature moved to the element's (calib/lag.py, when the lag shows),
+   gives its Gram, noise and standard errors; the worst ratio to the targets (calib/targets.py);
+2. calib/planner.py `next_leg`: stop (every DUT meets its targets and the model check's temperatures are
+   done; or max_duration_h is reached), stay at the current leg's temperature, or start the next leg;
+3. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag behind the air
+   plus its recorded temperature's lag estimated so far);
+4. the sweep's fields: `fields_per_sweep` of the plan's fields, picked one by one for the largest drop
+   in the variance of the worst DUT's worst parameter (calib/design.py `gain_for`), at the temperature
+   its element is expected at.
+
+The decision and the sweep's points go into the session in the same transaction as the point itself
+(rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds exactly the points decided so far,
+whenever the run stopped; the engine gets the new tasks at the point's Checkpoint.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.design import gain_for, regressors, worst_parameter
+from calib.planner import CHECK, END, DutModel, Leg, State, crossing_rate, next_leg, temp_ref_of
+from rig.config import SequentialTemperatures
+from rig.core.errors import ERRORS
+from rig.core.points import RampPoint
+from rig.engine.commands import Task
+from rig.schedules.check import field_targets
+from rig.schedules.moving_tasks import RampMode
+from rig.schedules.sequential import SequentialSchedule
+from rig.session.events import Kind, Reason
+from rig.session.rows import Decision
+
+log = logging.getLogger("magrig.seqrun")
+
+MIN_LAG_ROWS = 200  # fewer rows than this: the lag is not estimated yet
+
+
+@dataclass
+class _Rows:
+    """One DUT's samples so far, in time order (t, h, recorded temperature, reference)."""
+
+    t: list = field(default_factory=list)
+    h: list = field(default_factory=list)
+    temp: list = field(default_factory=list)
+    ref: list = field(default_factory=list)
+    direction: str = "auto"  # the lag model found first (calib/lag.py); kept after, as fitting both is slow
+
+    def extend(self, t, h, temp, ref) -> None:
+        self.t.extend(np.asarray(t, float).tolist())
+        self.h.extend(np.asarray(h, float).reshape(-1, 3).tolist())
+        self.temp.extend(np.asarray(temp, float).tolist())
+        self.ref.extend(np.asarray(ref, float).reshape(-1, 3).tolist())
+
+    def arrays(self):
+        return (np.array(self.t), np.array(self.h).reshape(-1, 3), np.array(self.temp),
+                np.array(self.ref).reshape(-1, 3))
+
+
+@dataclass
+class Measured:
+    """What one DUT's data says now."""
+
+    gram: np.ndarray
+    sigma_nt: float | None
+    ratio: float
+    element_c: float | None
+    lag_s: float | None
+    lag_se_s: float | None
+
+
+def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measured:
+    """Gram, noise, worst target ratio and element temperature of one DUT from its rows so far."""
+    from calib.gram import GramAccumulator
+    from calib.lag import estimate_lag
+    from calib.targets import check_targets
+
+    t, h, temp, ref = rows.arrays()
+    acc = GramAccumulator(temp_ref_c)
+    if len(t) == 0:
+        return Measured(acc.gram[:8, :8].copy(), None, math.inf, None, None, None)
+    corrected, lag, lag_se = temp, None, None
+    if len(t) >= MIN_LAG_ROWS:
+        try:
+            res = estimate_lag(t, h, temp, ref, direction=rows.direction)
+        except ERRORS as exc:
+            log.info("lag not estimated: %s", exc)
+        else:
+            if res.identifiable:
+                corrected, lag, lag_se = res.temp_element_c, res.tau_s, res.tau_se_s
+                rows.direction = res.direction
+    acc.add(h, corrected, ref)
+    status = check_targets(acc, targets)
+    sigma = None
+    if math.isfinite(status.worst_ratio):
+        sigma = max(acc.solve().stats["sigma_nt"].values())
+    return Measured(acc.gram[:8, :8].copy(), sigma, status.worst_ratio, float(corrected[-1]), lag, lag_se)
+
+
+class SequentialMode(RampMode):
+    """The ramp-like tasks of a sequential plan, and its decisions (see the module docstring)."""
+
+    def __init__(self, runner):
+        super().__init__(runner, settle_at_start=False)
+        plan, station = runner.plan, runner.rig.station
+        self.temps: SequentialTemperatures = plan.temperatures
+        self.schedule = SequentialSchedule(plan, station, field_targets(plan, station))
+        self.targets = plan.se_targets()
+        self.temp_ref_c = temp_ref_of(self.schedule.chamber())
+        from rig.schedules.design import station_duts
+
+        self.priors = {d.name: d for d in station_duts(plan, station)[0]}
+        self.rows = {dut: _Rows() for dut in runner.rig.duts}
+        self.pending: list[RampPoint] = []
+        self.stop_message: tuple[str, Reason] | None = None
+        self.started_s: float | None = None
+        runner.decide = self.decide
+        runner.on_point.append(self.after_checkpoint)
+
+    # --- data ------------------------------------------------------------------------------------------
+    def preload(self, session_path) -> None:
+        """On resume: the rows the session already holds."""
+        from rig.session.reader import SessionReader
+
+        with SessionReader(session_path) as reader:
+            self.started_s = reader.info()["started"]
+            for dut, rows in self.rows.items():
+                try:
+                    ds = reader.dataset(dut)
+                except ERRORS:
+                    continue
+                rows.extend(ds.columns["t"], ds.h_nt, ds.temp_c, ds.ref_nt)
+
+    def _add(self, rows) -> None:
+        for dut, buf in self.rows.items():
+            mine = [r for r in rows if r.dut == dut and not r.flags]
+            buf.extend([r.t for r in mine], [r.field_nt for r in mine], [r.temp_c for r in mine],
+                       [r.ref_field_nt for r in mine])
+
+    # --- the decision ----------------------------------------------------------------------------------
+    def decide(self, point: RampPoint, rows) -> Decision | None:
+        """Called with each point's rows before they are stored; the next sweep after a sweep's last point."""
+        self._add(rows)
+        if point.id != self.runner.points[-1].id:
+            return None
+        try:
+            data, points = self._next(point)
+        except ERRORS as exc:  # a decision must never end the run: go on with the same leg
+            log.warning("sequential decision failed (%s); one more sweep of the same leg", exc)
+            data, points = self._sweep_data(point, point.leg, point.sweep + 1, point.leg_start_c,
+                                            point.leg_end_c, point.ramp_c_per_min, self._picks(None, point),
+                                            f"decision failed: {exc}; one more sweep of the same leg", {})
+        if data.get("stop"):
+            self.stop_message = (data["reason"], Reason(data["code"]))
+        self.pending = points
+        return Decision(data, tuple(points))
+
+    def _elapsed_s(self) -> float:
+        if self.started_s is None:
+            self.started_s = self.runner.session.info()["started"]
+        return self.runner.rig.clock.now() - self.started_s
+
+    def _next(self, point: RampPoint) -> tuple[dict, list[RampPoint]]:
+        measured = {dut: measure(rows, self.targets, self.temp_ref_c) for dut, rows in self.rows.items()}
+        ratios = {dut: m.ratio for dut, m in measured.items()}
+        info = {"ratios": {d: _num(r) for d, r in ratios.items()},
+                "sigma_nt": {d: _num(m.sigma_nt) for d, m in measured.items()},
+                "lag_s": {d: _num(m.lag_s) for d, m in measured.items()}}
+        elapsed = self._elapsed_s()
+        if elapsed + self.schedule.sweep_s > self.schedule.max_duration_s():
+            worst = max(ratios, key=ratios.__getitem__)
+            return {"stop": True, "code": Reason.TIME_BUDGET.value, **info,
+                    "reason": f"max_duration_h {self.temps.max_duration_h:g} reached; targets not met "
+                              f"({worst} at {ratios[worst]:.2f} x its target)"}, []
+        air = self.runner.status.chamber_c
+        air = point.setpoint_c if air is None else float(air)
+        state = State(elapsed, air,
+                      {d: (m.element_c if m.element_c is not None else air) for d, m in measured.items()},
+                      {d: m.gram for d, m in measured.items()})
+        duts = [DutModel(d, m.sigma_nt or self.priors[d].sigma_nt, self.priors[d].lag_s)
+                for d, m in measured.items()]
+        legs = self._legs_done()
+        rate = self._rate(measured)
+        pace = self._pace()
+        decision = next_leg(state, legs, duts, self.schedule.chamber(rate), pace, self.targets,
+                            max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios)
+        if decision.stop:
+            return {"stop": True, "code": Reason.TARGETS_MET.value, "reason": decision.reason, **info}, []
+        leg = decision.leg
+        if decision.new_leg:
+            number, sweep, from_c, rate_c = point.leg + 1, 1, air, leg.rate_c_per_min
+        else:
+            number, sweep = point.leg, point.sweep + 1
+            from_c, rate_c = point.leg_start_c, point.ramp_c_per_min
+        worst = max(ratios, key=ratios.__getitem__)
+        picks = self._picks(measured[worst] if math.isfinite(ratios[worst]) else None, point, leg.to_c)
+        return self._sweep_data(point, number, sweep, from_c, leg.to_c, rate_c, picks, decision.reason,
+                                {**info, "worst_dut": worst, "kind": leg.kind})
+
+    def _sweep_data(self, point, leg: int, sweep: int, from_c: float, to_c: float, rate: float,
+                    picks: list[int],
+                    reason: str, info: dict) -> tuple[dict, list[RampPoint]]:
+        data = {"stop": False, "leg": leg, "sweep": sweep, "from_c": from_c, "to_c": to_c,
+                "rate_c_per_min": rate, "picks": picks, "reason": reason, **info}
+        decided = self.runner.session.decisions()
+        points = self.schedule.sweep_points(leg=leg, sweep=sweep, from_c=from_c, to_c=to_c,
+                                            rate_c_per_min=rate,
+                                            picks=picks, first_index=point.index + 1,
+                                            first_temp_index=len(decided) + 2)
+        return data, points
+
+    def _pace(self):
+        """The estimated sweep, timed as the points so far were taken once a sweep's worth are (median,
+        so that a point waiting for the air does not count)."""
+        from calib.planner import Pace
+
+        pace = self.schedule.pace(self.schedule.first_picks())
+        taken = list(self.runner.status.point_durations_s)
+        if len(taken) >= 10:
+            pace = Pace(pace.fields_nt, pace.samples, float(np.median(taken)))
+        return pace
+
+    def _legs_done(self) -> list[Leg]:
+        """The legs so far (from the points, all taken by now), each with its sweeps."""
+        checks = set(self.temps.checks())
+        legs: dict[int, Leg] = {}
+        for p in self.runner.points:
+            legs[p.leg] = Leg(p.leg_end_c, max(p.sweep, legs[p.leg].sweeps if p.leg in legs else 0),
+                              p.ramp_c_per_min, CHECK if p.leg_end_c in checks else END, p.leg_start_c)
+        return [legs[k] for k in sorted(legs)]
+
+    def _rate(self, measured: dict[str, Measured]) -> float:
+        """The plan's rate, no faster than the slowest DUT follows a crossing (calib/planner.py): its lag
+        behind the air plus the lag of its recorded temperature as estimated so far (calib/lag.py)."""
+        lo, hi = sorted(self.temps.range_c)
+        slowest = max(self.priors[d].lag_s + (m.lag_s or 0.0) for d, m in measured.items())
+        return crossing_rate(self.schedule.rate(), hi - lo, slowest)
+
+    def _picks(self, worst: Measured | None, point: RampPoint, to_c: float | None = None) -> list[int]:
+        """The sweep's fields: the balanced first set while no fit exists, else those that teach the worst
+        DUT's worst parameter the most, chosen one by one with the Gram updated after each."""
+        if worst is None or self.schedule.n_pick == len(self.schedule.targets):
+            return self.schedule.first_picks()
+        h = self.schedule.nominal_fields()
+        temp = worst.element_c
+        if temp is None:
+            temp = to_c if to_c is not None else point.setpoint_c
+        x = regressors(h, np.full(len(h), temp), self.temp_ref_c)
+        gram = worst.gram.copy()
+        _, row = worst_parameter(gram, self.temp_ref_c, self.targets)
+        samples = self.runner.plan.samples_per_point
+        chosen: list[int] = []
+        free = np.ones(len(h), bool)
+        for _ in range(self.schedule.n_pick):
+            gains = np.where(free, gain_for(gram, self.temp_ref_c, row, x, samples), -np.inf)
+            k = int(np.argmax(gains))
+            chosen.append(k + 1)
+            free[k] = False
+            gram = gram + samples * np.outer(x[k], x[k])
+        return sorted(chosen)
+
+    # --- after the point is stored ---------------------------------------------------------------------
+    def after_checkpoint(self, point_id: str) -> None:
+        runner = self.runner
+        if self.pending:
+            added = self.pending
+            self.pending = []
+            runner.points.extend(added)
+            runner.engine.add_tasks(Task(p.id, functools.partial(self.point_commands, p)) for p in added)
+            last = runner.session.decisions()[-1]
+            runner.engine.event(Kind.DECISION, f"after {point_id}: {last['reason']}", code=Reason.DECIDED,
+                                point_id=point_id, leg=last["leg"], sweep=last["sweep"], to_c=last["to_c"],
+                                rate_c_per_min=last["rate_c_per_min"])
+        elif self.stop_message is not None:
+            message, code = self.stop_message
+            runner.engine.event(Kind.RUN, message, code=code, point_id=point_id)
+            runner.engine.request_stop(message, code)
+
+
+def _num(value) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def attach(runner) -> SequentialMode | None:
+    """The SequentialMode of a sequential plan (None for any other: rig/schedules/moving_tasks.py attaches those)."""
+    return SequentialMode(runner) if isinstance(runner.plan.temperatures, SequentialTemperatures) else None
