@@ -128,18 +128,18 @@ def campaign_figures(n: int) -> dict:
     """The short campaign on n DUTs of sim-64, in this process (run it in a new one: peak memory)."""
     from rig.analysis import postrun
     from rig.engine.executor import Engine
-    from rig.run import campaign, display
+    from rig.run import campaign, display, runner
     from rig.session.writer import Session
 
     timers = Timers()
-    timers.wrap(campaign, "read_all", "device I/O")  # every DUT's and sensor's reading of a sample
+    timers.wrap(runner, "read_all", "device I/O")  # every DUT's and sensor's reading of a sample
     timers.wrap(Session, "record_point", "store")
-    timers.wrap(campaign.CampaignRunner, "_feed_live", "live fits")
+    timers.wrap(runner.CampaignRunner, "_feed_live", "live fits")
     timers.wrap(postrun, "fit_session", "post-run fits")
     timers.wrap(Engine, "run", "run")
     renders: list[float] = []
     reading_sim_s: list[float] = []
-    collect = campaign.CampaignRunner.collect_point
+    collect = runner.CampaignRunner.collect_point
 
     def instrument(rig) -> None:
         for dev in rig.devices():
@@ -153,17 +153,17 @@ def campaign_figures(n: int) -> dict:
             finally:
                 reading_sim_s.append(rig.clock.now() - t0)
 
-        campaign.CampaignRunner.collect_point = timed_collect
+        runner.CampaignRunner.collect_point = timed_collect
 
-    def live_view(status, runner):  # the live panel, rendered after every point into a null console
-        view = display.LiveDisplay(status, runner, console=Console(file=io.StringIO(), width=120))
+    def live_view(status, run):  # the live panel, rendered after every point into a null console
+        view = display.LiveDisplay(status, run, console=Console(file=io.StringIO(), width=120))
 
         def render(point_id: str) -> None:
             t0 = time.perf_counter()
             view.live.console.print(view.render())
             renders.append(time.perf_counter() - t0)
 
-        runner.on_point.append(render)
+        run.on_point.append(render)
         return None
 
     with tempfile.TemporaryDirectory() as tmp:

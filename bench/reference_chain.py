@@ -43,7 +43,11 @@ from calib.calibration import Calibration
 from calib.uncertainty import raw_for
 from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
 from rig.config import load_station
-from rig.devices.bench import dut_truths, true_position_m
+from rig.devices.bench import (
+    dut_truths,
+    true_position_m,
+    world_field,  # noqa: E402
+)
 from rig.reference import budget
 from rig.reference.loading import load_campaign
 from rig.reference.procedure import commission
@@ -89,7 +93,7 @@ class Truth:
     """What the simulated world of a station is made of (the same keywords rig/devices/bench.py gives it)."""
 
     def __init__(self, station):
-        world = station.field_source.world_field(station.sim)
+        world = world_field(station)
         self.station = station
         self.matrix = np.asarray(world["coil_constants_nt_per_a"], float)
         geometry = world.get("coil_geometry")
@@ -144,7 +148,7 @@ def three_references(station_path: Path, plan_path: Path, out: Path) -> None:
         worst = 0.0
         for dut in [d.name for d in station.duts]:
             ds, _ = inputs.refined(reader.dataset(dut))  # as the rig fits it: the run's best ambient
-            chain = budget.CoilChain(inputs, dut, ds)  # the currents of every sample
+            chain = inputs.station.field_source.budget_chain(inputs, dut, ds)  # the currents of every sample
             grid = validation_grid(ds.temp_c)
             refs = {
                 "a": chain.currents @ declared.T + chain.ambient,

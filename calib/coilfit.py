@@ -118,4 +118,4 @@ def _check_response(fit: CoilFit) -> None:
         size = float(np.linalg.norm(fit.matrix_nt_per_a[:, j]))
         if size < MIN_RESPONSE_SE * float(np.linalg.norm(se[:, j])):
             raise FitError(f"coil {AXES[j]} does not respond: its field changes by {size:.3g} nT/A, "
-                           f"within {MIN_RESPONSE_SE:g} standard errors of nothing")
+                           f"within {MIN_RESPONSE_SE:g} standard errors of nothing", axis=AXES[j])

@@ -12,4 +12,9 @@ class DataError(CalibError):
 
 
 class FitError(CalibError):
-    """A fit cannot be made or trusted (singular design, too few rows); names the parameter group."""
+    """A fit cannot be made or trusted (singular design, too few rows); names the parameter group.
+    `axis` names the axis ("x", "y", "z") when the trouble is one axis's."""
+
+    def __init__(self, message: str, *, axis: str | None = None):
+        super().__init__(message)
+        self.axis = axis

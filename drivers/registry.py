@@ -33,7 +33,7 @@ from drivers.base import Device
 
 ROLES = ("chamber", "field_source", "magnetometer", "temperature")
 DRIVER_MODULES = (
-    "drivers.chamber",
+    "drivers.watlow",
     "drivers.coils",
     "drivers.turntable",
     "drivers.mmc5983ma",

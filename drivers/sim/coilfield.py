@@ -1,6 +1,6 @@
 """The simulated coil set's true field at any point: numerical Biot-Savart over its loops.
 
-An implementation of its own, apart from the rig's closed forms (rig/fieldsources/coilgeometry.py), so
+An implementation of its own, apart from the rig's closed forms (rig/fieldsources/coils/geometry.py), so
 that a mistake in either shows as a disagreement: each loop is integrated numerically (Gauss-Legendre
 nodes along every side of a square, the trapezoidal rule around a circle, both converging far faster
 than the accuracy needed here).

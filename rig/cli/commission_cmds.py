@@ -27,6 +27,7 @@ def register(group: click.Group) -> None:
         """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
         reference magnetometer and write the commissioning file a station names in
         `field_source: {commissioning: FILE}`."""
+        from rig.config import load_station
         from rig.reference.commissioning_file import read
         from rig.reference.procedure import commission
 
@@ -36,15 +37,6 @@ def register(group: click.Group) -> None:
         com = read(path)
         click.echo(f"wrote {path}")
         click.echo(com.summary())
-        if com.kind == "coils":
-            c = com.record.coils
-            for i, (row, se) in enumerate(zip(c.matrix_nt_per_a, c.std_errors_matrix_nt_per_a, strict=True)):
-                cells = "  ".join(f"{v:11.2f} +- {e:6.2f}" for v, e in zip(row, se, strict=True))
-                click.echo(f"  {'xyz'[i]}: {cells}  nT/A")
-            click.echo("  ambient (" + ", ".join(f"{v:.1f}" for v in c.ambient_nt) + ") nT; nonlinearity ("
-                       + ", ".join(f"{v:.0f}" for v in c.nonlinearity_ppm) + f") ppm; hysteresis "
-                       f"{c.hysteresis_nt:.1f} nT; drift {c.drift_nt:.1f} nT")
-        else:
-            t = com.record.table
-            click.echo("  " + ", ".join(f"{k} {v:.4g} +- {t.std_errors[k]:.2g}" for k, v in t.params.items()))
-            click.echo(f"  drift {t.drift_nt:.1f} nT")
+        station = load_station(station_path)
+        for line in station.field_source.commissioning_lines(com.section):
+            click.echo(line)

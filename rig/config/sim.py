@@ -12,7 +12,7 @@ from pydantic import Field
 
 from rig.core.configbase import Strict
 from rig.core.numbers import ANGLE_DEG, DAY_S, NT_MAX, NT_VEC, TEMP_C, Count, bounded, bounded_vec3
-from rig.fieldsources.coilgeometry import CoilGeometry
+from rig.fieldsources.coils.geometry import CoilGeometry
 
 Row = bounded_vec3(100.0)  # a row of S (scale: 1 is nominal)
 KRow = bounded_vec3(1.0)  # a row of K (per degC)

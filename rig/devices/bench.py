@@ -7,7 +7,7 @@ whose transport is `{kind: sim}`. The only production module that imports driver
     bench.stop()
 
 Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
-field source (`world_field`), the DUT truths and the simulator's defaults from drivers/sim/truths.py.
+field source (`world_field`: the `sim:` truth over what the station declares), the DUT truths and the simulator's defaults from drivers/sim/truths.py.
 A station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share
 the world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads
 a mount that follows the simulated air.
@@ -36,6 +36,7 @@ from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.core.configbase import ModbusTcp
 from rig.devices.links import muxed, open_link
+from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
 
 LOOPBACK = "127.0.0.1"
 FAULTY_TIMEOUT_S = 0.3  # a simulator answers within ms: a lost reply need not cost the usual second
@@ -91,10 +92,34 @@ def chamber_ramp_c_per_min() -> float:
     return CHAMBER_RAMP_C_PER_MIN
 
 
+def world_field(station) -> dict:
+    """The simulated field source's keywords: the station's `sim:` truth where it states one, else what
+    the station declares (else a typical field)."""
+    sim = station.sim
+    out = station.field_source.declared_world()
+    truth = {"ambient_nt": sim.ambient_nt, "site_field_nt": sim.site_field_nt,
+             "coil_constants_nt_per_a": sim.coil_constants_nt_per_a,
+             "coil_geometry": None if sim.coil_geometry is None else
+             (sim.coil_geometry.shape, tuple(sim.coil_geometry.size_m), tuple(sim.coil_geometry.spacing_m))}
+    for key, value in truth.items():
+        if key in out and value is not None:
+            out[key] = value if key == "coil_geometry" else np.asarray(value, float)
+    for key in ("ambient_nt", "site_field_nt"):
+        if key in out and out[key] is None:
+            out[key] = np.asarray(TYPICAL_FIELD_NT, float)
+    out["coil_nonlinearity_per_a"] = np.asarray(sim.coil_nonlinearity_per_a, float)
+    axes = sim.turntable_axes
+    out["turntable_axes"] = None if axes is None else (tuple(axes.az_tilt_deg), axes.el_tilt_deg,
+                                                       tuple(axes.zero_offsets_deg))
+    if sim.ambient_drift_nt_per_h is not None:  # nT/h in the station, nT/s in the world
+        out["ambient_drift_nt_per_s"] = np.asarray(sim.ambient_drift_nt_per_h, float) / 3600.0
+    return out
+
+
 def make_world(station, clock: Clock) -> World:
     air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
     world = World(clock, air_c=air_c, seed=station.sim.seed, ramp_c_per_min=CHAMBER_RAMP_C_PER_MIN,
-                  **station.field_source.world_field(station.sim))
+                  **world_field(station))
     for name, truth in (dut_truths(station) | reference_truths(station)).items():
         world.add_dut(name, truth)
     for sensor in station.temperature_sensors:

@@ -7,18 +7,26 @@ spec of role "field_source" and the same type, and one line in KINDS below.
 
 from __future__ import annotations
 
-from typing import Annotated, Union
+from typing import Annotated, Union, get_args
 
 from pydantic import Field
 
 from rig.fieldsources.base import FieldSourceConfig, makers_of
-from rig.fieldsources.coils import Coils
-from rig.fieldsources.turntable import SiteFromModel, SiteFromReference, SiteFromVector, Turntable
+from rig.fieldsources.coils.config import Coils
+from rig.fieldsources.turntable.config import SiteFromModel, SiteFromReference, SiteFromVector, Turntable
 
 KINDS: tuple[type[FieldSourceConfig], ...] = (Coils, Turntable)
 
 FieldSource = Annotated[Union[KINDS], Field(discriminator="kind")]  # noqa: UP007 - built from KINDS
 
 
-__all__ = ["KINDS", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",
+def kind_class(kind: str) -> type[FieldSourceConfig]:
+    """The registry entry of a field-source kind named in a file (e.g. a commissioning file's `kind:`)."""
+    for cls in KINDS:
+        if kind in get_args(cls.model_fields["kind"].annotation):
+            return cls
+    raise KeyError(kind)
+
+
+__all__ = ["KINDS", "kind_class", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",
            "SiteFromVector", "Turntable", "makers_of"]

@@ -8,8 +8,8 @@ A field source is the station's `field_source:` (a pydantic model with `kind:`) 
   device's readback into the reference field (rig/fieldsources/fieldmaths.py);
 - `nominal_field_nt(target)`: the field at the sensor for design checks; `move_time_s(targets)`;
   `settle_timeout_s()`; `check_targets(...)`: limit checks for `rig check`;
-- `prepare(device)`: what to do before the first move (home a table); `world_field(sim)`: the simulated
-  world's field keywords (drivers/sim/world.py);
+- `prepare(device)`: what to do before the first move (home a table); `declared_world()`: what the station
+  declares of its field, as the simulated world's keywords (the simulated bench adds the `sim:` truth);
 - `station_problems(dut_names, reference_names)`: cross-references into the rest of the station.
 A field source whose reference needs a measured quantity (ambient "measure", a site field from a
 reference magnetometer; rig/reference/sitefield.py does the measuring) says so:
@@ -36,7 +36,6 @@ from rig.core.numbers import MODBUS_UNIT, bounded
 from rig.core.yamlload import blamed
 
 if TYPE_CHECKING:
-    from rig.config.sim import SimWorld
     from rig.core.points import Point
 
 SETTLE_TIMEOUT_S = 5.0  # readbacks reach their setpoints well within this; movers add their travel
@@ -147,12 +146,58 @@ class FieldSourceConfig(DeviceConfig):
     def check_measured(self, plan_name: str, points: list[Point], measured_nt) -> None:
         """The plan's limits again once the measured value is known; LimitError naming point and limit."""
 
+    # --- the reference chain (rig/reference/): what each kind answers for itself ----------------------
+    commissioning_section: ClassVar[str] = ""  # its section of the commissioning file ("coils", "table")
+    commissioning_covariance_size: ClassVar[int] = 0  # the size of that section's covariance
+
+    def commissioning_design(self, current_a: float | None, repeats: int) -> list[tuple[tuple[float, ...], str]]:
+        """The settings `rig commission` measures the reference at, each with what it drives (messages)."""
+        raise NotImplementedError
+
+    def commissioning_reference_problem(self, position_mm) -> str | None:
+        """Why a reference magnetometer at `position_mm` cannot commission this source (None: it can)."""
+        return None
+
+    def fit_commissioning(self, readings, reference_position_mm) -> dict:
+        """The commissioning file's section, fitted from `readings` (rig.fieldsources.commissioning.Reading);
+        DeviceFault naming the axis that does not behave."""
+        raise NotImplementedError
+
+    @classmethod
+    def commissioning_section_problem(cls, section) -> tuple[tuple, str] | None:
+        """(key path, what is wrong) with a commissioning file's section of this kind, beyond its schema."""
+        return None
+
+    def commissioning_lines(self, section) -> list[str]:
+        """What `rig commission` prints of the section it wrote."""
+        return []
+
+    def chain_record(self, positions_mm: dict) -> dict:
+        """What a session records of this source's reference chain beyond the commissioning file."""
+        return {}
+
+    def reference_check_lines(self, station, plan, warnings: list[str]) -> list[str]:
+        """`rig check`'s lines on the reference chain; LimitError where the plan's accuracy target fails."""
+        return []
+
+    def budget_chain(self, run, dut: str, ds):
+        """The budget's sources of the reference field for one DUT's data: an object whose
+        `sources(notes)` lists calib.uncertainty Sources (rig/reference/budget.py RunInputs is `run`)."""
+        raise NotImplementedError
+
+    def measures_ambient(self) -> bool:
+        """True when the ambient the coils add to is measured during the run (its drift is modelled)."""
+        return False
+
     # --- station and simulation --------------------------------------------------------------------
     def station_problems(self, dut_names: set[str],
                          reference_names: Sequence[str] = ()) -> list[tuple[tuple, str]]:
         return []
 
-    def world_field(self, sim: SimWorld) -> dict:
+    def declared_world(self) -> dict:
+        """What the station declares of the field this source makes, as keywords of the simulated world
+        (drivers/sim/world.py); the simulated bench (rig/devices/bench.py) lays the station's `sim:` truth
+        over them. None: not declared (measured during the run)."""
         raise NotImplementedError
 
 
@@ -165,9 +210,3 @@ def makers_of(field_kind: str) -> str:
 def only_reference(reference_names: Sequence[str]) -> str | None:
     """The station's reference magnetometer when it has exactly one (None otherwise)."""
     return reference_names[0] if len(reference_names) == 1 else None
-
-
-def drift_keywords(sim: SimWorld) -> dict:
-    """The simulated world's slow ambient drift (nT/h in the station, nT/s in the world)."""
-    drift = sim.ambient_drift_nt_per_h
-    return {} if drift is None else {"ambient_drift_nt_per_s": np.asarray(drift, float) / 3600.0}

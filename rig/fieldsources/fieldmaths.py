@@ -3,7 +3,7 @@
 Coils (lab frame):      B = C @ I + ambient        C: coil constants 3x3 (nT/A), I: currents (A)
                         I = C^-1 (B - ambient)     (`currents_for_field`, with C at the centre)
                         a DUT off the centre sees B = C(r) @ I + ambient, C(r) from the coil geometry
-                        (rig/fieldsources/coils.py, coilgeometry.py)
+                        (rig/fieldsources/coils/config.py, coils/geometry.py)
 Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.turntable.rotation_deg);
                         the table's home pose has x north, y east, z down, so B_site is NED. A
                         commissioned table (calib/tablefit.py) adds its axes' tilt and zero offsets.

@@ -12,8 +12,6 @@ every sample can be recomputed under other assumptions (the uncertainty budget, 
 
 from __future__ import annotations
 
-import numpy as np
-
 from rig.reference import commissioning_file
 
 SNAPSHOT = "reference chain"
@@ -27,11 +25,7 @@ def record(station, reference_calibrations: dict | None = None) -> dict:
                  "reference_calibrations": {name: cal.to_dict()
                                             for name, cal in (reference_calibrations or {}).items()},
                  "positions_mm": {name: None if p is None else list(p) for name, p in positions.items()}}
-    if source.kind == "coils":
-        out["centre_matrix_nt_per_a"] = np.asarray(source.constants, float).tolist()
-        out["matrices_nt_per_a"] = {name: np.asarray(m, float).tolist()
-                                    for name, m in source.matrices_at(positions).items()}
-    return out
+    return out | source.chain_record(positions)
 
 
 def recorded_plan_and_station(path, info: dict, snapshot: dict | None):

@@ -31,10 +31,10 @@ from rig.core.configbase import Strict
 from rig.core.errors import ConfigError
 from rig.core.numbers import NT_VEC, FiniteFloat, Vec3
 from rig.core.yamlload import KeyPath, load_model, locate_in_text, read_text
+from rig.fieldsources import kind_class
 
 FORMAT_NAME = "magrig-commissioning"
 FORMAT_VERSION = 1
-MAX_CONDITION = 1e6  # a coil matrix worse conditioned than this cannot be inverted for currents
 
 
 class ReferenceRecord(Strict):
@@ -107,9 +107,13 @@ class Commissioning:
         return np.asarray(self.record.coils.matrix_nt_per_a, float)
 
     @property
+    def section(self) -> CoilsRecord | TableRecord:
+        """What was measured: the `coils:` or the `table:` section (a checked file has one of them)."""
+        return self.record.coils if self.record.coils is not None else self.record.table
+
+    @property
     def covariance(self) -> np.ndarray:
-        section = self.record.coils if self.kind == "coils" else self.record.table
-        return np.asarray(section.covariance, float)
+        return np.asarray(self.section.covariance, float)
 
     @property
     def table_params(self) -> np.ndarray:
@@ -126,8 +130,7 @@ class Commissioning:
         return (now - self.created).total_seconds() / 86_400.0
 
     def residual_rms_nt(self) -> list[float]:
-        section = self.record.coils if self.kind == "coils" else self.record.table
-        value = section.residual_rms_nt
+        value = self.section.residual_rms_nt
         return list(value) if isinstance(value, tuple | list) else [value]
 
     def summary(self, max_age_days: float | None = None) -> str:
@@ -195,17 +198,15 @@ def read(path: Path, text: str | None = None) -> Commissioning:
     except ValueError:
         raise refuse(("created_utc",),
                      f"{record.created_utc!r} is not a UTC time like 2026-01-31T12:00:00Z") from None
-    if record.kind == "coils":
-        section, size, key = record.coils, 12, "coils"
-        if section is None:
-            raise refuse(("coils",), "a coils commissioning needs its `coils:` section")
-        matrix = np.asarray(section.matrix_nt_per_a, float)
-        if np.linalg.cond(matrix) > MAX_CONDITION:
-            raise refuse(("coils", "matrix_nt_per_a"), "the matrix is singular (coil axes not independent)")
-    else:
-        section, size, key = record.table, 7, "table"
-        if section is None:
-            raise refuse(("table",), "a turntable commissioning needs its `table:` section")
+    kind = kind_class(record.kind)  # the field source's registry entry answers for its section
+    key = kind.commissioning_section
+    section = getattr(record, key)
+    if section is None:
+        raise refuse((key,), f"a {record.kind} commissioning needs its `{key}:` section")
+    problem = kind.commissioning_section_problem(section)
+    if problem is not None:
+        raise refuse((key, *problem[0]), problem[1])
+    size = kind.commissioning_covariance_size
     cov = np.asarray(section.covariance, float)
     if cov.shape != (size, size):
         raise refuse((key, "covariance"), f"must be {size}x{size}, got {'x'.join(map(str, cov.shape))}")
@@ -237,8 +238,8 @@ def load_for_station(station, station_path: str | Path, station_text: str, *,
     record = com.record
     if record.station != station.name:
         raise refuse(("station",), f"made for station {record.station!r}, not {station.name!r}")
-    if record.kind != source.kind:
-        raise refuse(("kind",), f"commissions {record.kind}; station {station.name} has {source.kind}")
+    if getattr(record, source.commissioning_section) is None:
+        raise refuse(("kind",), f"commissions {record.kind}; station {station.name} has {source.described}")
     age = com.age_days(now)
     if age > source.max_age_days:
         raise refuse(("created_utc",), f"written {age:.0f} days ago, older than field_source.max_age_days "

@@ -1,4 +1,5 @@
-"""The campaign: plan points as engine tasks (command generators), the handlers the engine calls, a run.
+"""A campaign run: the session, its lock, the rig, the engine and the runner's tasks (rig/run/runner.py),
+then the post-run fits, whatever happens in between.
 
     outcome = run_campaign(campaign=load_campaign(plan_path), session_path=path)   # or resume=True
     outcome.result.status, outcome.result.reason, outcome.fits
@@ -8,264 +9,36 @@ What run_campaign does with the pieces:
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session, ...)
     runner.engine = engine
     engine.run(runner.tasks(), done_ids=session.done_point_ids())
-
-Step and dwell: a point sets the chamber and waits for every DUT's temperature to be stable when the
-temperature step changes (or when it is retaken after a hold or a pause), then moves the field, lets it
-settle and collects `samples` readings from every DUT with each DUT's temperature and the reference
-field of that very sample. The point is stored in one transaction.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import logging
 import os
 import time
-from collections.abc import Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import numpy as np
 
 from drivers.clock import Clock
 from rig import config as cfg
 from rig.analysis import postrun
-from rig.analysis.livefit import LiveFit
 from rig.core.errors import ERRORS, ConfigError, SessionError
 from rig.core.points import Point
 from rig.devices.build import Rig, open_rig
-from rig.devices.interleave import read_all
-from rig.engine.commands import (
-    Checkpoint,
-    CollectPoint,
-    Hold,
-    MoveField,
-    SetChamber,
-    Settle,
-    Task,
-    WaitStable,
-)
 from rig.engine.executor import COMPLETED, Engine, RunResult, RunStatus
-from rig.engine.frozen import FrozenReadings
-from rig.engine.stability import STABLE, TIMEOUT, SettleCriteria, StabilityDetector, criteria_of
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.fieldsources.fieldmaths import reference_for
 from rig.reference import chain_record, sitefield
+from rig.run.runner import CampaignRunner
 from rig.schedules.compile import check_campaign
 from rig.schedules.sequential import decided_points
 from rig.session.events import Kind, Reason
 from rig.session.inbox import Inbox
 from rig.session.lock import SessionLock
-from rig.session.rows import SampleRow
-from rig.session.temperature_log import TemperatureLog
 
 log = logging.getLogger("magrig.campaign")
-
-HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many settling bands before the point is held
-
-
-def poll_interval_s(criteria: SettleCriteria) -> float:
-    """Temperature poll while settling: about 8 samples per dwell window, between 2 and 30 s."""
-    return min(30.0, max(2.0, criteria.dwell_s / 8.0))
-
-
-class CampaignRunner:
-    def __init__(self, rig: Rig, plan: cfg.Plan, points: list[Point], session,
-                 status: RunStatus | None = None):
-        self.rig = rig
-        self.plan = plan
-        self.points = points
-        self.session = session
-        self.status = status or RunStatus()
-        self.engine: Engine | None = None
-        self.source = rig.station.field_source  # the field source's config: how to drive and read it
-        # a measured ambient / site field: the reference is made once it is measured (measure_site_field)
-        self.reference = None if self.source.needs_measurement() else reference_for(rig.station)
-        self.site = None  # rig.reference.sitefield.SiteFieldMonitor when the field source needs a measurement
-        self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
-        temps = [p.setpoint_c for p in points] or [25.0]
-        self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
-        self.live_summaries = {name: "no data yet" for name in rig.duts}
-        self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
-        self._settle_stats: dict = {}
-        self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
-        self.temperatures = TemperatureLog(session)  # what the cockpit plots between points
-        self.decide = None  # (point, rows) -> store.Decision | None: a schedule decided during the run
-        from rig.schedules import moving_tasks, sequential_run
-
-        # tasks of a schedule that samples while the temperature moves (None for steps); stop_when
-        self.ramp = sequential_run.attach(self) or moving_tasks.attach(self)
-
-    # --- the plan as generators -------------------------------------------------------------------
-    def tasks(self) -> list[Task]:
-        if self.ramp is not None:
-            return self.ramp.tasks()
-        return [Task(p.id, functools.partial(self.point_commands, p)) for p in self.points]
-
-    def point_commands(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
-        criteria = criteria_of(point.stability)
-        if retake or self.stable_at_c != point.setpoint_c:
-            self.stable_at_c = None
-            yield SetChamber(point.setpoint_c, point.ramp_c_per_min)
-            self._settle_stats = yield WaitStable(point.setpoint_c, criteria)
-            self.stable_at_c = point.setpoint_c
-        yield MoveField(point.command)
-        yield Settle(point.settle_s)
-        yield CollectPoint(point, criteria.band_c * HOLD_BAND_FACTOR)
-        yield Checkpoint(point.id)
-
-    # --- handlers ---------------------------------------------------------------------------------
-    def handlers(self) -> dict:
-        return {SetChamber: self.set_chamber, WaitStable: self.wait_stable, MoveField: self.move_field,
-                Settle: self.settle, CollectPoint: self.collect_point, Checkpoint: self.checkpoint,
-                **(self.ramp.handlers() if self.ramp is not None else {})}
-
-    def set_chamber(self, cmd: SetChamber) -> None:
-        chamber = self.rig.chamber
-        if cmd.ramp_c_per_min is not None and getattr(chamber, "ramps_setpoint", False):
-            chamber.set_ramp_rate(cmd.ramp_c_per_min)
-        chamber.set(cmd.temp_c)
-        self.status.settling = f"chamber -> {cmd.temp_c:g} degC"
-
-    def _check_chamber(self) -> None:
-        reading = self.rig.chamber.read()
-        self.status.chamber_c = reading.air_c
-        self.temperatures.note(reading, self.status.dut_temps_c)
-        if reading.fault:
-            code = (Reason.CHAMBER_ALARM if reading.alarm else
-                    Reason.CHAMBER_SENSOR if reading.input_error else Reason.CHAMBER_OFF_COURSE)
-            raise Hold(f"chamber {reading.problem}", code=code, device=self.rig.chamber.name)
-
-    def _dut_temps(self, cache: dict | None = None) -> dict[str, float | None]:
-        """Each DUT's temperature from its temp source (a sensor is read once per call)."""
-        cache = {} if cache is None else cache
-        out = {}
-        for dut, source in self.rig.temp_sources.items():
-            if source.name not in cache:
-                cache[source.name] = source.read()
-            out[dut] = cache[source.name].temp_c
-        return out
-
-    def wait_stable(self, cmd: WaitStable) -> dict:
-        """Poll the DUT temperatures until all are stable; Hold on alarm or at the hard maximum wait."""
-        clock = self.rig.clock
-        detectors = {dut: StabilityDetector(cmd.target_c, cmd.criteria) for dut in self.rig.duts}
-        poll_s = poll_interval_s(cmd.criteria)
-        start = clock.now()
-        while True:
-            self._check_chamber()
-            temps = self._dut_temps()
-            t = clock.now()
-            for dut, temp_c in temps.items():
-                if temp_c is None:
-                    raise Hold(f"{dut}: its temperature source gives no temperature",
-                               code=Reason.NO_TEMPERATURE, device=dut)
-                detectors[dut].add(t, temp_c)
-            self._check_frozen(t, temps)
-            self.status.dut_temps_c = dict(temps)
-            states = {dut: d.state for dut, d in detectors.items()}
-            self.status.settling = ", ".join(
-                f"{dut} {d.state} ({d.last_temp_c:.2f} C, {d.rate_c_per_min:+.2f} C/min, "
-                f"in band {d.in_band_s:.0f} s)" for dut, d in detectors.items())
-            if all(s == STABLE for s in states.values()):
-                waited = t - start
-                self.engine.event(Kind.STABLE, f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
-                                  code=Reason.STABLE, temps=temps)
-                if self.site is not None:  # the step's first point: ambient re-checked, Hold on drift
-                    self.site.recheck(self.engine.event, cmd.target_c)
-                    self.reference = reference_for(self.rig.station, self.site.in_use.vector_nt)
-                return {"target_c": cmd.target_c, "waited_s": waited,
-                        "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
-                                       "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
-            late = [dut for dut, s in states.items() if s == TIMEOUT]
-            if late:
-                raise Hold(f"{', '.join(late)} not stable at {cmd.target_c:g} degC within "
-                           f"max_wait_s {cmd.criteria.max_wait_s:g} s", code=Reason.SETTLE_TIMEOUT,
-                           device=", ".join(late))
-            self.engine.wait(poll_s, poll_s)
-
-    def _check_frozen(self, t: float, temps: dict[str, float | None]) -> None:
-        """Hold when a DUT's temperature source shows the very same value while the air moves."""
-        for dut, temp_c in temps.items():
-            source = self.rig.temp_sources[dut].name
-            if temp_c is not None and (problem := self.frozen.add(source, t, temp_c, self.status.chamber_c)):
-                raise Hold(problem, code=Reason.DEVICE_FAULT, device=source)
-
-    def move_field(self, cmd: MoveField) -> None:
-        self.rig.field_source.set(self.reference.command(cmd.target))
-
-    def settle(self, cmd: Settle) -> None:
-        self.rig.field_source.wait_settled(self.source.settle_timeout_s())
-        self.engine.wait(cmd.seconds, max(cmd.seconds, 1e-3))
-
-    def _reference_now(self) -> dict[str, np.ndarray]:
-        """{DUT: the reference field where it sits}, from what the field source reports now (readback
-        currents / angles)."""
-        setting = self.reference.readback(self.rig.field_source.read())
-        return {dut: self.reference.field_nt(setting, dut) for dut in self.rig.duts}
-
-    def collect_point(self, cmd: CollectPoint) -> None:
-        point: Point = cmd.point
-        started = self.rig.clock.now()
-        self._check_chamber()
-        rows: list[SampleRow] = []
-        beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
-        for _ in range(point.samples):
-            sensors = {name: r.temp_c for name, r in read_all(self.rig.temp_sensors, self.rig.clock).items()}
-            ref_nt = self._reference_now()
-            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (rig/devices/interleave.py)
-            for dut, dev in self.rig.duts.items():
-                sample = samples[dut]
-                if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
-                    temp_c, other_c = sample.temp_c, sensors.get(beside.get(dut, ""))
-                else:
-                    temp_c, other_c = sensors[self.rig.temp_sources[dut].name], sample.temp_c
-                if temp_c is None:
-                    raise Hold(f"{dut}: its temperature source gives no temperature",
-                               code=Reason.NO_TEMPERATURE, device=dut)
-                if cmd.temp_band_c is not None and abs(temp_c - point.setpoint_c) > cmd.temp_band_c:
-                    raise Hold(f"{dut} temperature {temp_c:.2f} degC left {point.setpoint_c:g} +- "
-                               f"{cmd.temp_band_c:g} degC during point {point.id}",
-                               code=Reason.TEMP_OUT_OF_BAND, device=dut)
-                rows.append(SampleRow.from_field_sample(dut, sample, ref_nt[dut], temp_c=temp_c,
-                                                        ref_temp_c=other_c))
-                self.status.dut_temps_c[dut] = temp_c
-        self._check_chamber()
-        self._feed_live(rows)
-        decision = self.decide(point, rows) if self.decide is not None else None  # stored with the point
-        stats = {**self._settle_stats, "reference": self.reference.record()}
-        self.session.record_point(point.id, rows, stats, started=started,
-                                  temperatures=self.temperatures.take(), decision=decision)
-
-    def _feed_live(self, rows: list[SampleRow]) -> None:
-        for dut, live in self.live.items():
-            mine = [r for r in rows if r.dut == dut and not r.flags]
-            live.add(np.array([r.field_nt for r in mine]).reshape(-1, 3),
-                     np.array([r.temp_c for r in mine], float),
-                     np.array([r.ref_field_nt for r in mine]).reshape(-1, 3))
-            self.live_summaries[dut] = live.summary()
-
-    def preload_live(self, session_path) -> None:
-        """On resume: start the live fits from what the session already holds."""
-        from rig.session.reader import SessionReader
-
-        with SessionReader(session_path) as reader:
-            for dut, live in self.live.items():
-                try:
-                    ds = reader.dataset(dut)
-                except ERRORS:
-                    continue
-                live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
-                self.live_summaries[dut] = live.summary()
-
-    def checkpoint(self, cmd: Checkpoint) -> None:
-        log.info("point %s recorded", cmd.point_id)
-        for callback in self.on_point:
-            callback(cmd.point_id)
-
 
 # --- a whole run: session, lock, rig, engine, fits ------------------------------------------------
 @dataclass

@@ -1,6 +1,7 @@
 """The layers hold: calib imports neither rig nor drivers, and its own imports point one way; drivers
-import no rig, only rig/devices/bench.py imports drivers.sim, and nothing in rig/ asks which concrete device
-or field source it holds."""
+import no rig, only rig/devices/bench.py imports drivers.sim; rig's folders import downwards only, in the
+declared order; nothing in rig/ asks which concrete device or field source it holds, nor, outside
+rig/fieldsources/, which kind of field source it is."""
 
 from __future__ import annotations
 
@@ -14,6 +15,12 @@ from drivers.base import Device
 from rig.fieldsources.base import FieldSourceConfig
 
 REPO = Path(__file__).resolve().parents[2]
+# rig's folders from the bottom up; a folder imports only from its own and from lower tiers (folders on one
+# tier know nothing of each other). rig/__init__.py (the version) sits below all, rig/__main__.py on top.
+RIG_TIERS = ("core", "session fieldsources", "config", "devices engine", "reference", "analysis",
+             "schedules", "run", "report fleet", "web", "cli")
+MAX_MODULE_LINES = 400
+LONG_MODULES = {"drivers/serialmag.py", "drivers/sim/serialmag.py"}  # one device's protocol each
 STATION_BUILDER = "rig/devices/bench.py"  # the one production module that may import drivers.sim
 
 
@@ -149,3 +156,95 @@ def test_the_kind_question_detector_detects(tmp_path):
 def test_every_registered_device_names_an_existing_simulator(role):
     for spec in registry.specs(role):
         assert callable(spec.load_simulator()), spec.type
+
+
+def tier_of(folder: str) -> int | None:
+    return next((i for i, names in enumerate(RIG_TIERS) if folder in names.split()), None)
+
+
+def upward_imports(paths: list[Path], root: Path = REPO / "rig") -> list[str]:
+    """`rig/F/x.py imports rig.G...` where G is not below F (or is a sibling of F on its tier)."""
+    found = []
+    for path in paths:
+        parts = path.relative_to(root).parts
+        if len(parts) < 2:
+            continue
+        mine = tier_of(parts[0])
+        for module in sorted(imported_modules(path)):
+            names = module.split(".")
+            if names[0] != "rig" or len(names) < 2 or names[1] == parts[0]:
+                continue
+            theirs = tier_of(names[1])
+            if theirs is not None and theirs >= mine:
+                found.append(f"{'/'.join(parts)} imports {module}")
+    return found
+
+
+def test_every_rig_module_lives_in_a_declared_folder():
+    stray = [rel(p) for p in sources("rig") if p.parent != REPO / "rig"
+             and tier_of(p.relative_to(REPO / "rig").parts[0]) is None]
+    top = sorted(p.name for p in (REPO / "rig").glob("*.py"))
+    assert stray == [] and top == ["__init__.py", "__main__.py"]
+
+
+def test_rig_folders_import_downwards_only():
+    assert upward_imports(sources("rig")) == []
+
+
+def test_the_upward_import_detector_detects(tmp_path):
+    probes = {"core/up.py": "import rig.run.campaign\n", "devices/side.py": "from rig.engine import executor\n",
+              "run/down.py": "from rig.core.errors import ConfigError\n"}
+    for name, text in probes.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text(text)
+    found = upward_imports([tmp_path / name for name in probes], root=tmp_path)
+    assert found == ["core/up.py imports rig.run.campaign", "devices/side.py imports rig.engine",
+                     "devices/side.py imports rig.engine.executor"]
+
+
+def field_source_kinds() -> set[str]:
+    from typing import get_args
+
+    from rig.fieldsources import KINDS
+
+    return {k for cls in KINDS for k in get_args(cls.model_fields["kind"].annotation)}
+
+
+def kind_tests(path: Path, kinds: set[str]) -> list[str]:
+    """Comparisons (==, !=, in) and match cases against a field-source kind's name: the branch a
+    field source's own method should take."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        named: set[str] = set()
+        if isinstance(node, ast.Compare):
+            for side in (node.left, *node.comparators):
+                named |= {c.value for c in ast.walk(side) if isinstance(c, ast.Constant) and c.value in kinds}
+        elif isinstance(node, ast.MatchValue) and isinstance(node.value, ast.Constant):
+            named = {node.value.value} & kinds
+        if named:
+            found.append(f"{rel(path)}:{node.lineno} tests for {', '.join(sorted(named))}")
+    return found
+
+
+def test_nothing_outside_fieldsources_asks_which_kind_of_field_source():
+    kinds = field_source_kinds()
+    assert kinds >= {"coils", "turntable"}
+    outside = [p for p in sources("rig") if "fieldsources" not in p.relative_to(REPO / "rig").parts]
+    assert [q for p in outside for q in kind_tests(p, kinds)] == []
+
+
+def test_the_kind_test_detector_detects(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("def f(source):\n"
+                      "    if source.kind == 'coils' or 'turntable' in (source.kind,):\n"
+                      "        return 1\n"
+                      "    match source.kind:\n"
+                      "        case 'turntable':\n"
+                      "            return 2\n")
+    assert len(kind_tests(sample, field_source_kinds())) == 3
+
+
+def test_no_production_module_is_longer_than_the_limit():
+    long = {rel(p): n for p in sources("rig", "drivers", "calib")
+            if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES and rel(p) not in LONG_MODULES}
+    assert long == {}

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.chamber import F4_SETPOINT, F4T_SETPOINT, ChamberAlarm, WatlowF4, WatlowF4T
+from drivers.chamber import F4_SETPOINT, F4T_SETPOINT, ChamberAlarm
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, LimitError, OptionError, ProtocolError
 from drivers.sim.chamber import ChamberSim
 from drivers.sim.modbus_server import ScriptedPeer
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
+from drivers.watlow import WatlowF4, WatlowF4T
 
 LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.chamber import F4T_RAMP_RATE, F4T_SETPOINT, WatlowF4T
+from drivers.chamber import F4T_RAMP_RATE, F4T_SETPOINT
 from drivers.clock import SimClock
 from drivers.coils import SETPOINT_UA, CoilController
 from drivers.errors import LimitError, OptionError
@@ -19,6 +19,7 @@ from drivers.sim.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import TARGET_MDEG, Turntable
+from drivers.watlow import WatlowF4T
 
 NAN, INF = float("nan"), float("inf")
 CHAMBER = dict(min_setpoint_c=-40.0, max_setpoint_c=85.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)

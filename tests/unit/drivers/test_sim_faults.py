@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.chamber import ChamberAlarm, WatlowF4T
+from drivers.chamber import ChamberAlarm
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
 from drivers.sim.chamber import ChamberSim
@@ -15,6 +15,7 @@ from drivers.sim.truths import mount_truth
 from drivers.sim.world import World
 from drivers.tmp117 import TMP117
 from drivers.transports.modbus import ModbusTransport
+from drivers.watlow import WatlowF4T
 
 LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
 

@@ -10,7 +10,7 @@ import pytest
 
 from drivers.sim.coilfield import CoilGeometry as SimGeometry
 from drivers.sim.coilfield import coil_matrix_at as sim_matrix_at
-from rig.fieldsources import coilgeometry as cg
+from rig.fieldsources.coils import geometry as cg
 
 MU0 = 4e-7 * math.pi
 

@@ -9,7 +9,7 @@ import pytest
 
 from rig.config import CONFIGS_DIR, DEFAULT_STATION, Plan, Station, load_plan, load_station
 from rig.core.errors import ConfigError
-from rig.devices.bench import dut_truths
+from rig.devices.bench import dut_truths, world_field
 from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
 from rig.reference.loading import load_campaign
 
@@ -271,17 +271,17 @@ def test_simulated_truths_are_seeded_per_dut_and_explicit_ones_are_kept(tmp_path
 def test_simulated_ambient_and_site_defaults(tmp_path):
     station = load_station(write(tmp_path, "s.yaml", STATION.replace("ambient_nt: [0, 0, 0]",
                                                                      "ambient_nt: [1, 2, 3]")))
-    world = station.field_source.world_field(station.sim)
+    world = world_field(station)
     assert list(world["ambient_nt"]) == [1, 2, 3]  # the coils' stated ambient
     sim = load_station(DEFAULT_STATION)
-    assert list(sim.field_source.world_field(sim.sim)["ambient_nt"]) == [15000, 500, 42000]
+    assert list(world_field(sim)["ambient_nt"]) == [15000, 500, 42000]
     data = station.model_dump()
     data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"},
                             "site_field": {"reference_magnetometer": "ref0"}}
     data["reference_magnetometers"] = [{"name": "ref0", "type": "mmc5983ma", "transport": {"kind": "sim"},
                                         "calibration": "ref0.t24.yaml"}]
     table = Station.model_validate(data)
-    assert list(table.field_source.world_field(table.sim)["site_field_nt"]) == list(TYPICAL_FIELD_NT)
+    assert list(world_field(table)["site_field_nt"]) == list(TYPICAL_FIELD_NT)
 
 
 def test_dut_options_build_their_drivers_through_the_registry():

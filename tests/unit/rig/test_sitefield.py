@@ -18,6 +18,7 @@ from drivers.sim.world import World
 from rig.config import CONFIGS_DIR, Station, load_station
 from rig.core.errors import ConfigError, LimitError
 from rig.devices.bench import reference_truths
+from rig.devices.bench import world_field as bench_world_field
 from rig.reference.loading import load_campaign
 from rig.reference.sitefield import load_reference_calibrations
 from rig.schedules.compile import compile_plan
@@ -175,5 +176,5 @@ def test_the_simulated_ambient_drifts_steadily():
     station = load_station(STATION)
     data = station.model_dump()
     data["sim"]["ambient_drift_nt_per_h"] = [360.0, 0.0, 0.0]
-    world_field = Station.model_validate(data).field_source.world_field(Station.model_validate(data).sim)
+    world_field = bench_world_field(Station.model_validate(data))
     assert np.allclose(world_field["ambient_drift_nt_per_s"], [0.1, 0.0, 0.0])

@@ -28,10 +28,10 @@ from rig.fieldsources.base import (
     DRIFT_MAX_NT,
     SETTLE_TIMEOUT_S,
     FieldSourceConfig,
-    drift_keywords,
     point_limit_error,
 )
 from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT, TableReference, site_field_ned_nt, table_field_nt
+from rig.fieldsources.turntable import commissioning
 
 ORIENTATION_KINDS = frozenset({"grid", "orientations"})
 HOMING_TRAVEL_DEG = 720.0  # the longest way home: a full turn on each axis
@@ -171,6 +171,24 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     def drift_max_nt(self) -> float:
         return getattr(self.site_field, "drift_max_nt", DRIFT_MAX_NT)
 
+    # --- the reference chain ------------------------------------------------------------------------
+    commissioning_section: ClassVar[str] = "table"
+    commissioning_covariance_size: ClassVar[int] = 7  # the table's parameters (calib/tablefit.py)
+
+    def commissioning_design(self, current_a, repeats):
+        return commissioning.design(self, repeats)
+
+    def fit_commissioning(self, readings, reference_position_mm) -> dict:
+        return commissioning.fit(self, readings)
+
+    def commissioning_lines(self, section) -> list[str]:
+        return commissioning.summary_lines(section)
+
+    def budget_chain(self, run, dut: str, ds):
+        from rig.fieldsources.turntable.budget import TableChain
+
+        return TableChain(run, ds)
+
     # --- station and simulation --------------------------------------------------------------------
     def station_problems(self, dut_names, reference_names=()):
         name = self.measuring_magnetometer(reference_names)
@@ -182,11 +200,8 @@ class Turntable(FieldSourceConfig, TurntableOptions):
                      f"reference_magnetometers (defined: {known})")]
         return []
 
-    def world_field(self, sim) -> dict:
-        site = next(v for v in (sim.site_field_nt, self.stated_site_field_nt(), TYPICAL_FIELD_NT)
-                    if v is not None)
-        axes = sim.turntable_axes
-        return {"field_source": "turntable", "site_field_nt": np.asarray(site, float),
-                "turntable_rate_deg_s": self.rate_deg_s, **drift_keywords(sim),
-                "turntable_axes": None if axes is None else
-                (tuple(axes.az_tilt_deg), axes.el_tilt_deg, tuple(axes.zero_offsets_deg))}
+    def declared_world(self) -> dict:
+        """What the station declares of the table and its site field, as the simulated world's keywords."""
+        stated = self.stated_site_field_nt()
+        return {"field_source": "turntable", "turntable_rate_deg_s": self.rate_deg_s,
+                "site_field_nt": None if stated is None else np.asarray(stated, float)}

@@ -7,7 +7,7 @@ ambient up to `ambient_max_nt`; `rig run` checks the plan's currents again with 
 
 The coil matrix C at the centre is the declared `coil_constants_nt_per_a`, or the one `rig commission`
 measured (`commissioning: FILE`, rig/reference/commissioning_file.py), which replaces it. With a `geometry`, the field at
-each DUT's `position_mm` is the coil field there (rig/fieldsources/coilgeometry.py), scaled and turned to
+each DUT's `position_mm` is the coil field there (rig/fieldsources/coils/geometry.py), scaled and turned to
 match C at the centre; without one the field is taken as uniform.
 """
 
@@ -27,12 +27,12 @@ from rig.core.yamlload import KeyPathError
 from rig.fieldsources.base import (
     DRIFT_MAX_NT,
     FieldSourceConfig,
-    drift_keywords,
     only_reference,
     point_limit_error,
 )
-from rig.fieldsources.coilgeometry import CoilGeometry
-from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT, CoilReference, currents_for_field
+from rig.fieldsources.coils import commissioning
+from rig.fieldsources.coils.geometry import CoilGeometry, nonuniformity_lines
+from rig.fieldsources.fieldmaths import CoilReference, currents_for_field
 
 VECTOR_FIELD_KINDS = frozenset({"cube24", "fibonacci", "directions", "vectors"})
 
@@ -43,6 +43,7 @@ AmbientNt = Annotated[
 ]
 
 
+MAX_CONDITION = 1e6  # a coil matrix worse conditioned than this cannot be inverted for currents
 DECLARED_UNCERTAINTY_PPM = 10_000.0  # real sets differ from their design by 0.5-2 % and tenths of a degree
 
 
@@ -83,7 +84,7 @@ class Coils(FieldSourceConfig, CoilOptions):
             if self.commissioning is None:
                 raise KeyPathError(("coil_constants_nt_per_a",), "give the coil matrix, or `commissioning:` "
                                    "naming the file `rig commission` wrote")
-        elif np.linalg.cond(self.declared_constants) > 1e6:
+        elif np.linalg.cond(self.declared_constants) > MAX_CONDITION:
             raise KeyPathError(("coil_constants_nt_per_a",), "matrix is singular (coil axes not independent)")
         return self
 
@@ -181,6 +182,57 @@ class Coils(FieldSourceConfig, CoilOptions):
         self._check_currents(plan_name, points, np.asarray(measured_nt, float), np.zeros(3),
                              f"the measured ambient {_fmt_vec(measured_nt)} nT")
 
+    # --- the reference chain ------------------------------------------------------------------------
+    commissioning_section: ClassVar[str] = "coils"
+    commissioning_covariance_size: ClassVar[int] = 12  # the matrix row by row, then the ambient
+
+    def commissioning_design(self, current_a, repeats):
+        return commissioning.design(self, current_a, repeats)
+
+    def commissioning_reference_problem(self, position_mm) -> str | None:
+        if self.geometry is None and np.any(np.asarray(position_mm or (0.0, 0.0, 0.0), float) != 0):
+            return "is not at the centre and field_source has no geometry to carry its readings there"
+        return None
+
+    def fit_commissioning(self, readings, reference_position_mm) -> dict:
+        return commissioning.fit(self, readings, reference_position_mm)
+
+    @classmethod
+    def commissioning_section_problem(cls, section):
+        if np.linalg.cond(np.asarray(section.matrix_nt_per_a, float)) > MAX_CONDITION:
+            return ("matrix_nt_per_a",), "the matrix is singular (coil axes not independent)"
+        return None
+
+    def commissioning_lines(self, section) -> list[str]:
+        return commissioning.summary_lines(section)
+
+    def chain_record(self, positions_mm: dict) -> dict:
+        return {"centre_matrix_nt_per_a": np.asarray(self.constants, float).tolist(),
+                "matrices_nt_per_a": {name: np.asarray(m, float).tolist()
+                                      for name, m in self.matrices_at(positions_mm).items()}}
+
+    def reference_check_lines(self, station, plan, warnings: list[str]) -> list[str]:
+        """The declared matrix's assumed uncertainty, and the coil field's non-uniformity over the DUT
+        positions: LimitError (blamed on the station's position_mm) above plan.accuracy_ppm."""
+        lines = []
+        if self.commissioned is None:
+            lines.append(f"coil matrix as declared (not commissioned): the uncertainty budget takes "
+                         f"{self.constants_uncertainty_ppm:g} ppm per element; `rig commission` measures it")
+        if self.geometry is None:
+            if any(d.position_mm is not None for d in station.duts):
+                warnings.append("DUT positions are stated but field_source has no geometry: the coil field "
+                                "is taken as uniform")
+            return lines
+        return lines + nonuniformity_lines(self.geometry, station, plan)
+
+    def budget_chain(self, run, dut: str, ds):
+        from rig.fieldsources.coils.budget import CoilChain
+
+        return CoilChain(run, dut, ds)
+
+    def measures_ambient(self) -> bool:
+        return self.needs_measurement()
+
     # --- station and simulation ---------------------------------------------------------------------
     def station_problems(self, dut_names, reference_names=()):
         if self.reference_magnetometer is not None and self.reference_magnetometer not in reference_names:
@@ -196,20 +248,15 @@ class Coils(FieldSourceConfig, CoilOptions):
                      f"the one that measures the ambient (one of {', '.join(reference_names)})")]
         return []
 
-    def world_field(self, sim) -> dict:
-        """The simulated coils: sim.coil_constants_nt_per_a and sim.coil_geometry, else what the station
-        declares (the declared matrix, else the commissioned one; the declared geometry, else none)."""
-        stated = None if self.ambient_nt == "measure" else self.ambient_nt
-        ambient = next(v for v in (sim.ambient_nt, stated, TYPICAL_FIELD_NT) if v is not None)
-        matrix = sim.coil_constants_nt_per_a
-        if matrix is None:
-            matrix = self.constants if self.coil_constants_nt_per_a is None else self.coil_constants_nt_per_a
-        geometry = sim.coil_geometry or self.geometry
+    def declared_world(self) -> dict:
+        """What the station declares of the coils, as the simulated world's keywords (the matrix: the
+        declared one, else the commissioned one)."""
+        matrix = self.constants if self.coil_constants_nt_per_a is None else self.coil_constants_nt_per_a
+        geometry = self.geometry
         return {"field_source": "coils", "coil_constants_nt_per_a": np.asarray(matrix, float),
-                "coil_nonlinearity_per_a": np.asarray(sim.coil_nonlinearity_per_a, float),
                 "coil_geometry": None if geometry is None else
                 (geometry.shape, tuple(geometry.size_m), tuple(geometry.spacing_m)),
-                "ambient_nt": np.asarray(ambient, float), **drift_keywords(sim)}
+                "ambient_nt": None if self.ambient_nt == "measure" else np.asarray(self.ambient_nt, float)}
 
 
 def _fmt_vec(v) -> str:

@@ -27,7 +27,9 @@ from typing import Literal
 import numpy as np
 
 from rig.core.configbase import Strict
+from rig.core.errors import LimitError
 from rig.core.numbers import bounded
+from rig.core.yamlload import blamed
 
 MU0 = 4e-7 * math.pi  # T m / A
 TESLA_TO_NT = 1e9
@@ -186,3 +188,22 @@ class CoilGeometry(Strict):
 
     def encloses(self, position_mm) -> bool:
         return inside(self.shape, self.size_m, self.spacing_m, np.asarray(position_mm) / 1000.0)
+
+
+def nonuniformity_lines(geometry, station, plan) -> list[str]:
+    """`rig check`'s line on the coil field's non-uniformity at each DUT (the largest relative difference
+    from the centre's field over every direction the coils make); LimitError, blamed on the station's
+    position_mm, where it exceeds the plan's accuracy_ppm. The rig corrects for it (each DUT's reference is
+    the field where it sits); what the geometry, the position and their tolerances leave uncertain is in
+    every calibration's budget."""
+    figures = [(i, d, geometry.nonuniformity_ppm(d.position_mm or (0.0, 0.0, 0.0)))
+               for i, d in enumerate(station.duts)]
+    target = plan.accuracy_ppm
+    for i, d, ppm in figures:
+        if target is not None and ppm > target:
+            what = (f"the coil field at {d.name} differs from the centre's by {ppm:.0f} ppm, more than the "
+                    f"plan's accuracy_ppm {target:g}: move it towards the centre")
+            raise blamed(LimitError(f"station {station.name}: duts[{i}].position_mm: {what}"),
+                         ("duts", i, "position_mm"), what, document="station")
+    return ["coil field non-uniformity at the DUTs (corrected; ppm of the field): "
+            + ", ".join(f"{d.name} {ppm:.0f}" for _, d, ppm in figures)]

@@ -1,0 +1,140 @@
+"""What `rig commission` measures of coils, and how (rig/reference/procedure.py drives it).
+
+With the reference at the centre (or anywhere, when the coils' geometry carries its readings to the
+centre), the coils are driven through a designed set of currents, repeated `repeats` times:
+    0; each coil +I/2, +I, +I/2, 0, -I/2, -I, -I/2, 0 (up and down: hysteresis; two levels: linearity);
+    each pair of coils at 0.7 I in the four sign combinations; all three at I/2 in the eight;
+and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py). The zero setting,
+visited again and again, shows the drift; each level approached from both sides, the hysteresis.
+A coil that does not respond, or a field that is not linear in its current, is a fault named by its axis.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from calib.coilfit import fit_coil_matrix
+from calib.errors import FitError
+from rig.core.errors import ConfigError, DeviceFault
+from rig.fieldsources.commissioning import Reading, arrays, drift_nt, floats, rows
+
+AXES = "xyz"
+FIELD_PER_AXIS_NT = 60_000.0  # drive each coil to about this: the fields a campaign uses
+CURRENT_SHARE = 0.8  # of max_current_a, at most
+MAX_NONLINEARITY = 2e-3  # an air-core coil is linear to far better; more means a fault near the coils
+MIN_RESPONSE_SHARE = 0.1  # a coil giving less than this share of its declared field is not connected
+
+
+def design(source, current_a: float | None, repeats: int) -> list[tuple[tuple[float, ...], str]]:
+    level = current_a
+    if level is None:
+        level = CURRENT_SHARE * source.max_current_a
+        if source.coil_constants_nt_per_a is not None:
+            columns = np.linalg.norm(source.declared_constants, axis=0)
+            level = min(level, FIELD_PER_AXIS_NT / float(np.max(columns)))
+    if not 0 < level <= source.max_current_a:
+        raise ConfigError(f"rig commission: --current {level:g} A is outside 0 .. field_source.max_current_a "
+                          f"{source.max_current_a:g} A")
+    one: list[tuple[tuple[float, ...], str]] = [((0.0, 0.0, 0.0), "coils at 0 A")]
+    for j in range(3):
+        for share in (0.5, 1.0, 0.5, 0.0, -0.5, -1.0, -0.5, 0.0):
+            setting = [0.0, 0.0, 0.0]
+            setting[j] = share * level
+            one.append((tuple(setting), f"coil {AXES[j]} at {share * level:+.3f} A"))
+    for j, k in itertools.combinations(range(3), 2):
+        for sj, sk in itertools.product((1.0, -1.0), repeat=2):
+            setting = [0.0, 0.0, 0.0]
+            setting[j], setting[k] = 0.7 * sj * level, 0.7 * sk * level
+            one.append((tuple(setting), f"coils {AXES[j]}{AXES[k]} at {_fmt_a(setting)} A"))
+    for signs in itertools.product((1.0, -1.0), repeat=3):
+        setting = [0.5 * s * level for s in signs]
+        one.append((tuple(setting), f"coils xyz at {_fmt_a(setting)} A"))
+    return one * repeats
+
+
+def fit(source, readings: list[Reading], reference_position_mm) -> dict:
+    """The commissioning file's `coils:` section."""
+    currents, means, se = arrays(readings)
+    try:
+        fitted = fit_coil_matrix(currents, means, se)
+    except FitError as exc:
+        raise DeviceFault(source.name, f"commission coil {exc.axis or 'xyz'}", str(exc)) from None
+    _check_response(source, fitted, currents)
+    matrix = fitted.matrix_nt_per_a
+    position = np.asarray(reference_position_mm or (0.0, 0.0, 0.0), float)
+    if np.any(position != 0):  # measured where the reference sits: carried to the centre
+        matrix = _centre_matrix(source.geometry, matrix, position)
+    se_matrix, se_ambient = fitted.std_errors()
+    return {
+        "matrix_nt_per_a": rows(matrix), "ambient_nt": floats(fitted.ambient_nt),
+        "covariance": rows(fitted.covariance),
+        "std_errors_matrix_nt_per_a": rows(se_matrix), "std_errors_ambient_nt": floats(se_ambient),
+        "residual_rms_nt": floats(fitted.residual_rms_nt), "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
+        "hysteresis_nt": _hysteresis_nt(readings), "drift_nt": drift_nt(readings),
+        "current_a": float(np.max(np.abs(currents))),
+    }
+
+
+def summary_lines(section) -> list[str]:
+    """The fitted matrix with its standard errors, the ambient and the figures of merit."""
+    out = []
+    for i, (row, se) in enumerate(zip(section.matrix_nt_per_a, section.std_errors_matrix_nt_per_a,
+                                      strict=True)):
+        cells = "  ".join(f"{v:11.2f} +- {e:6.2f}" for v, e in zip(row, se, strict=True))
+        out.append(f"  {AXES[i]}: {cells}  nT/A")
+    out.append("  ambient (" + ", ".join(f"{v:.1f}" for v in section.ambient_nt) + ") nT; nonlinearity ("
+               + ", ".join(f"{v:.0f}" for v in section.nonlinearity_ppm) + f") ppm; hysteresis "
+               f"{section.hysteresis_nt:.1f} nT; drift {section.drift_nt:.1f} nT")
+    return out
+
+
+def _check_response(source, fitted, currents: np.ndarray) -> None:
+    """Each coil responds as declared (within a factor) and linearly."""
+    declared = source.declared_constants
+    for j in range(3):
+        column = float(np.linalg.norm(fitted.matrix_nt_per_a[:, j]))
+        if declared is not None:
+            expected = float(np.linalg.norm(declared[:, j]))
+            if column < MIN_RESPONSE_SHARE * expected:
+                raise DeviceFault(source.name, f"commission coil {AXES[j]}",
+                                  f"the field changes by {column:.4g} nT/A, {column / expected:.1%} of the "
+                                  f"declared {expected:.4g} nT/A: the coil does not respond")
+        if fitted.nonlinearity[j] > MAX_NONLINEARITY:
+            top = float(np.max(np.abs(currents[:, j])))
+            raise DeviceFault(source.name, f"commission coil {AXES[j]}",
+                              f"the field is not linear in the current: {fitted.nonlinearity[j]:.2%} off at "
+                              f"{top:.3g} A (a saturating reference, iron near the coils, or the supply)")
+
+
+def _centre_matrix(geometry, measured: np.ndarray, position_mm: np.ndarray) -> np.ndarray:
+    """The centre matrix whose field at `position_mm` is `measured` (a few fixed-point steps: the map
+    from centre to position is the identity to within the field's non-uniformity)."""
+    centre = measured.copy()
+    for _ in range(20):
+        step = measured - geometry.matrices_at(centre, [position_mm])[0]
+        centre = centre + step
+        if np.max(np.abs(step)) < 1e-9 * np.max(np.abs(measured)):
+            break
+    return centre
+
+
+def _hysteresis_nt(readings: list[Reading]) -> float:
+    """The largest difference between readings at one current reached from above and from below."""
+    worst = 0.0
+    for i in range(1, len(readings) - 1):
+        here = np.asarray(readings[i].setting)
+        for k in range(i + 1, len(readings)):
+            if np.array_equal(readings[k].setting, here) and np.any(here != 0):
+                before_i = np.abs(readings[i - 1].setting).sum()
+                before_k = np.abs(readings[k - 1].setting).sum()
+                if before_i != before_k:  # approached from a smaller and from a larger current
+                    gap = np.linalg.norm(readings[i].measured.vector_nt - readings[k].measured.vector_nt)
+                    worst = max(worst, float(gap))
+                break
+    return worst
+
+
+def _fmt_a(setting) -> str:
+    return "(" + ", ".join(f"{v:+.3f}" for v in setting) + ")"
