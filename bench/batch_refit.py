@@ -1,9 +1,9 @@
 """Batch re-fit throughput: `rig refit-all`'s machinery on 1000 small synthetic sessions.
 
-Sessions are written through rig.session.writer.Session (2 temperatures x 6 axis directions x 3 samples, one DUT,
-T24 errors from calib.synthetic), not by running campaigns. Figures: sessions/s re-fitted (T24) with 1
-and 2 local Dask workers, from the folder and from a throwaway PostgreSQL server (127.0.0.1) after
-`rig push`; the push rate; peak memory of the client and of each worker. Cluster start-up is timed apart.
+Sessions are written through rig.session.writer.Session (2 temperatures x 6 axis directions x 3 samples, one
+DUT, T24 errors from calib.synthetic), not by running campaigns. Figures: sessions/s re-fitted (T24) with 1
+and 2 local Dask workers, from the folder and from a throwaway PostgreSQL server (127.0.0.1) after `rig push`;
+the push rate; peak memory of the client and of each worker. Cluster start-up is timed apart.
 
     python bench/batch_refit.py [--sessions 1000]
 """

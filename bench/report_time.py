@@ -5,10 +5,10 @@
 
 The synthetic session is the size of configs/plans/full-campaign.yaml (8 temperatures x 48 field vectors,
 the cube's 24 rotations at 30 and 60 uT, x 50 samples x 2 DUTs = 38 400 samples). It is written through
-the store API (rig.session.writer.Session) with calib's synthetic T24 data, 1 % outliers and a few flagged samples.
-Then the report is built from it as `rig report` builds it: three models fitted per DUT (robust), a 5-fold
-held-out comparison of each, the figures and the HTML page. Printed: wall seconds for the session file and
-for the whole report, and where the report's time goes.
+the store API (rig.session.writer.Session) with calib's synthetic T24 data, 1 % outliers and a few flagged
+samples. Then the report is built from it as `rig report` builds it: three models fitted per DUT (robust), a
+5-fold held-out comparison of each, the figures and the HTML page. Printed: wall seconds for the session file
+and for the whole report, and where the report's time goes.
 
 --blas-threads (default 1) sets OPENBLAS_NUM_THREADS before numpy loads: on a small machine shared with
 other work, OpenBLAS's own threads fight for the cores and the scalar model's fits slow down by 10x or

@@ -1,5 +1,6 @@
 """After a completed run: fit every model of the plan for every DUT from the session's own data, state
-each calibration's uncertainty (rig/reference/budget.py), write the calibration files beside the session, and judge
+each calibration's uncertainty (rig/reference/budget.py), write the calibration files beside the session, and
+judge
 each DUT against the plan's acceptance limits."""
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from rig.session.events import Kind, Reason
 
 def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dict],
                    live_summaries: dict[str, str]) -> list:
-    """PASS/FAIL per DUT (rig/analysis/acceptance.py): stored in the session, written as a CSV beside it, shown in
+    """PASS/FAIL per DUT (rig/analysis/acceptance.py): stored in the session, written as a CSV beside it,
+    shown in
     the live view's summaries."""
     from rig.analysis import acceptance
 
@@ -45,7 +47,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
         if isinstance(ds, Exception):
             out.append({"dut": dut.name, "model": "-", "error": str(ds)})
             continue
-        ds, ambient = refined(inputs, ds)  # every reference with the run's best ambient (rig/reference/ambient.py)
+        # every reference with the run's best ambient (rig/reference/ambient.py)
+        ds, ambient = refined(inputs, ds)
         lag = None
         if plan.moving:  # a ramp shows each DUT's thermal lag: fit the element's temperature
             from rig.analysis.lagfit import lag_corrected
@@ -85,7 +88,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
 
 
 def run_inputs(session_path):
-    """What the session says of its reference chain (rig/reference/budget.py), read once for its DUTs; None when its
+    """What the session says of its reference chain (rig/reference/budget.py), read once for its DUTs; None
+    when its
     recorded plan or station can no longer be read (a session of an older format, a foreign one)."""
     from rig.core.errors import ConfigError
     from rig.reference.budget import RunInputs

@@ -33,7 +33,8 @@ class Fit(Strict):
 
 class Acceptance(Strict):
     """Per-DUT PASS/FAIL limits on the calibration of `model` (default: the first of fit.models); see
-    rig/analysis/acceptance.py. Parameter names are the model's (calib.models.REGISTRY), e.g. S, b_nt for t24."""
+    rig/analysis/acceptance.py. Parameter names are the model's (calib.models.REGISTRY), e.g. S, b_nt for
+    t24."""
 
     model: Literal[CALIBRATION_MODELS] | None = None
     max_heldout_rms_nt: NT | None = Field(None, description="RMS error on held-out points")
@@ -82,7 +83,8 @@ class Plan(Strict):
         "pair", description="pair: SET and RESET reading per sample (offset removed); off: plain reading"
     )
     fit: Fit = Fit()
-    acceptance: Acceptance | None = Field(None, description="per-DUT PASS/FAIL limits (rig/analysis/acceptance.py)")
+    acceptance: Acceptance | None = Field(
+        None, description="per-DUT PASS/FAIL limits (rig/analysis/acceptance.py)")
     outputs: Outputs = Outputs()
     accuracy_ppm: bounded(gt=0, hi=1e6) | None = Field(
         None, description="the reference field's accuracy target, relative to the field: `rig check` refuses "

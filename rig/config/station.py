@@ -93,7 +93,8 @@ class DutConfig(DeviceConfig):
 class ReferenceMagnetometerConfig(DutConfig):
     """A calibrated magnetometer at the DUT position that measures the ambient (coils off) or the site
     field (table at home): any magnetometer type, never a DUT (not fitted, not in the outputs). Its
-    calibration file (relative to the station file) is applied to every reading (rig/reference/sitefield.py)."""
+    calibration file (relative to the station file) is applied to every reading
+    (rig/reference/sitefield.py)."""
 
     calibration: str = Field(description="its calibration file, relative to the station file")
     temp_source: str | None = Field(  # type: ignore[assignment]

@@ -91,8 +91,9 @@ class Temperatures(Strict):
 
 class RampTemperatures(Strict):
     """Continuous ramp: the chamber ramps from range_c[0] to range_c[1] and back, `cycles` times, without
-    stopping, while the field source sweeps the plan's field set again and again (rig/schedules/moving_tasks.py). Before
-    the first leg the DUTs are brought to range_c[0] and judged stable with `stability`; `end_hold_s`
+    stopping, while the field source sweeps the plan's field set again and again
+    (rig/schedules/moving_tasks.py). Before the first leg the DUTs are brought to range_c[0] and judged stable
+    with `stability`; `end_hold_s`
     keeps sweeping at each leg's end while the DUTs catch up with the air."""
 
     mode: Literal["ramp"]
@@ -131,9 +132,9 @@ class AssumedDut(Strict):
 
 
 class DesignedTemperatures(Strict):
-    """A designed schedule (`rig design` writes it; rig/schedules/designed.py): legs run back to back from wherever
-    the air is, each ramping at its rate and holding while its sweeps are taken; the field source sweeps
-    the plan's fields throughout. `assumed` records the DUT noise and lags the design was made for (rig
+    """A designed schedule (`rig design` writes it; rig/schedules/designed.py): legs run back to back from
+    wherever the air is, each ramping at its rate and holding while its sweeps are taken; the field source
+    sweeps the plan's fields throughout. `assumed` records the DUT noise and lags the design was made for (rig
     check predicts the standard errors from them; the station's stated values otherwise)."""
 
     mode: Literal["designed"]
@@ -146,11 +147,11 @@ class DesignedTemperatures(Strict):
 
 
 class SequentialTemperatures(Strict):
-    """Sequential design (rig/schedules/sequential.py): after every sweep the campaign decides, from what it has
-    measured, whether to stay at the current end of `range_c`, cross to the other (pausing `check_sweeps`
-    sweeps at each of `checks_c`, the model check's interior temperatures), or stop because every DUT
-    meets the plan's `stop_when` targets; each sweep takes the `fields_per_sweep` of the plan's fields that
-    teach the worst DUT the most. `rate_c_per_min` is the fastest ramp (default: the chamber's; slower when
+    """Sequential design (rig/schedules/sequential.py): after every sweep the campaign decides, from what it
+    has measured, whether to stay at the current end of `range_c`, cross to the other (pausing `check_sweeps`
+    sweeps at each of `checks_c`, the model check's interior temperatures), or stop because every DUT meets
+    the plan's `stop_when` targets; each sweep takes the `fields_per_sweep` of the plan's fields that teach
+    the worst DUT the most. `rate_c_per_min` is the fastest ramp (default: the chamber's; slower when
     the slowest DUT could not follow it); `max_duration_h` bounds the run."""
 
     mode: Literal["sequential"]

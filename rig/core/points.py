@@ -2,9 +2,11 @@
 
     T03-F07          temperature step 3, field 7 (coils); T03-O07: orientation 7 (turntable)
     R1U-S003-F07     continuous ramp: cycle 1, leg up, sweep 3 of that leg, field 7
+    L02-S003-F07     designed schedule: leg 2, sweep 3 of that leg, field 7
+    L02-S0003-F07    sequential schedule: leg 2, sweep 3 of the run (sweeps are decided as it goes)
 
 Numbers are 1-based and zero-padded to at least 2 digits (3 when there are more than 99). Plain data:
-the schedules (rig/schedules/steps.py, rig/schedules/ramp.py) make them, everything else reads them.
+the schedules (rig/schedules/) make them, everything else reads them.
 """
 
 from __future__ import annotations

@@ -7,10 +7,10 @@ whose transport is `{kind: sim}`. The only production module that imports driver
     bench.stop()
 
 Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
-field source (`world_field`: the `sim:` truth over what the station declares), the DUT truths and the simulator's defaults from drivers/sim/truths.py.
-A station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share
-the world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads
-a mount that follows the simulated air.
+field source (`world_field`: the `sim:` truth over what the station declares), the DUT truths and the
+simulator's defaults from drivers/sim/truths.py. A station may mix real and simulated devices (a dry run with
+a real chamber): the simulated ones share the world, the real ones talk to their real transports, and a
+simulated probe beside a real DUT reads a mount that follows the simulated air.
 
 A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
 (drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.

@@ -8,10 +8,10 @@ drivers on simulators.
     built = build_devices(station)       # no I/O yet: for `rig devices check`, which connects one by one
 
 Every device is built the same way: `spec.build(link, options, name=, clock=, set_reset=)` where the
-spec comes from drivers/registry.py and the link from rig/devices/links.py (real transport) or rig/devices/bench.py
-(`transport: {kind: sim}`: the device's simulator, all fed by ONE World on the campaign clock). A real
-device that fails stays failed: nothing falls back to a simulator. An all-simulated station runs on
-SimClock; anything real means RealClock (real chambers do not run on simulated time).
+spec comes from drivers/registry.py and the link from rig/devices/links.py (real transport) or
+rig/devices/bench.py (`transport: {kind: sim}`: the device's simulator, all fed by ONE World on the campaign
+clock). A real device that fails stays failed: nothing falls back to a simulator. An all-simulated station
+runs on SimClock; anything real means RealClock (real chambers do not run on simulated time).
 
 The run lock of a session is rig/session/lock.py.
 """

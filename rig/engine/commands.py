@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rig.core.errors import MagrigError
-from rig.engine.stability import SettleCriteria
+from rig.engine.stability import StabilityCriteria
 from rig.session.events import Reason
 
 
@@ -36,7 +36,7 @@ class WaitStable:
     """Wait until every DUT temperature is stable around target_c (rig/engine/stability.py)."""
 
     target_c: float
-    criteria: SettleCriteria
+    criteria: StabilityCriteria
 
 
 @dataclass(frozen=True)

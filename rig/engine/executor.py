@@ -75,7 +75,7 @@ class RunStatus:
     points_total: int = 0
     chamber_c: float | None = None
     dut_temps_c: dict[str, float] = field(default_factory=dict)
-    settling: str = ""
+    thermal: str = ""  # what the chamber and the DUT temperatures are doing
     events: deque = field(default_factory=lambda: deque(maxlen=8))
     started_t: float | None = None
     point_durations_s: deque = field(default_factory=lambda: deque(maxlen=20))
@@ -143,7 +143,8 @@ class Engine:
             raise KeyboardInterrupt  # stop waiting for the operator's answer
 
     def add_tasks(self, tasks: Iterable[Task]) -> None:
-        """Append tasks to the running list (a schedule decided during the run, rig/schedules/sequential_run.py)."""
+        """Append tasks to the running list (a schedule decided during the run,
+        rig/schedules/sequential_run.py)."""
         added = list(tasks)
         self._todo.extend(added)
         self.status.points_total += len(added)

@@ -1,6 +1,6 @@
 """Thermal stability detector: a small pure state machine fed (t, temp_c) samples.
 
-The engine judges settling on the DUT's own temperature sensor, not on the chamber air: the DUT lags
+The engine judges stability on the DUT's own temperature sensor, not on the chamber air: the DUT lags
 the air by many minutes, and it is the DUT's temperature that enters the calibration model.
 
 Stable means all three at once:
@@ -15,22 +15,22 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-SETTLING = "settling"
+APPROACHING = "approaching"
 STABLE = "stable"
 TIMEOUT = "timeout"
 
 
 @dataclass(frozen=True)
-class SettleCriteria:
+class StabilityCriteria:
     band_c: float = 0.5
     max_rate_c_per_min: float = 0.1
     dwell_s: float = 300.0
     max_wait_s: float = 4 * 3600.0
 
 
-def criteria_of(stability) -> SettleCriteria:
+def criteria_of(stability) -> StabilityCriteria:
     """The criteria of a plan's `stability:` (rig.config.plan.Stability)."""
-    return SettleCriteria(band_c=stability.band_c, max_rate_c_per_min=stability.rate_c_per_min,
+    return StabilityCriteria(band_c=stability.band_c, max_rate_c_per_min=stability.rate_c_per_min,
                           dwell_s=stability.dwell_s, max_wait_s=stability.max_wait_s)
 
 
@@ -50,10 +50,10 @@ def slope_per_s(samples: list[tuple[float, float]]) -> float:
 class StabilityDetector:
     """Feed samples with add(); read `state`, `rate_c_per_min`, `in_band_s` for display and decisions."""
 
-    def __init__(self, target_c: float, criteria: SettleCriteria):
+    def __init__(self, target_c: float, criteria: StabilityCriteria):
         self.target_c = target_c
         self.criteria = criteria
-        self.state = SETTLING
+        self.state = APPROACHING
         self.start_t: float | None = None
         self.last_temp_c: float | None = None
         self.rate_c_per_min = 0.0
@@ -97,5 +97,5 @@ class StabilityDetector:
         elif self.elapsed_s >= c.max_wait_s:
             self.state = TIMEOUT
         else:
-            self.state = SETTLING
+            self.state = APPROACHING
         return self.state

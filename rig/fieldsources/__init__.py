@@ -28,5 +28,5 @@ def kind_class(kind: str) -> type[FieldSourceConfig]:
     raise KeyError(kind)
 
 
-__all__ = ["KINDS", "kind_class", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",
-           "SiteFromVector", "Turntable", "makers_of"]
+__all__ = ["KINDS", "Coils", "FieldSource", "FieldSourceConfig", "SiteFromModel", "SiteFromReference",
+           "SiteFromVector", "Turntable", "kind_class", "makers_of"]

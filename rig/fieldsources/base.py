@@ -63,7 +63,8 @@ class FieldSourceConfig(DeviceConfig):
         None, description="`rig commission`'s file (relative to the station file): what it measured")
     max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
         180.0, description="`rig run` refuses a commissioning file older than this")
-    _commissioned: Any = PrivateAttr(None)  # rig.reference.commissioning_file.Commissioning, once loaded (rig/config)
+    # rig.reference.commissioning_file.Commissioning, once loaded (rig/reference/loading.py)
+    _commissioned: Any = PrivateAttr(None)
 
     def with_commissioning(self, commissioned) -> FieldSourceConfig:
         """A copy that uses what `commissioned` (rig.reference.commissioning_file.Commissioning) measured."""
@@ -150,7 +151,8 @@ class FieldSourceConfig(DeviceConfig):
     commissioning_section: ClassVar[str] = ""  # its section of the commissioning file ("coils", "table")
     commissioning_covariance_size: ClassVar[int] = 0  # the size of that section's covariance
 
-    def commissioning_design(self, current_a: float | None, repeats: int) -> list[tuple[tuple[float, ...], str]]:
+    def commissioning_design(self, current_a: float | None,
+                             repeats: int) -> list[tuple[tuple[float, ...], str]]:
         """The settings `rig commission` measures the reference at, each with what it drives (messages)."""
         raise NotImplementedError
 

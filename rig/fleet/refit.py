@@ -1,8 +1,8 @@
 """One session's re-fit, as run on a worker: its rows (from a file or the fleet database) become one
 Dataset per DUT, each DUT is fitted, and every DUT gives one results row, failed fits included.
 
-The rows become a Dataset exactly as rig.session.reader.read_dataset makes one (done points in collection order,
-flagged samples left out, the DUT's temperature or else the reference sensor's, a group per temperature
+The rows become a Dataset exactly as rig.session.reader.read_dataset makes one (done points in collection
+order, flagged samples left out, the DUT's temperature or else the reference sensor's, a group per temperature
 step), so a batch re-fit gives the parameters `rig refit` gives; the tests hold them to it.
 """
 
@@ -103,7 +103,8 @@ def calibration_fields(cal: calib.Calibration) -> dict:
 
 
 def dut_datasets(points: list[dict], samples: list[dict], where: str) -> dict[str, Dataset | Exception]:
-    """{dut: Dataset} built as rig.session.reader.read_dataset builds it; a DUT whose rows cannot make a dataset
+    """{dut: Dataset} built as rig.session.reader.read_dataset builds it; a DUT whose rows cannot make a
+    dataset
     maps to the DataError saying why."""
     by_id = {p["id"]: p for p in points}
     per_dut: dict[str, list[tuple[int, int, dict]]] = {}

@@ -13,8 +13,8 @@ The inputs and how they are drawn (standard uncertainties u; a +-tolerance is a 
   standard errors): the fields it measured (the commissioned matrix, the ambient, the site field) are off
   by its calibration's error, B_true = T B_measured + d;
 - ambient: the uncertainty of the run's best estimate from all its measurements (start, each temperature
-  step, end; rig/reference/ambient.py), with which the fits make every reference (`RunInputs.refined`); the site
-  field of a turntable: its measurement's standard error;
+  step, end; rig/reference/ambient.py), with which the fits make every reference (`RunInputs.refined`); the
+  site field of a turntable: its measurement's standard error;
 - position: each DUT anywhere within +-position_tolerance_mm of its position_mm (coils with a geometry);
 - coil geometry: every loop's size and spacing within +-geometry.tolerance_mm;
 - table axes: the commissioning's covariance of the table's seven parameters (turntable);
@@ -185,7 +185,8 @@ class RunInputs:
         return np.array(refs, float)
 
     def refined(self, ds):
-        """(ds, what was done): each reference made with the run's best ambient estimate (rig/reference/ambient.py)
+        """(ds, what was done): each reference made with the run's best ambient estimate
+        (rig/reference/ambient.py)
         instead of the value in use when its point was taken; unchanged where that cannot be done."""
         used = self.recorded_ambient(ds)
         if self.ambient is None or used is None:

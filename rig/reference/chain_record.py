@@ -6,8 +6,9 @@
 The record holds the commissioning file's text (sealed: rig/reference/commissioning_file.py), the reference
 magnetometers' calibrations, the coil matrix at the centre, every DUT's position and the coil matrix
 where it sits. Each point also stores the reference it was
-taken with (the ambient or the table's parameters in use; rig/fieldsources/fieldmaths.py `record`), so the reference of
-every sample can be recomputed under other assumptions (the uncertainty budget, rig/reference/budget.py).
+taken with (the ambient or the table's parameters in use; rig/fieldsources/fieldmaths.py `record`), so the
+reference of every sample can be recomputed under other assumptions (the uncertainty budget,
+rig/reference/budget.py).
 """
 
 from __future__ import annotations

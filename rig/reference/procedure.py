@@ -71,7 +71,8 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
         "reference_magnetometer": {
             "name": ref_config.name, "type": ref_config.type, "identity": _plain(identity),
             "calibration": ref_config.calibration,
-            "calibration_sha256": sha256_file(commissioning_file.file_path(station_path, ref_config.calibration)),
+            "calibration_sha256": sha256_file(commissioning_file.file_path(station_path,
+                                                                           ref_config.calibration)),
             "position_mm": [float(v) for v in (ref_config.position_mm or (0.0, 0.0, 0.0))],
         },
         **fitted,

@@ -1,4 +1,5 @@
-"""`rig sessions`: one line per session file, from rig.session.reader.SessionReader.summary (the cockpit's list
+"""`rig sessions`: one line per session file, from rig.session.reader.SessionReader.summary (the cockpit's
+list
 shows the same cells)."""
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ class ReportInputs:
     steps: dict[int, StepInfo] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     provenance: list[tuple[str, str]] = field(default_factory=list)
-    acceptance: list[dict] = field(default_factory=list)  # the session's verdicts (rig/analysis/acceptance.py)
+    acceptance: list[dict] = field(default_factory=list)  # its verdicts (rig/analysis/acceptance.py)
 
 
 def utc(t: float | None) -> str:
@@ -180,7 +180,7 @@ def _waited_s(settle_json: str | None) -> float | None:
 
 def _timeout_holds(events: list[Event]) -> list[Event]:
     """Holds raised because a DUT was not stable within max_wait_s (the engine retakes the point)."""
-    return [e for e in events if e.kind == Kind.HOLD and e.code == Reason.SETTLE_TIMEOUT]
+    return [e for e in events if e.kind == Kind.HOLD and e.code == Reason.STABILITY_TIMEOUT]
 
 
 def _hold_label(e: Event) -> str:
@@ -233,7 +233,7 @@ def _session_warnings(summary: dict, points: list[dict], events: list[Event], st
     timeouts = _timeout_holds(events)
     if timeouts:
         out.append(f"{len(timeouts)} settle timeout(s): " + listed([_hold_label(e) for e in timeouts]))
-    holds = [e for e in events if e.kind == Kind.HOLD and e.code != Reason.SETTLE_TIMEOUT]
+    holds = [e for e in events if e.kind == Kind.HOLD and e.code != Reason.STABILITY_TIMEOUT]
     if holds:
         out.append(f"{len(holds)} hold(s) during the run: " + listed([_hold_label(e) for e in holds]))
     return out

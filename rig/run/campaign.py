@@ -48,7 +48,7 @@ class RunOutcome:
     fits: list[dict] = field(default_factory=list)  # {dut, model, path, rms_nt, error}
     stale_lock_pid: int | None = None
     wall_s: float = 0.0
-    verdicts: list = field(default_factory=list)  # rig.analysis.acceptance.Verdict per DUT (plan's acceptance:)
+    verdicts: list = field(default_factory=list)  # rig.analysis.acceptance.Verdict per DUT
 
 
 def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.Plan, cfg.Station]:
@@ -165,7 +165,7 @@ def check_temp_sources(rig: Rig) -> None:
     for dut, source in rig.temp_sources.items():
         if source.read().temp_c is None:
             where = "its own sensor" if source is rig.duts[dut] else f"sensor {source.name}"
-            raise ConfigError(f"station {rig.devices.build.name}: DUT {dut} takes its temperature from {where}, "
+            raise ConfigError(f"station {rig.station.name}: DUT {dut} takes its temperature from {where}, "
                               "which reports none; mount a TMP117 beside it (temperature_sensors) and name "
                               "it in the DUT's temp_source")
 

@@ -1,7 +1,7 @@
 """What the operator sees while a campaign runs.
 
 LiveDisplay: a rich Live panel refreshed a few times a second: current point and step, chamber and DUT
-temperatures, settling state, recent events, ETA, and the streaming T24 fit of each DUT.
+temperatures, what the temperatures are doing, recent events, ETA, and the streaming T24 fit of each DUT.
 PlainLog: one line per recorded point (stdout is not a terminal, or --no-live).
 Both are context managers built by `make_display(status, runner, live=...)`; the runner calls their
 `point_done(point_id)` after each stored point.
@@ -80,7 +80,7 @@ class LiveDisplay:
                      "command", s.command or "-")
         chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f} C"
         head.add_row("chamber", chamber, "DUTs", temperatures_text(s.dut_temps_c))
-        head.add_row("settling", s.settling or "-", "ETA", self.progress.eta_text())
+        head.add_row("thermal", s.thermal or "-", "ETA", self.progress.eta_text())
         fits = Table("DUT", "live T24 fit", box=None)
         for dut, text in fit_rows(self.runner.live_summaries, getattr(self.runner, "live", {})):
             fits.add_row(dut, text)

@@ -35,7 +35,7 @@ from rig.engine.commands import (
 )
 from rig.engine.executor import Engine, RunStatus
 from rig.engine.frozen import FrozenReadings
-from rig.engine.stability import STABLE, TIMEOUT, SettleCriteria, StabilityDetector, criteria_of
+from rig.engine.stability import STABLE, TIMEOUT, StabilityCriteria, StabilityDetector, criteria_of
 from rig.fieldsources.fieldmaths import reference_for
 from rig.session.events import Kind, Reason
 from rig.session.rows import SampleRow
@@ -43,11 +43,11 @@ from rig.session.temperature_log import TemperatureLog
 
 log = logging.getLogger("magrig.campaign")
 
-HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many settling bands before the point is held
+HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many stability bands before the point is held
 
 
-def poll_interval_s(criteria: SettleCriteria) -> float:
-    """Temperature poll while settling: about 8 samples per dwell window, between 2 and 30 s."""
+def poll_interval_s(criteria: StabilityCriteria) -> float:
+    """Temperature poll while waiting for stability: about 8 samples per dwell window, between 2 and 30 s."""
     return min(30.0, max(2.0, criteria.dwell_s / 8.0))
 
 
@@ -69,7 +69,7 @@ class CampaignRunner:
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
         self.live_summaries = {name: "no data yet" for name in rig.duts}
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
-        self._settle_stats: dict = {}
+        self._stability_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
         self.temperatures = TemperatureLog(session)  # what the cockpit plots between points
         self.decide = None  # (point, rows) -> store.Decision | None: a schedule decided during the run
@@ -89,7 +89,7 @@ class CampaignRunner:
         if retake or self.stable_at_c != point.setpoint_c:
             self.stable_at_c = None
             yield SetChamber(point.setpoint_c, point.ramp_c_per_min)
-            self._settle_stats = yield WaitStable(point.setpoint_c, criteria)
+            self._stability_stats = yield WaitStable(point.setpoint_c, criteria)
             self.stable_at_c = point.setpoint_c
         yield MoveField(point.command)
         yield Settle(point.settle_s)
@@ -107,7 +107,7 @@ class CampaignRunner:
         if cmd.ramp_c_per_min is not None and getattr(chamber, "ramps_setpoint", False):
             chamber.set_ramp_rate(cmd.ramp_c_per_min)
         chamber.set(cmd.temp_c)
-        self.status.settling = f"chamber -> {cmd.temp_c:g} degC"
+        self.status.thermal = f"chamber -> {cmd.temp_c:g} degC"
 
     def _check_chamber(self) -> None:
         reading = self.rig.chamber.read()
@@ -146,7 +146,7 @@ class CampaignRunner:
             self._check_frozen(t, temps)
             self.status.dut_temps_c = dict(temps)
             states = {dut: d.state for dut, d in detectors.items()}
-            self.status.settling = ", ".join(
+            self.status.thermal = ", ".join(
                 f"{dut} {d.state} ({d.last_temp_c:.2f} C, {d.rate_c_per_min:+.2f} C/min, "
                 f"in band {d.in_band_s:.0f} s)" for dut, d in detectors.items())
             if all(s == STABLE for s in states.values()):
@@ -162,7 +162,7 @@ class CampaignRunner:
             late = [dut for dut, s in states.items() if s == TIMEOUT]
             if late:
                 raise Hold(f"{', '.join(late)} not stable at {cmd.target_c:g} degC within "
-                           f"max_wait_s {cmd.criteria.max_wait_s:g} s", code=Reason.SETTLE_TIMEOUT,
+                           f"max_wait_s {cmd.criteria.max_wait_s:g} s", code=Reason.STABILITY_TIMEOUT,
                            device=", ".join(late))
             self.engine.wait(poll_s, poll_s)
 
@@ -195,7 +195,7 @@ class CampaignRunner:
         for _ in range(point.samples):
             sensors = {name: r.temp_c for name, r in read_all(self.rig.temp_sensors, self.rig.clock).items()}
             ref_nt = self._reference_now()
-            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (rig/devices/interleave.py)
+            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (devices/interleave.py)
             for dut, dev in self.rig.duts.items():
                 sample = samples[dut]
                 if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
@@ -215,7 +215,7 @@ class CampaignRunner:
         self._check_chamber()
         self._feed_live(rows)
         decision = self.decide(point, rows) if self.decide is not None else None  # stored with the point
-        stats = {**self._settle_stats, "reference": self.reference.record()}
+        stats = {**self._stability_stats, "reference": self.reference.record()}
         self.session.record_point(point.id, rows, stats, started=started,
                                   temperatures=self.temperatures.take(), decision=decision)
 

@@ -1,8 +1,9 @@
 """What every temperature schedule's plan check shares: bounds on expansions, located errors, the field
-source's limits blamed on the plan key, sample and settling times, the T24 design test, the duration bound,
-and the summary `rig check` prints (PlanCheck).
+source's limits blamed on the plan key, sample, move and stability times, the T24 design test, the
+duration bound, and the summary `rig check` prints (PlanCheck).
 
-The schedules (rig/schedules/steps.py, rig/schedules/ramp.py) build on this; rig/schedules/compile.py calls one of them once.
+Every schedule (steps, ramp, designed, sequential: rig/schedules/) builds on this; rig/schedules/compile.py
+asks the plan's schedule once.
 """
 
 from __future__ import annotations
@@ -178,7 +179,7 @@ def start_air_c(station: Station) -> float:
     return ASSUMED_START_C if air is None else air
 
 
-def settle_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st: Stability) -> float:
+def stable_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st: Stability) -> float:
     """A first-order mount lags a ramp by rate*lag; after the ramp that error decays with the lag."""
     lag_error_c = min(abs(delta_c), ramp_c_per_min / 60.0 * lag_s)
     decay = lag_s * math.log(lag_error_c / st.band_c) if lag_error_c > st.band_c else 0.0

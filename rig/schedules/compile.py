@@ -7,13 +7,15 @@
 The plan's temperature schedule is one of (SCHEDULES, chosen by the plan's `temperatures:`):
 - steps (rig/schedules/steps.py): every field at each stable setpoint; `T03-F07`, `T03-O07`;
 - a continuous ramp (rig/schedules/ramp.py): legs x sweeps x fields; `R1U-S003-F07`;
-- a designed schedule (rig/schedules/designed.py, written by `rig design`): legs to chosen temperatures, each held
-  for its sweeps; `L02-S003-F07`;
-- a sequential schedule (rig/schedules/sequential.py, run by rig/schedules/sequential_run.py): only the first sweep is known before the
-  run, each further sweep is decided after the one before and recorded in the session; `L02-S0003-F07`.
+- a designed schedule (rig/schedules/designed.py, written by `rig design`): legs to chosen
+  temperatures, each held for its sweeps; `L02-S003-F07`;
+- a sequential schedule (rig/schedules/sequential.py, run by rig/schedules/sequential_run.py): only the
+  first sweep is known before the run, each further sweep is decided after the one before and recorded
+  in the session; `L02-S0003-F07`.
 The plan check asks the schedule once for its points, limits and duration, then applies what every plan
-shares (rig/schedules/check.py): the field source's limits, the T24 design, the duration bound, stop_when; and
-the reference chain's (rig/reference/checks.py): commissioning, non-uniformity at the DUT positions.
+shares (rig/schedules/check.py): the field source's limits, the T24 design, the duration bound,
+stop_when; and the reference chain's (rig/reference/checks.py): commissioning, non-uniformity at the DUT
+positions.
 For coils the target is the total field (lab frame, nT) the coils must make, ambient included; for a
 turntable it is (az_deg, el_deg).
 """

@@ -151,7 +151,7 @@ def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], d
             ds, lag_info = lag_corrected(ds)
         cal = calib.fit(ds, "t24")
         sigma = max(cal.stats["sigma_nt"].values())
-        lag = _settling_lag(ds)
+        lag = _hold_lag(ds)
         origin = f"session {session.name}: noise from the fit residual"
         if lag is None:
             lag = prior.lag_s
@@ -166,7 +166,7 @@ def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], d
     return out, origins, notes
 
 
-def _settling_lag(ds) -> float | None:
+def _hold_lag(ds) -> float | None:
     """Settling time constant in the session's longest hold: a run of two or more sweeps at one nominal
     air temperature (a ramp's end hold, a designed leg's end), the longest showing the most decay. A single
     sweep's nominal is only where the air was when it began, and a step's dwell starts once the DUT has

@@ -1,9 +1,9 @@
 """A designed schedule (`temperatures: {mode: designed, legs: [...]}`, written by `rig design`): legs run
 back to back from wherever the air is; in each the chamber ramps to the leg's temperature and holds there
-while the field source sweeps the plan's fields `sweeps` times. As on a continuous ramp (rig/schedules/moving_tasks.py)
-every sample carries its DUT's temperature and each sweep has a nominal air temperature, where the air is
-when the sweep starts if every sweep takes the estimated sweep time; a sweep waits for the air to reach
-it. So the point list is known before the run and stable:
+while the field source sweeps the plan's fields `sweeps` times. As on a continuous ramp
+(rig/schedules/moving_tasks.py) every sample carries its DUT's temperature and each sweep has a nominal air
+temperature, where the air is when the sweep starts if every sweep takes the estimated sweep time; a sweep
+waits for the air to reach it. So the point list is known before the run and stable:
 
     L02-S003-F07     leg 2, sweep 3 of that leg, field 7 (O07 for a turntable's orientation)
 
@@ -48,7 +48,8 @@ def leg_points(plan: Plan, station: Station, targets: list[tuple[float, ...]], *
                first_index: int, first_temp_index: int, widths: tuple[int, int, int],
                field_indices: list[int] | None = None) -> list[RampPoint]:
     """Points of sweeps `sweeps` (first, last; 1-based) of one leg; `field_indices` (1-based) picks the
-    targets of each sweep (default: all, in order). Shared with the sequential schedule (rig/schedules/sequential.py)."""
+    targets of each sweep (default: all, in order). Shared with the sequential schedule
+    (rig/schedules/sequential.py)."""
     source = station.field_source
     lw, sw, fw = widths
     picks = field_indices or list(range(1, len(targets) + 1))

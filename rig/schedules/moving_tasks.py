@@ -1,6 +1,8 @@
-"""Continuous-ramp campaigns: the ramp as engine tasks, stop-when-good-enough, and the lag-corrected fit.
+"""The tasks of every schedule that samples while the temperature moves (a ramp, a designed or a
+sequential schedule), and stop-when-good-enough after each sweep.
 
-The points come from rig/schedules/ramp.py (legs x sweeps x fields). A point of a ramp:
+The points come from the schedule (rig/schedules/ramp.py, designed.py, sequential.py: legs x sweeps x
+fields); a sequential schedule adds its decisions (rig/schedules/sequential_run.py). A point of a leg:
 
     StartRamp(leg_end_c, rate)   when its leg is not yet commanded (first point of a leg, a retake after a
                                  hold or a pause, a resume): the chamber ramps from wherever the air is
@@ -90,7 +92,7 @@ class RampMode:
                 yield WaitStable(point.leg_start_c, criteria_of(point.stability))
             yield StartRamp(point.leg_end_c, point.ramp_c_per_min)
             self.leg = point.leg
-        self.runner._settle_stats = yield AwaitAir(point.setpoint_c, point.rising,
+        self.runner._stability_stats = yield AwaitAir(point.setpoint_c, point.rising,
                                                    point.stability.max_wait_s)
         yield MoveField(point.command)
         yield Settle(point.settle_s)
@@ -109,7 +111,7 @@ class RampMode:
         else:
             self.stepping = _Stepping(clock.now(), air_c, cmd.end_c, cmd.rate_c_per_min, air_c)
             self._step_setpoint()
-        self.runner.status.settling = f"ramp {air_c:.1f} -> {cmd.end_c:g} degC at {cmd.rate_c_per_min:g}/min"
+        self.runner.status.thermal = f"ramp {air_c:.1f} -> {cmd.end_c:g} degC at {cmd.rate_c_per_min:g}/min"
         log.info("ramp from %.2f to %g degC at %g degC/min", air_c, cmd.end_c, cmd.rate_c_per_min)
 
     def _step_setpoint(self) -> None:
@@ -133,9 +135,9 @@ class RampMode:
                 return {"nominal_c": cmd.nominal_c, "air_c": air, "waited_s": clock.now() - start}
             if clock.now() - start > cmd.max_wait_s:
                 raise Hold(f"chamber air {air:.2f} degC did not reach {cmd.nominal_c:g} degC within "
-                           f"{cmd.max_wait_s:g} s", code=Reason.SETTLE_TIMEOUT,
+                           f"{cmd.max_wait_s:g} s", code=Reason.STABILITY_TIMEOUT,
                            device=runner.rig.chamber.name)
-            runner.status.settling = f"ramp: air {air:.2f} degC, next sweep at {cmd.nominal_c:g} degC"
+            runner.status.thermal = f"ramp: air {air:.2f} degC, next sweep at {cmd.nominal_c:g} degC"
             poll = min(MAX_POLL_S, max(1.0, off / self.rate_c_per_min * 60.0))
             runner.engine.wait(poll, poll)
 

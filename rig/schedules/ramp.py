@@ -3,8 +3,8 @@
 The chamber ramps from range_c[0] to range_c[1] (leg U when that is upwards) and back (leg D), `cycles`
 times. Meanwhile the field source sweeps the plan's field set again and again. Each sweep has a nominal
 air temperature, where the air is when the sweep starts if every sweep takes the estimated sweep time;
-a sweep waits for the air to reach it, never the other way round (rig/schedules/moving_tasks.py). A leg has as many sweeps
-as fit in its ramp plus its end hold, so the point list is known before the run and stable:
+a sweep waits for the air to reach it, never the other way round (rig/schedules/moving_tasks.py). A leg has as
+many sweeps as fit in its ramp plus its end hold, so the point list is known before the run and stable:
 
     R1U-S003-F07     cycle 1, leg up, sweep 3 of that leg, field 7 (O07 for a turntable's orientation)
 
@@ -28,8 +28,8 @@ from rig.schedules.check import (
     format_duration,
     plan_error,
     sample_time_s,
-    settle_after_ramp_s,
     slowest_lag_s,
+    stable_after_ramp_s,
     start_air_c,
 )
 
@@ -167,7 +167,7 @@ class RampSchedule:
         sweeps_s = per_leg * self.sweep_s * n_legs
         return {
             "to start": abs(delta) / rate * 60.0,
-            "stability": settle_after_ramp_s(delta, rate, slowest_lag_s(station), ramp.stability),
+            "stability": stable_after_ramp_s(delta, rate, slowest_lag_s(station), ramp.stability),
             "ramps": ramps_s,
             "end holds": ramp.end_hold_s * n_legs,
             "last sweeps": max(0.0, sweeps_s - ramps_s - ramp.end_hold_s * n_legs),

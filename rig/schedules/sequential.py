@@ -1,14 +1,14 @@
 """A sequential schedule (`temperatures: {mode: sequential, ...}`): the campaign decides its sweeps as it
-goes (rig/schedules/sequential_run.py runs it; calib/planner.py decides). Before the run only the first sweep is known: to
-the end of `range_c` the design from the station's values starts with, at the fastest rate, with the
-optimal exact set of `fields_per_sweep` of the plan's fields. After the last point of every sweep the run
-decides the next sweep (stay, next leg, or stop) and records it in the session, in the same transaction
-as that point, as a row of the `decisions` table plus the sweep's points. So the planned points of a
-session are the first sweep followed by every recorded decision's sweep, and a resume rebuilds exactly
-them (`decided_points`): every point is taken once, whatever moment a run stopped at.
+goes (rig/schedules/sequential_run.py runs it; calib/planner.py decides). Before the run only the first sweep
+is known: to the end of `range_c` the design from the station's values starts with, at the fastest rate, with
+the optimal exact set of `fields_per_sweep` of the plan's fields. After the last point of every sweep the run
+decides the next sweep (stay, next leg, or stop) and records it in the session, in the same transaction as
+that point, as a row of the `decisions` table plus the sweep's points. So the planned points of a session are
+the first sweep followed by every recorded decision's sweep, and a resume rebuilds exactly them
+(`decided_points`): every point is taken once, whatever moment a run stopped at.
 
-Point ids are those of designed legs (rig/schedules/designed.py), with fixed widths so that they never change as
-sweeps are added:
+Point ids are those of designed legs (rig/schedules/designed.py), with fixed widths so that they never change
+as sweeps are added:
 
     L02-S0003-F07     leg 2, sweep 3 of that leg, field 7 of the plan's fields
 

@@ -1,8 +1,9 @@
-"""Running a sequential schedule (rig/schedules/sequential.py): after the last point of each sweep, decide the next.
+"""Running a sequential schedule (rig/schedules/sequential.py): after the last point of each sweep, decide the
+next.
 
-A point runs as on a continuous ramp (rig/schedules/moving_tasks.py: StartRamp when its leg begins, AwaitAir, MoveField,
-Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from wherever the air is.
-CollectPoint of a sweep's last point calls `decide` with the point's rows before storing them:
+A point runs as on a continuous ramp (rig/schedules/moving_tasks.py: StartRamp when its leg begins, AwaitAir,
+MoveField, Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from wherever the
+air is. CollectPoint of a sweep's last point calls `decide` with the point's rows before storing them:
 
 1. each DUT's data so far, its temperature moved to the element's (calib/lag.py, when the lag shows),
    gives its Gram, noise and standard errors; the worst ratio to the targets (calib/targets.py);
@@ -15,8 +16,8 @@ CollectPoint of a sweep's last point calls `decide` with the point's rows before
    its element is expected at.
 
 The decision and the sweep's points go into the session in the same transaction as the point itself
-(rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds exactly the points decided so far,
-whenever the run stopped; the engine gets the new tasks at the point's Checkpoint.
+(rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds exactly the points
+decided so far, whenever the run stopped; the engine gets the new tasks at the point's Checkpoint.
 """
 
 from __future__ import annotations
@@ -291,5 +292,6 @@ def _num(value) -> float | None:
 
 
 def attach(runner) -> SequentialMode | None:
-    """The SequentialMode of a sequential plan (None for any other: rig/schedules/moving_tasks.py attaches those)."""
+    """The SequentialMode of a sequential plan (None for any other: rig/schedules/moving_tasks.py attaches
+    those)."""
     return SequentialMode(runner) if isinstance(runner.plan.temperatures, SequentialTemperatures) else None

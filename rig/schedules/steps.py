@@ -22,8 +22,8 @@ from rig.schedules.check import (
     ScheduleCheck,
     plan_error,
     sample_time_s,
-    settle_after_ramp_s,
     slowest_lag_s,
+    stable_after_ramp_s,
     start_air_c,
 )
 
@@ -133,7 +133,7 @@ class StepSchedule:
             rate = min(p.ramp_c_per_min, station.chamber.limits.max_ramp_c_per_min)
             delta = p.setpoint_c - temp
             ramp_s += abs(delta) / rate * 60.0
-            stable_s += settle_after_ramp_s(delta, rate, lag_s, p.stability)
+            stable_s += stable_after_ramp_s(delta, rate, lag_s, p.stability)
             temp = p.setpoint_c
         moves_s = station.field_source.move_time_s([p.command for p in points])
         move_s = sum(p.settle_s for p in points) + moves_s

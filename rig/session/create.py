@@ -74,7 +74,8 @@ def open_for_writing(path: Path) -> sqlite3.Connection:
 def session_record(*, plan_name, station_name, plan_text, station_text, plan_path, station_path,
                    software_version, operator, simulated, started) -> tuple:
     """The session row's values, in the order _build inserts them."""
-    return (plan_name, station_name, plan_text, station_text, sha256_text(plan_text), sha256_text(station_text),
+    return (plan_name, station_name, plan_text, station_text, sha256_text(plan_text),
+            sha256_text(station_text),
             plan_path and str(plan_path), station_path and str(station_path), software_version, operator,
             json.dumps(simulated), started, time.time())
 

@@ -57,7 +57,7 @@ class Reason(StrEnum):
     CHAMBER_SENSOR = "chamber_sensor_error"
     CHAMBER_OFF_COURSE = "chamber_off_course"  # air faster than the ramp limit, or away from its set point
     NO_TEMPERATURE = "no_temperature"
-    SETTLE_TIMEOUT = "settle_timeout"
+    STABILITY_TIMEOUT = "settle_timeout"
     TEMP_OUT_OF_BAND = "temp_out_of_band"
     DEVICE_TIMEOUT = "device_timeout"
     PROTOCOL_ERROR = "protocol_error"
@@ -100,7 +100,7 @@ class Reason(StrEnum):
 
 HOLD_REASONS = frozenset({
     Reason.CHAMBER_ALARM, Reason.CHAMBER_SENSOR, Reason.CHAMBER_OFF_COURSE, Reason.NO_TEMPERATURE,
-    Reason.SETTLE_TIMEOUT,
+    Reason.STABILITY_TIMEOUT,
     Reason.TEMP_OUT_OF_BAND, Reason.DEVICE_TIMEOUT, Reason.PROTOCOL_ERROR, Reason.DEVICE_NOT_FOUND,
     Reason.DEVICE_FAULT, Reason.SITE_FIELD_DRIFT,
 })
@@ -175,7 +175,7 @@ def event_from_row(row: dict) -> Event:
 # --- version 1 sessions: their events carried only kind and wording ----------------------------------
 _V1_POINT = re.compile(r"^point (\S+?):")  # "point T03-F01: ..." (holds) and "paused at point T03-F01"
 _V1_HOLD_WORDING = [  # (pattern in the hold message, reason), as the engine and campaign worded them
-    (re.compile(r"not stable at .* within max_wait_s"), Reason.SETTLE_TIMEOUT),
+    (re.compile(r"not stable at .* within max_wait_s"), Reason.STABILITY_TIMEOUT),
     (re.compile(r"chamber alarm"), Reason.CHAMBER_ALARM),
     (re.compile(r"chamber temperature input error"), Reason.CHAMBER_SENSOR),
     (re.compile(r"gives no temperature"), Reason.NO_TEMPERATURE),

@@ -8,8 +8,8 @@ the engine alone decides when a request is safe to act on (rig/engine/executor.p
 
 The file `<session>.request` holds one JSON request {action, source, pid, id, wall_t}, written under a
 temporary name and renamed, so the engine never reads half of one. `pid` is the run it is meant for (the
-holder of the run lock, rig/session/lock.py): a request that arrives after its run ended is dropped by the next
-run instead of pausing it. The engine removes the file when it takes the request. An abort is never
+holder of the run lock, rig/session/lock.py): a request that arrives after its run ended is dropped by the
+next run instead of pausing it. The engine removes the file when it takes the request. An abort is never
 replaced by a later pause. With no request pending, a check costs one failed rename().
 """
 

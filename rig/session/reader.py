@@ -134,8 +134,9 @@ class SessionReader:
         return self._rows("SELECT * FROM snapshots ORDER BY id")
 
     def temperatures(self, after_row: int = 0) -> list[dict]:
-        """The chamber's set point and air and the DUT temperatures the run logged (rig/session/temperature_log.py), in
-        the order written, `duts` parsed, `row` numbering them; with `after_row`, only the rows after that
+        """The chamber's set point and air and the DUT temperatures the run logged
+        (rig/session/temperature_log.py), in the order written, `duts` parsed, `row` numbering them; with
+        `after_row`, only the rows after that
         one (a live view); [] in a session without."""
         if not self._has_table("temperatures"):
             return []
@@ -164,7 +165,8 @@ class SessionReader:
         return json.loads(rows[0]["describe_json"]) if rows else None
 
     def point_references(self) -> dict[str, dict]:
-        """{point id: the reference it was taken with} of the done points (rig/fieldsources/fieldmaths.py `record`)."""
+        """{point id: the reference it was taken with} of the done points (rig/fieldsources/fieldmaths.py
+        `record`)."""
         out = {}
         for r in self._rows("SELECT id, settle_json FROM points WHERE state = 'done'"):
             stats = json.loads(r["settle_json"] or "{}")

@@ -56,7 +56,8 @@ def _opt_float(value) -> float | None:
 
 @dataclass(frozen=True)
 class TemperatureRow:
-    """One line of the cockpit's temperature plot (rig/session/temperature_log.py): the chamber's set point (and its
+    """One line of the cockpit's temperature plot (rig/session/temperature_log.py): the chamber's set point
+    (and its
     instantaneous one during a ramp), its air and each DUT's temperature."""
 
     t: float

@@ -16,7 +16,8 @@ READABLE_VERSIONS = (1, 2)
 APPLICATION_ID = 0x4D475247  # "MGRG": marks the file as a magrig session
 SESSION_SUFFIXES = (".session", ".sqlite", ".sqlite3", ".db")
 
-# made by the first decision of a sequential schedule (rig/schedules/sequential_run.py): one row per decided sweep or stop
+# made by the first decision of a sequential schedule (rig/schedules/sequential_run.py): one row per decided
+# sweep or stop
 DECISIONS_TABLE = ("CREATE TABLE IF NOT EXISTS decisions (seq INTEGER PRIMARY KEY, t REAL, after_point TEXT, "
                    "decision_json TEXT)")
 

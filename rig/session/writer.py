@@ -5,7 +5,7 @@
                            points=..., simulated={"chamber": True, ...}, ...))
     s = Session.open(path)                       # resume: checks the file, migrates an older schema
     s.done_point_ids() -> set[str]
-    s.record_point(point_id, rows: list[SampleRow], settle_stats: dict)   # ONE transaction per point
+    s.record_point(point_id, rows: list[SampleRow], stability_stats: dict)   # ONE transaction per point
     s.record_point(..., decision=Decision(data, points))   # a sequential schedule's next sweep, too
     s.decisions() -> list[dict]
     s.mark_point_failed(point_id, reason)
@@ -91,7 +91,8 @@ class Session:
                plan_path: str | None = None, station_path: str | None = None, operator: str | None = None,
                software_version: str = __version__, clock: Clock | None = None) -> Session:
         """A new session file (it must not exist) holding the plan, the station and every planned point
-        (objects with id, index, temp_index, setpoint_c, field_index and target, e.g. rig.core.points.Point)."""
+        (objects with id, index, temp_index, setpoint_c, field_index and target, e.g.
+        rig.core.points.Point)."""
         path = Path(path)
         clock = clock or RealClock()
         record = session_record(plan_name=plan_name, station_name=station_name, plan_text=plan_text,
@@ -172,7 +173,7 @@ class Session:
             except sqlite3.OperationalError as exc:
                 raise SessionError(f"{self.path}: cannot write to the session ({exc})") from None
 
-    def record_point(self, point_id: str, rows: Iterable[SampleRow], settle_stats: dict | None = None, *,
+    def record_point(self, point_id: str, rows: Iterable[SampleRow], stability_stats: dict | None = None, *,
                      started: float | None = None, finished: float | None = None,
                      temperatures: list[TemperatureRow] = (), decision: Decision | None = None) -> None:
         """Mark the point done and store all its samples, atomically (with the temperature rows noted
@@ -193,7 +194,7 @@ class Session:
             conn.execute(
                 "UPDATE points SET state = 'done', settle_json = ?, started = ?, finished = ?, reason = NULL "
                 "WHERE id = ?",
-                (json.dumps(settle_stats or {}, default=float), started, finished, point_id),
+                (json.dumps(stability_stats or {}, default=float), started, finished, point_id),
             )
 
     def decisions(self) -> list[dict]:
@@ -208,8 +209,9 @@ class Session:
     def log_event(self, kind: str, message: str, *, code: Reason | None = None, point_id: str | None = None,
                   level: str | None = None, device: str | None = None, t: float | None = None,
                   **data) -> None:
-        """An event: its kind (rig.session.events.Kind), its reason code (rig.session.events.Reason), the point and the
-        device it concerns and a message for people. `level` defaults to `kind` when that is a logging
+        """An event: its kind (rig.session.events.Kind), its reason code (rig.session.events.Reason), the
+        point and the device it concerns and a message for people. `level` defaults to `kind` when that is a
+        logging
         level name ("warning"), else INFO. Extra keyword data is stored as JSON."""
         kind = str(kind)
         if level is None:

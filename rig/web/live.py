@@ -7,10 +7,10 @@
     hub.unsubscribe(live)
 
 A commit shows as a change of the session's write-ahead log (or of the file itself, or of the run that
-holds its lock); only then is the file opened, through rig.session.reader.SessionReader, and only what is new is
-read: points that became done (and their samples, for each DUT's running T24 fit), events after the last
-one seen, temperature rows after the last time seen. The campaign process is never waited for: a reader
-beside SQLite's writer costs the writer nothing.
+holds its lock); only then is the file opened, through rig.session.reader.SessionReader, and only what is new
+is read: points that became done (and their samples, for each DUT's running T24 fit), events after the last
+one seen, temperature rows after the last time seen. The campaign process is never waited for: a reader beside
+SQLite's writer costs the writer nothing.
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ Routes (ROOT is the index of a served folder, NAME a session file's name in it, 
                                         events), /state the same state once, as JSON
     GET  /s/ROOT/NAME/report            its HTML report (rig report)
     GET  /s/ROOT/NAME/download?what=KIND&dut=D&model=M    calibration files, exports, samples CSV
-    POST /s/ROOT/NAME/action            action=pause|abort: a request to the running campaign (rig/session/inbox.py)
-    GET  /static/FILE                   the script, style sheet and icon
+    POST /s/ROOT/NAME/action            action=pause|abort: a request to the running campaign
+    (rig/session/inbox.py) GET  /static/FILE                   the script, style sheet and icon
 
 Every request passes, in this order: the Host check (without a token), the token (with one), the route;
 an action also needs the CSRF token and a same-origin Origin. rig/web/guard.py holds the checks.

@@ -45,7 +45,8 @@ def commissioning_data(station_path: Path, *, matrix=None, covariance=None, stat
     cov = np.eye(12) * 0.02 if covariance is None else np.asarray(covariance, float)
     created = created or dt.datetime.now(dt.UTC)
     return {
-        "format": commissioning_file.FORMAT_NAME, "format_version": commissioning_file.FORMAT_VERSION, "kind": "coils",
+        "format": commissioning_file.FORMAT_NAME, "format_version": commissioning_file.FORMAT_VERSION,
+        "kind": "coils",
         "station": station or data["name"], "created_utc": commissioning_file.utc_text(created),
         "software_version": "test",
         "reference_magnetometer": {

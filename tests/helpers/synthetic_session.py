@@ -137,5 +137,6 @@ def _log_timeouts(session: Session, p: SynthPoint, n: int) -> None:
     """Settle-timeout holds of dut1, typed as the engine records them (the wording is free text)."""
     for retake in range(1, n + 1):
         session.clock.sleep(10800.0)
-        session.log_event(Kind.HOLD, f"synthetic settle timeout, retake {retake}", code=Reason.SETTLE_TIMEOUT,
+        session.log_event(Kind.HOLD, f"synthetic stability timeout, retake {retake}",
+                          code=Reason.STABILITY_TIMEOUT,
                           point_id=p.id, device="dut1", level="WARNING", retake=retake)

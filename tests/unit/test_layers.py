@@ -149,7 +149,8 @@ def test_the_kind_question_detector_detects(tmp_path):
     sample.write_text("def f(x, y):\n"
                       "    return isinstance(x, (int, WatlowF4T)) or isinstance(y, cfg.Coils | str)\n")
     assert len(kind_questions(sample, concrete_names())) == 2
-    assert kind_questions(REPO / "rig" / "core" / "yamlload.py", concrete_names()) == []  # isinstance on data is fine
+    # isinstance on data is fine
+    assert kind_questions(REPO / "rig" / "core" / "yamlload.py", concrete_names()) == []
 
 
 @pytest.mark.parametrize("role", registry.ROLES)
@@ -192,7 +193,8 @@ def test_rig_folders_import_downwards_only():
 
 
 def test_the_upward_import_detector_detects(tmp_path):
-    probes = {"core/up.py": "import rig.run.campaign\n", "devices/side.py": "from rig.engine import executor\n",
+    probes = {"core/up.py": "import rig.run.campaign\n",
+              "devices/side.py": "from rig.engine import executor\n",
               "run/down.py": "from rig.core.errors import ConfigError\n"}
     for name, text in probes.items():
         (tmp_path / name).parent.mkdir(exist_ok=True)

@@ -71,7 +71,8 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
         "matrix_nt_per_a": rows(matrix), "ambient_nt": floats(fitted.ambient_nt),
         "covariance": rows(fitted.covariance),
         "std_errors_matrix_nt_per_a": rows(se_matrix), "std_errors_ambient_nt": floats(se_ambient),
-        "residual_rms_nt": floats(fitted.residual_rms_nt), "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
+        "residual_rms_nt": floats(fitted.residual_rms_nt),
+        "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
         "hysteresis_nt": _hysteresis_nt(readings), "drift_nt": drift_nt(readings),
         "current_a": float(np.max(np.abs(currents))),
     }

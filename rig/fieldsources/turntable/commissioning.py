@@ -40,5 +40,6 @@ def fit(source, readings: list[Reading]) -> dict:
 
 
 def summary_lines(section) -> list[str]:
-    return ["  " + ", ".join(f"{k} {v:.4g} +- {section.std_errors[k]:.2g}" for k, v in section.params.items()),
+    params = ", ".join(f"{k} {v:.4g} +- {section.std_errors[k]:.2g}" for k, v in section.params.items())
+    return ["  " + params,
             f"  drift {section.drift_nt:.1f} nT"]

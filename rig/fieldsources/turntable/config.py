@@ -39,7 +39,8 @@ MOVE_TRAVEL_DEG = 360.0  # the longest move the settle wait allows for
 
 
 class SiteFromReference(Strict):
-    """Measured with the table at home by a reference magnetometer on the table (rig/reference/sitefield.py)."""
+    """Measured with the table at home by a reference magnetometer on the table
+    (rig/reference/sitefield.py)."""
 
     reference_magnetometer: SafeName
     drift_max_nt: NT = Field(

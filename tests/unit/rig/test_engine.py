@@ -286,7 +286,7 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
 
     session = new_session()
     rig = Rig(session, faults={
-        "T01-F02": [Hold("whatever words", code=Reason.SETTLE_TIMEOUT, device="dut7"),
+        "T01-F02": [Hold("whatever words", code=Reason.STABILITY_TIMEOUT, device="dut7"),
                     DeviceTimeout("coils", "read", "no reply")],
         "T02-F02": [LimitError("coils: 3.1 A exceeds max_current_a 2.0")],
     })
@@ -298,7 +298,7 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
         typed = [(e.kind, e.code, e.point_id, e.device) for e in r.events()
                  if e.kind in (Kind.HOLD, Kind.FAULT)]
         assert r.info()["exit_code"] == "limit_refused"
-    assert typed == [("hold", Reason.SETTLE_TIMEOUT, "T01-F02", "dut7"),
+    assert typed == [("hold", Reason.STABILITY_TIMEOUT, "T01-F02", "dut7"),
                      ("hold", Reason.DEVICE_TIMEOUT, "T01-F02", "coils"),
                      ("fault", Reason.LIMIT_REFUSED, "T02-F02", None)]
     inputs = from_session(session.path)
@@ -310,7 +310,8 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
 
 
 def test_tasks_added_during_the_run_are_run_in_order_and_counted(new_session):
-    """A schedule decided during the run (rig/schedules/sequential_run.py) appends its next points from a checkpoint."""
+    """A schedule decided during the run (rig/schedules/sequential_run.py) appends its next points from a
+    checkpoint."""
     session = new_session()
     extra = ["T03-F01", "T03-F02"]
     rig = Rig(session)

@@ -1,4 +1,5 @@
-"""A chamber without a ramp of its own gets its set point stepped at the ramp's pace (rig/schedules/moving_tasks.py)."""
+"""A chamber without a ramp of its own gets its set point stepped at the ramp's pace
+(rig/schedules/moving_tasks.py)."""
 
 from __future__ import annotations
 

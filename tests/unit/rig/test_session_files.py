@@ -171,7 +171,7 @@ def test_version_1_sessions_read_with_codes_and_migrate_on_resume(tmp_path, caps
     with SessionReader(path) as r:
         assert r.version == 1
         holds = [(e.point_id, e.code) for e in r.events() if e.kind == Kind.HOLD]
-        assert holds == [("T02-F01", Reason.SETTLE_TIMEOUT), ("T02-F02", Reason.CHAMBER_ALARM)]
+        assert holds == [("T02-F01", Reason.STABILITY_TIMEOUT), ("T02-F02", Reason.CHAMBER_ALARM)]
         assert r.summary()["points_done"] == 4 and r.info()["exit_code"] is None
     inputs = from_session(path)
     assert inputs.steps[2].settle_timeouts == 1
@@ -184,7 +184,7 @@ def test_version_1_sessions_read_with_codes_and_migrate_on_resume(tmp_path, caps
     with SessionReader(path) as r:
         assert r.version == SCHEMA_VERSION
         codes = [(e.kind, e.code, e.point_id) for e in r.events()]
-        assert codes[3] == ("hold", Reason.SETTLE_TIMEOUT, "T02-F01")
+        assert codes[3] == ("hold", Reason.STABILITY_TIMEOUT, "T02-F01")
         assert codes[5] == ("pause", Reason.OPERATOR_PAUSE, "T02-F02")
         assert codes[-1] == ("hold", Reason.DEVICE_TIMEOUT, "T01-F01")
         assert r.info()["plan_sha256"] is not None

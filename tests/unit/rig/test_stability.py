@@ -6,9 +6,16 @@ import math
 
 import pytest
 
-from rig.engine.stability import SETTLING, STABLE, TIMEOUT, SettleCriteria, StabilityDetector, slope_per_s
+from rig.engine.stability import (
+    APPROACHING,
+    STABLE,
+    TIMEOUT,
+    StabilityCriteria,
+    StabilityDetector,
+    slope_per_s,
+)
 
-CRIT = SettleCriteria(band_c=0.5, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=7200.0)
+CRIT = StabilityCriteria(band_c=0.5, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=7200.0)
 
 
 def feed(det: StabilityDetector, temps, dt_s: float = 10.0, t0: float = 0.0) -> list[str]:
@@ -30,23 +37,23 @@ def test_first_order_approach_becomes_stable_only_after_dwell_in_band():
     first_stable = states.index(STABLE)
     entered_band = next(i for i, x in enumerate(temps) if abs(x - target) <= 0.5)
     assert first_stable * 10.0 >= entered_band * 10.0 + CRIT.dwell_s
-    assert all(s == SETTLING for s in states[:first_stable])
+    assert all(s == APPROACHING for s in states[:first_stable])
     assert abs(det.rate_c_per_min) <= CRIT.max_rate_c_per_min
 
 
 def test_leaving_the_band_restarts_the_dwell():
     det = StabilityDetector(25.0, CRIT)
     feed(det, [25.0] * 20)  # 190 s in band
-    assert det.state == SETTLING
+    assert det.state == APPROACHING
     det.add(200.0, 26.0)  # a bump out of band
     assert det.in_band_s == 0.0
     states = feed(det, [25.0] * 31, t0=210.0)
     assert states[-1] == STABLE
-    assert states[29] == SETTLING  # 290 s after the bump: dwell not yet complete
+    assert states[29] == APPROACHING  # 290 s after the bump: dwell not yet complete
 
 
 def test_in_band_but_drifting_is_not_stable():
-    crit = SettleCriteria(band_c=2.0, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=7200.0)
+    crit = StabilityCriteria(band_c=2.0, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=7200.0)
     det = StabilityDetector(25.0, crit)
     # 0.3 degC/min drift that stays within +-2 degC for the whole 10 min
     states = feed(det, [24.0 + 0.005 * i * 10.0 for i in range(40)])
@@ -55,8 +62,8 @@ def test_in_band_but_drifting_is_not_stable():
 
 
 def test_never_settling_times_out_at_the_hard_maximum():
-    crit = SettleCriteria(band_c=0.5, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=600.0)
+    crit = StabilityCriteria(band_c=0.5, max_rate_c_per_min=0.1, dwell_s=300.0, max_wait_s=600.0)
     det = StabilityDetector(60.0, crit)
     states = feed(det, [30.0] * 100)
-    assert states[59] == SETTLING
+    assert states[59] == APPROACHING
     assert states[60] == TIMEOUT
