@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sqlite3
 import subprocess
 import sys
@@ -40,6 +41,22 @@ def rig_cmd(*args: str) -> list[str]:
 def run_rig(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run(rig_cmd(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout,
                           stdin=subprocess.DEVNULL, env=os.environ.copy())
+
+
+def controlled_run(session, plan, station, at: str, then: str = "kill") -> subprocess.Popen:
+    """A campaign in its own process that stops at `at` (tests/system/controlled_run.py): killed with
+    SIGKILL there, or holding until its stdin gets a line."""
+    return subprocess.Popen([sys.executable, "-m", "tests.system.controlled_run", str(session), str(plan),
+                             str(station), "--at", at, "--then", then], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, stdin=subprocess.PIPE, text=True)
+
+
+def killed_at(session, plan, station, at: str) -> list[str]:
+    """Run until `at`, be killed there (SIGKILL); the ids of the points it reported recorded."""
+    proc = controlled_run(session, plan, station, at, "kill")
+    out, err = proc.communicate(timeout=600)
+    assert proc.returncode == -signal.SIGKILL, (proc.returncode, err[-2000:])
+    return [line.split()[1] for line in out.splitlines() if line.startswith("point ")]
 
 
 def popen_rig(*args: str) -> subprocess.Popen:

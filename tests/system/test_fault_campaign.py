@@ -3,7 +3,6 @@ holds and retakes, records every fault as an event naming the device and the rea
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -70,10 +69,8 @@ def test_one_fault_in_100_operations_everywhere_still_takes_every_point_once(tmp
     campaign = load_campaign(demo_with_samples(tmp_path, 3), FAULTS_STATION)
     session = tmp_path / "faults.session"
     worlds = []
-    t0 = time.perf_counter()
     outcome = run_campaign(campaign=campaign, session_path=session,
                            on_rig=lambda rig: worlds.append(rig.world))
-    wall_s = time.perf_counter() - t0
     assert outcome.result.status == "completed", outcome.result.reason
 
     points = compile_plan(campaign.plan, campaign.station)
@@ -99,7 +96,6 @@ def test_one_fault_in_100_operations_everywhere_still_takes_every_point_once(tmp
         mine = [r for r in recorded if r[2] == name]
         assert injected and len(mine) >= len(injected), (name, len(mine), injected)
     assert_safe_at_the_end(session)
-    assert wall_s < 120  # about 45 s on a quiet machine; lost replies cost their (shortened) timeouts
 
 
 def test_an_unplugged_chamber_and_its_alarm_hold_the_run_which_then_completes(tmp_path):

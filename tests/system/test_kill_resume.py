@@ -1,11 +1,11 @@
-"""kill -9 at a random moment, then `rig run --resume`: the session ends complete with exactly the
-planned points and samples, none recorded twice, and the dead run's lock is reported and taken over."""
+"""kill -9 at a moment the test chooses (between points, inside a point's collection, inside its write
+transaction), then `rig run --resume`: the session ends complete with exactly the planned points and
+samples, none recorded twice, and the dead run's lock is reported and taken over. A live run refuses a
+second run on its session."""
 
 from __future__ import annotations
 
-import random
 import signal
-import time
 
 import pytest
 
@@ -13,9 +13,10 @@ from rig.reference.loading import load_campaign
 from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import (
     SIM_STATION,
+    controlled_run,
     events,
     final_snapshots,
-    popen_rig,
+    killed_at,
     run_rig,
     session_counts,
     small_plan,
@@ -24,19 +25,17 @@ from tests.system.campaign_helpers import (
 pytestmark = pytest.mark.system
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_kill_9_then_resume_completes_without_duplicates(tmp_path, seed):
+@pytest.mark.parametrize("at", ["point:3", "collect:5", "commit:2"])
+def test_kill_9_then_resume_completes_without_duplicates(tmp_path, at):
     station = SIM_STATION
     plan = small_plan(tmp_path, samples=8)
     session = tmp_path / "run.session"
-    proc = popen_rig("run", str(plan), "--station", str(station), "--session", str(session), "--no-live")
-    proc.stdout.readline()  # first point recorded: the session exists and the run is busy
-    time.sleep(random.Random(seed).uniform(0.0, 1.5))
-    proc.send_signal(signal.SIGKILL)
-    proc.communicate(timeout=30)
-    assert proc.returncode == -signal.SIGKILL
+    reported = killed_at(session, plan, station, at)
     before = session_counts(session)
     assert before["status"] is None  # nothing ran after the kill
+    n = int(at.split(":")[1])
+    assert before["done"] == (n if at.startswith("point") else n - 1) == len(reported)  # whole points only
+    assert before["orphan_samples"] == 0
     assert (tmp_path / "run.session.lock").exists()
 
     resumed = run_rig("run", "--resume", str(session), "--no-live")
@@ -58,16 +57,17 @@ def test_kill_9_then_resume_completes_without_duplicates(tmp_path, seed):
 
 
 def test_a_live_run_refuses_a_second_run_on_its_session(tmp_path):
-    station = SIM_STATION
     session = tmp_path / "run.session"
-    proc = popen_rig("run", str(small_plan(tmp_path, samples=20)), "--station", str(station),
-                     "--session", str(session), "--no-live")
+    proc = controlled_run(session, small_plan(tmp_path, samples=2), SIM_STATION, "point:1", "hold")
     try:
-        proc.stdout.readline()
+        lines = iter(proc.stdout.readline, "")
+        assert next(line for line in lines if not line.startswith("point ")).strip() == "holding"
         second = run_rig("run", "--resume", str(session), "--no-live")
         assert second.returncode == 2
         assert "in use by running process" in second.stderr and str(proc.pid) in second.stderr
     finally:
         proc.send_signal(signal.SIGTERM)
-        proc.communicate(timeout=30)
+        proc.stdin.write("go on\n")
+        proc.stdin.flush()
+        proc.communicate(timeout=120)
     assert session_counts(session)["status"] == "aborted"

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.chamber import WatlowF4T
 from drivers.clock import SimClock
 from drivers.coils import CoilController
 from drivers.sim.chamber import ChamberSim
@@ -15,6 +14,7 @@ from drivers.sim.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import Turntable
+from drivers.watlow import WatlowF4T
 
 pytestmark = pytest.mark.system
 

@@ -4,8 +4,6 @@ after an abort or a kill -9 at any moment with every point taken exactly once.""
 from __future__ import annotations
 
 import json
-import signal
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +13,7 @@ from calib import calfile
 from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan
-from tests.system.campaign_helpers import SIM_STATION, popen_rig, query, run_rig, session_counts
+from tests.system.campaign_helpers import SIM_STATION, killed_at, query, run_rig, session_counts
 
 pytestmark = pytest.mark.system
 
@@ -133,20 +131,10 @@ def test_abort_anywhere_then_resume_takes_every_point_once(tmp_path, extra):
 def test_kill_9_during_a_sequential_campaign_then_resume(tmp_path):
     plan = seq_plan(tmp_path, "k")
     session = tmp_path / "k.session"
-    proc = popen_rig("run", plan, "--station", str(SIM_STATION), "--session", str(session), "--no-live")
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        time.sleep(0.5)
-        try:
-            if len(query(session, "SELECT seq FROM decisions")) >= 3:
-                break
-        except Exception:  # the file or the table is not there yet
-            continue
-    proc.send_signal(signal.SIGKILL)
-    proc.communicate(timeout=30)
-    assert proc.returncode == -signal.SIGKILL
+    killed_at(session, plan, SIM_STATION, "decision:3")
     before = session_counts(session)
     assert before["status"] is None and before["done"] < before["planned"] or not before["completed"]
+    assert len(decisions(session)) == 3
     resumed = run_rig("run", "--resume", str(session), "--no-live", timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     check_every_point_once(session, load_campaign(plan, SIM_STATION))
