@@ -213,6 +213,11 @@ class FakeSMBus:
         """Draw a fault of `faults` (drivers.sim.faults.DeviceFaults) for every transfer to `address`."""
         self._faults[address] = faults
 
+    def chip_at(self, address: int):
+        """The chip that acknowledges `address` now, NACK faults applied (OSError 121 when none does):
+        how a bridge simulator (drivers/sim/i2c_wire.py) reaches the same chips."""
+        return self._chip(address)
+
     def _chip(self, address: int):
         faults = self._faults.get(address)
         if faults is not None and faults.draw() in ("nack", "unplug"):
