@@ -113,7 +113,7 @@ class CP2112Bus(BridgeBus):
     # --- reports ------------------------------------------------------------------------------------
     def _send(self, report: bytes) -> None:
         if self.link is None:
-            raise DeviceError(self.name, "USB write", "the bridge is closed")
+            self._open()  # closed after a USB failure: it must be back to go on
         self.link.write(report.ljust(REPORT_LENGTH, b"\x00"))
 
     def _cancel(self) -> None:

@@ -89,9 +89,9 @@ class MCP2221Bus(BridgeBus):
 
     # --- commands -----------------------------------------------------------------------------------
     def _command(self, report: bytes) -> bytes:
+        if self.link is None:
+            self._open()  # closed after a USB failure: it must be back to go on
         link = self.link
-        if link is None:
-            raise DeviceError(self.name, "USB write", "the bridge is closed")
         link.write(b"\x00" + report.ljust(REPORT_LENGTH, b"\x00"))
         return link.read(REPORT_LENGTH, REPLY_TIMEOUT_MS, expect=report[0])
 
