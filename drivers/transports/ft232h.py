@@ -19,6 +19,7 @@ pyftdi's STOP waits for one such reply: it sets the time of every transfer (benc
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -102,6 +103,9 @@ class FT232HBus(BridgeBus):
         except ImportError as exc:
             raise DeviceNotFound(self.name, "open", "the pyftdi package is not installed "
                                                     "(pip install 'magrig[bridges]')") from exc
+        pyftdi_log = logging.getLogger("pyftdi.i2c")
+        if pyftdi_log.level == logging.NOTSET:
+            pyftdi_log.setLevel(logging.ERROR)  # its NACK warnings: this transport raises NACKs itself
         vendor, product, serial, index, interface = parse_url(self.url)
         found = [d for d in list_devices(self.usb_backend)
                  if (d["vendor_id"], d["product_id"]) == (vendor, product)
