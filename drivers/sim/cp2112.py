@@ -75,6 +75,7 @@ class CP2112Sim:
         self.serial_number = serial
         self.path = b""
         self.reports: list[bytes] = []  # every interrupt OUT report received, for tests
+        self.version = DEVICE_VERSION  # a test may play a version-1 chip (no repeated START)
         self.power_on()
 
     def power_on(self) -> None:
@@ -114,7 +115,7 @@ class CP2112Sim:
         if report_id == SMBUS_CONFIG:
             return self.config
         if report_id == VERSION:
-            return bytes([VERSION, PART_NUMBER, DEVICE_VERSION])
+            return bytes([VERSION, PART_NUMBER, self.version])
         return None
 
     # --- interrupt reports --------------------------------------------------------------------------
@@ -153,6 +154,8 @@ class CP2112Sim:
             read_length = int.from_bytes(report[2:4], "big")
             _check(1 <= read_length <= 512, "read length", read_length)
         if kind == WRITE_READ_REQUEST:
+            if self.version < 2:
+                raise ValueError("CP2112 version 1: write-read with a repeated START is erratum CP2112_E10")
             write = report[5:5 + report[4]]
             _check(1 <= report[4] <= 16, "write-read target length", report[4])
         self._run(address8 >> 1, bytes(write), read_length)
