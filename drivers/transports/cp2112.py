@@ -72,8 +72,10 @@ class CP2112Bus(BridgeBus):
         self.log_frame("feature tx", report)
         if dev.send_feature_report(report) < 0:
             raise DeviceError(self.name, "configure", "the SMBus configuration report was refused")
-        if self._get_feature(SMBUS_CONFIG, len(report)) != report:
-            raise DeviceError(self.name, "configure", "the SMBus configuration did not take")
+        got = self._get_feature(SMBUS_CONFIG, len(report))
+        if (got[1:5], got[6], got[12:14]) != (report[1:5], report[6], report[12:14]):
+            raise DeviceError(self.name, "configure", f"the SMBus configuration did not take "
+                                                      f"(read back {got.hex(' ')})")
         self._drain()
 
     def _get_feature(self, report_id: int, length: int) -> bytes:
@@ -121,8 +123,13 @@ class CP2112Bus(BridgeBus):
 
     def _status(self) -> tuple[int, int, int, int]:
         self._send(bytes([STATUS_REQUEST, 0x01]))
-        r = self.link.read(REPORT_LENGTH, REPLY_TIMEOUT_MS, expect=STATUS_RESPONSE)
-        return r[1], r[2], int.from_bytes(r[3:5], "big"), int.from_bytes(r[5:7], "big")
+        for _ in range(DRAIN_MAX):
+            r = self.link.read(REPORT_LENGTH, REPLY_TIMEOUT_MS, expect=(STATUS_RESPONSE, READ_RESPONSE))
+            if r[0] == STATUS_RESPONSE:
+                return r[1], r[2], int.from_bytes(r[3:5], "big"), int.from_bytes(r[5:7], "big")
+            # the notes: a force read tends to end with an empty 0x13 report; it is not an answer
+            self.log_frame("rx (stale read response, dropped)", r)
+        raise ProtocolError(self.name, "transfer status", "no status among the reports")
 
     # --- transfers ----------------------------------------------------------------------------------
     def _transfer(self, address: int, write: bytes, read_length: int) -> bytes:

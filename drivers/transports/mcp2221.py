@@ -127,7 +127,7 @@ class MCP2221Bus(BridgeBus):
         command = READ
         if write:
             self._write(WRITE_NO_STOP, address8, write)
-            self._wait_for(NO_STOP_DONE)
+            self._wait_for(NO_STOP_DONE, IDLE)  # the notes expect 0x45; an idle engine is as good
             command = READ_RS
         self._send(bytes([command]) + read_length.to_bytes(2, "little") + bytes([address8 | 1]))
         return self._fetch(read_length)
@@ -137,8 +137,8 @@ class MCP2221Bus(BridgeBus):
         for start in range(0, len(data), CHUNK_BYTES):
             self._send(header + data[start:start + CHUNK_BYTES])
 
-    def _wait_for(self, done: int) -> None:
-        """Status polls until the engine shows `done`; a NACK or a timeout state ends it early."""
+    def _wait_for(self, *done: int) -> None:
+        """Status polls until the engine shows a `done` state; a NACK or a timeout state ends it early."""
         for _ in range(MAX_POLLS):
             status = self._status()
             state = status[8]
@@ -147,7 +147,7 @@ class MCP2221Bus(BridgeBus):
                 raise nack_error()
             if state in TIMEOUT_STATES:
                 self._bus_fault(state)
-            if state == done:
+            if state in done:
                 return
         raise DeviceTimeout(self.name, "I2C transfer", f"engine still in state 0x{state:02X} after "
                                                        f"{MAX_POLLS} status polls")
