@@ -104,8 +104,13 @@ class BridgeBus:
                             recover=self._recover)
 
     def log_frame(self, direction: str, data: bytes) -> None:
+        """A raw frame at DEBUG; a report's zero padding is counted, not printed."""
         if self.frame_log.isEnabledFor(logging.DEBUG):
-            self.frame_log.debug("%s %s %s", self.name, direction, hex_bytes(data),
+            shown = data.rstrip(b"\x00")
+            padding = f" (+{len(data) - len(shown)} zero bytes)" if len(data) - len(shown) > 1 else ""
+            if padding == "":
+                shown = data
+            self.frame_log.debug("%s %s %s%s", self.name, direction, hex_bytes(shown), padding,
                                  extra={"device": self.name})
 
     # --- smbus2 API (same names and arguments) ------------------------------------------------------
