@@ -176,3 +176,20 @@ def test_the_drivers_and_the_switch_work_unchanged_and_the_scan_finds_everything
     assert {(f.address, f.switch, f.channel) for f in scan.found} == {(0x70, None, None), (0x30, None, None),
                                                                         (0x48, 0x70, 3)}
     assert b.switch.control == 0
+
+
+def test_bridges_present_lists_every_kind_by_usb_id_and_serial(rig):
+    from drivers.sim.cp2112 import CP2112Sim
+    from drivers.sim.ft232h import FT232HSim
+    from drivers.sim.usbfake import FakeUsbBackend
+    from drivers.transports.bridge import bridges_present
+
+    b, usb, _ = rig
+    usb.plug(CP2112Sim(b.wire, b.clock, serial="0042"))
+    backend = FakeUsbBackend()
+    backend.plug(FT232HSim(b.wire, b.clock, serial="FT0FMF6V"))
+    found, notes = bridges_present(hid_module=usb, usb_backend=backend)
+    assert [(f["kind"], f["usb_id"], f["serial_number"]) for f in found] == [
+        ("mcp2221", "04d8:00dd", SERIAL), ("cp2112", "10c4:ea90", "0042"),
+        ("ft232h", "0403:6014", "FT0FMF6V")]
+    assert notes == []
