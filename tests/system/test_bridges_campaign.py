@@ -5,6 +5,7 @@ in a station file is checked like any I2C transport."""
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -90,3 +91,25 @@ def test_station_mistakes_are_one_line_errors(tmp_path, change, message):
     assert done.returncode != 0
     assert message in done.stderr and "Traceback" not in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_switches_behind_a_cp2112_and_an_ft232h(tmp_path):
+    station = yaml.safe_load(BRIDGES.read_text())
+    cp2112 = {"kind": "cp2112", "sim": True, "serial": "0042", "mux": {"address": 0x71, "channel": 2}}
+    ft232h = {"kind": "ft232h", "sim": True, "latency_ms": 2, "mux": {"address": 0x70, "channel": 5}}
+    for devices, transport in ((("duts", 0), ("temperature_sensors", 0)), cp2112), \
+                               ((("duts", 1), ("temperature_sensors", 1)), ft232h):
+        for role, i in devices:
+            address = station[role][i]["transport"]["address"]
+            station[role][i]["transport"] = {**copy.deepcopy(transport), "address": address}
+    path = tmp_path / "station.yaml"
+    path.write_text(yaml.safe_dump(station, sort_keys=False))
+    check = run_rig("devices", "check", str(path))
+    assert check.returncode == 0 and "all 6 devices answer" in check.stdout, check.stdout + check.stderr
+    scan = run_rig("devices", "scan", str(path))
+    assert scan.returncode == 0, scan.stdout + scan.stderr
+    assert "cp2112 0042 (simulated, CP2112 USB 10c4:ea90, serial number 0042)" in scan.stdout
+    assert any("switch 0x71 channel 2  TI TMP117" in line and "[station: tmp0]" in line
+               for line in scan.stdout.splitlines())
+    assert any("switch 0x70 channel 5  MEMSIC MMC5983MA" in line and "[station: mmc1]" in line
+               for line in scan.stdout.splitlines())
