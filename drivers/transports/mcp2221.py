@@ -143,7 +143,8 @@ class MCP2221Bus(BridgeBus):
             status = self._status()
             state = status[8]
             if state == ADDRESS_NACK or status[20] & NACK_FLAG:
-                self._cancel()
+                if state != IDLE:
+                    self._cancel()  # never an idle engine: that can wedge it
                 raise nack_error()
             if state in TIMEOUT_STATES:
                 self._bus_fault(state)
@@ -167,7 +168,8 @@ class MCP2221Bus(BridgeBus):
             if state in TIMEOUT_STATES:
                 self._bus_fault(state)
             if reply[3] == READ_ERROR_COUNT:
-                self._cancel()
+                if state != IDLE:
+                    self._cancel()
                 raise DeviceError(self.name, "I2C read", "the engine reports a read error (count 127)")
             data += reply[4:4 + min(reply[3], CHUNK_BYTES)]
             if state == READ_LAST or len(data) >= length or (state == IDLE and reply[3] == 0):
