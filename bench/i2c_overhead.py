@@ -22,8 +22,9 @@ from drivers import hmc5883l, mmc5983ma, tmp117
 from drivers.base import Device
 from drivers.clock import SimClock
 from drivers.sim.hmc5883l import HMC5883LSim
-from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, ScriptedSMBus
+from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.mmc5983ma import MMC5983MASim
+from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
 from drivers.sim.tmp117 import TMP117Sim
 from drivers.sim.world import DutTruth, World
 

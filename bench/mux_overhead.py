@@ -19,8 +19,9 @@ import numpy as np
 
 from drivers.clock import SimClock
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus
+from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.mmc5983ma import MMC5983MASim
+from drivers.sim.smbus_doubles import RecordingSMBus
 from drivers.sim.world import DutTruth, World
 from drivers.tca9548a import MuxedBus
 

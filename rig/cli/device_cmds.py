@@ -85,25 +85,31 @@ def register(group: click.Group) -> None:
     @click.option("--baud", type=click.Choice(["9600", "19200"]), default="9600", show_default=True,
                   help="First baud rate to ask --port at (the other is tried when nothing answers).")
     @click.option("--ids", metavar="A-B", help="Serial device ids to ask (default: 0-98, all of them).")
-    def scan(station_path, buses, ports, baud, ids):
+    @click.option("--bridges", is_flag=True,
+                  help="List the USB-to-I2C bridges plugged in (MCP2221A, CP2112, FT232H) and scan each "
+                       "one's bus.")
+    def scan(station_path, buses, ports, baud, ids, bridges):
         """Which I2C addresses answer on each bus of STATION.yaml (and behind each TCA9548A/PCA9548A switch
         channel), and which serial devices on its ports, each with what it is (its identification
         registers or replies), matched with the station's devices. Or one bus (--bus N) or port (--port)."""
         from rig.devices.scan import scan_station, scan_targets
 
-        if not (station_path or buses or ports):
-            raise click.UsageError("give STATION.yaml, --bus N or --port PATH")
+        if not (station_path or buses or ports or bridges):
+            raise click.UsageError("give STATION.yaml, --bus N, --port PATH or --bridges")
         device_ids = _id_range(ids)
         if station_path:
             from rig.config import load_station
 
             report = scan_station(load_station(station_path), device_ids=device_ids)
-            if buses or ports:
-                extra = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids)
+            if buses or ports or bridges:
+                extra = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids,
+                                     bridges=bridges)
+                report.bridges += extra.bridges
                 report.buses += extra.buses
                 report.ports += extra.ports
         else:
-            report = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids)
+            report = scan_targets(list(buses), [(p, int(baud)) for p in ports], device_ids=device_ids,
+                                  bridges=bridges)
         for line in report.lines():
             click.echo(line)
         if report.problems:

@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+from rig.core.configbase import BRIDGE_KINDS
+
 Problem = tuple[tuple[str | int, ...], str]
 
 
@@ -21,8 +23,8 @@ def _where(path: tuple) -> str:
     return f"{path[0]}[{path[1]}]"
 
 
-def _segment_text(bus: int, mux) -> str:
-    where = f"i2c-{bus}"
+def _segment_text(bus: int | str, mux) -> str:
+    where = f"i2c-{bus}" if isinstance(bus, int) else bus  # a bridge's bus goes by its own label
     return where if mux is None else f"{where} switch 0x{mux.address:02X} channel {mux.channel}"
 
 
@@ -33,13 +35,13 @@ def i2c_problems(devices: list[tuple[tuple, Any]]) -> Iterator[Problem]:
     for path, dev in devices:
         t = dev.transport
         mux = getattr(t, "mux", None)
-        if t.kind not in ("i2c", "sim"):
+        if t.kind not in ("i2c", "sim", *BRIDGE_KINDS):
             continue
         if (mux is not None or getattr(t, "address", None) is not None) and "i2c" not in dev.spec.transports:
             yield (*path, "transport"), f"{dev.device_type} is not an I2C device: no address or mux"
             continue
-        sim = t.kind == "sim"
-        if sim and mux is None:
+        sim = dev.simulated
+        if t.kind == "sim" and mux is None:
             continue  # a simulated chip without a switch has a bus of its own
         segment = (sim, t.bus, None if mux is None else mux.address, None if mux is None else mux.channel)
         if mux is not None:
@@ -57,8 +59,8 @@ def i2c_problems(devices: list[tuple[tuple, Any]]) -> Iterator[Problem]:
         t = dev.transport
         if t.address in switches.get((sim, t.bus), set()):
             yield (*path, "transport", "address"), (
-                f"0x{t.address:02X} on i2c-{t.bus} is the address of an I2C switch there: {dev.name} "
-                "would answer together with the switch")
+                f"0x{t.address:02X} on {_segment_text(t.bus, None)} is the address of an I2C switch there: "
+                f"{dev.name} would answer together with the switch")
 
 
 def serial_problems(devices: list[tuple[tuple, Any]]) -> Iterator[Problem]:

@@ -52,6 +52,61 @@ class I2c(Strict):
     mux: Mux | None = None
 
 
+class Bridge(Strict):
+    """An I2C device behind a USB-to-I2C bridge (drivers/transports/<kind>.py), on the bus itself or behind
+    a switch. `sim: true` puts a simulated bridge there (drivers/sim/<kind>.py) with the simulated chip
+    behind it; `faults:` then as for `{kind: sim}`. Devices naming the same bridge share its bus."""
+
+    speed_hz: Count(400_000, lower=10_000) = 100_000
+    address: Count(0x77, lower=0x03)
+    mux: Mux | None = None
+    sim: bool = False
+    faults: SimFaults | None = None
+
+    @model_validator(mode="after")
+    def _faults_need_sim(self):
+        if self.faults is not None and not self.sim:
+            raise KeyPathError(("faults",), "faults are played by a simulated bridge only (sim: true)")
+        return self
+
+    @property
+    def bus(self) -> str:
+        """The bus this bridge makes, as devices sharing it and messages name it."""
+        return f"{self.kind} {self.where}"  # type: ignore[attr-defined]
+
+
+class Mcp2221(Bridge):
+    kind: Literal["mcp2221"]
+    serial: str | None = None  # USB serial number; left out: the only MCP2221A plugged in
+    speed_hz: Count(400_000, lower=47_000) = 100_000  # the 8-bit divider reaches down to about 47 kHz
+
+    @property
+    def where(self) -> str:
+        return self.serial or "(the only one)"
+
+
+class Cp2112(Bridge):
+    kind: Literal["cp2112"]
+    serial: str | None = None
+
+    @property
+    def where(self) -> str:
+        return self.serial or "(the only one)"
+
+
+class Ft232h(Bridge):
+    kind: Literal["ft232h"]
+    url: str = "ftdi://ftdi:232h/1"  # pyftdi's form; ftdi://ftdi:232h:SERIAL/1 names one of several
+    latency_ms: Count(255, lower=1) = 16  # the chip's latency timer (pyftdi's default 16)
+
+    @property
+    def where(self) -> str:
+        return self.url
+
+
+BRIDGE_KINDS = ("mcp2221", "cp2112", "ft232h")
+
+
 class Serial(Strict):
     kind: Literal["serial"]
     port: str
@@ -119,12 +174,15 @@ class Sim(Strict):
 
 TRANSPORTS: dict[str, type[Strict]] = {
     "modbus_tcp": ModbusTcp, "modbus_rtu": ModbusRtu, "i2c": I2c, "serial": Serial, "sim": Sim,
+    "mcp2221": Mcp2221, "cp2112": Cp2112, "ft232h": Ft232h,
 }
 
 
 def transport_type(kinds: tuple[str, ...]) -> Any:
-    """The pydantic type of a `transport:` key that takes `kinds` or sim, chosen by its `kind:`."""
-    members = tuple(TRANSPORTS[k] for k in (*kinds, "sim"))
+    """The pydantic type of a `transport:` key that takes `kinds` or sim, chosen by its `kind:`. An I2C
+    device takes the USB-to-I2C bridges as well."""
+    bridges = BRIDGE_KINDS if "i2c" in kinds else ()
+    members = tuple(TRANSPORTS[k] for k in (*kinds, *bridges, "sim"))
     return Annotated[Union[members], Field(discriminator="kind")]  # noqa: UP007 - built at run time
 
 
@@ -147,7 +205,8 @@ class DeviceConfig(Strict):
 
     @property
     def simulated(self) -> bool:
-        return self.transport.kind == "sim"  # type: ignore[attr-defined]
+        t = self.transport  # type: ignore[attr-defined]
+        return t.kind == "sim" or getattr(t, "sim", False) is True
 
     @property
     def device_type(self) -> str:

@@ -17,6 +17,10 @@ A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault sch
 Muxed simulated chips (`{kind: sim, bus: 0, address: 0x30, mux: {address: 0x70, channel: 3}}`) share ONE
 simulated bus per bus number, with a TCA9548A model per switch, so the channel switching is exercised;
 simulated serial devices naming the same `line:` share one pty (SerialMagLine), each by its device id.
+A chip behind a simulated USB-to-I2C bridge (`{kind: mcp2221 | cp2112 | ft232h, sim: true, ...}`) sits on
+that bridge's own simulated bus (its switches too); the bridge's simulator (drivers/sim/mcp2221.py,
+cp2112.py, ft232h.py) is plugged into one simulated USB (a hidapi stand-in, a pyusb backend), and the
+REAL bridge transport is opened on it: `i2c_bus(label)` is that transport.
 """
 
 from __future__ import annotations
@@ -34,8 +38,8 @@ from drivers.sim.serialmag import SerialMagLine
 from drivers.sim.truths import AIR_C, CHAMBER_RAMP_C_PER_MIN, dut_truth, mount_truth
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
-from rig.core.configbase import ModbusTcp
-from rig.devices.links import muxed, open_link
+from rig.core.configbase import BRIDGE_KINDS, ModbusTcp
+from rig.devices.links import muxed, open_bridge, open_link
 from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
 
 LOOPBACK = "127.0.0.1"
@@ -139,7 +143,11 @@ class SimBench:
         self.station = station
         self.world = make_world(station, clock)
         self.running: list[Any] = []
-        self.buses: dict[int, FakeSMBus] = {}  # simulated buses with switches, by bus number
+        self.buses: dict[int | str, FakeSMBus] = {}  # simulated buses with switches, by bus number / bridge
+        self.bridges: dict[str, Any] = {}  # simulated bridges' transports, by bus label
+        self.bridge_chips: dict[str, Any] = {}  # their simulators (fault hooks for tests)
+        self.hid = None  # the simulated USB, made with the first simulated bridge: hidapi's stand-in,
+        self.usb_backend = None  # and pyusb's
         self.lines: dict[str, tuple[SerialLine, float]] = {}  # shared serial lines by `line:` name
 
     def link(self, dev_cfg):
@@ -163,10 +171,12 @@ class SimBench:
                 return SerialLink(self._start(firmware), baudrate, timeout_s)
             case SimI2c(chip=chip, address=address):
                 address = t.address if t.address is not None else address
+                if t.kind in BRIDGE_KINDS:
+                    return self._bridge_link(t, chip, address, faults)
                 if t.mux is not None:  # ONE bus per bus number, the chip behind its switch channel
                     if faults is not None:  # the chip's own faults; bus-level NACKs would hit its neighbours
                         chip.faults = faults
-                    bus = self.i2c_bus(t.bus)
+                    bus = self._world_bus(t.bus)
                     bus.chips[t.mux.address].attach(t.mux.channel, address, chip)
                     return I2cLink(muxed(bus, t.bus, t.mux, simulated=True), address)
                 bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
@@ -192,8 +202,57 @@ class SimBench:
             stuck=Window() if stuck is True else _window(stuck))
         self.world.faults[dev_cfg.name] = faults
         return faults
-    def i2c_bus(self, number: int) -> FakeSMBus:
-        """Simulated bus `number` with every switch the station puts on it (all channels off)."""
+    def _bridge_link(self, t, chip, address: int, faults) -> I2cLink:
+        """A chip on a simulated bridge's bus (behind its switch channel, or on the bus itself)."""
+        world_bus = self._world_bus(t.bus)
+        if faults is not None:
+            chip.faults = faults
+        if t.mux is not None:
+            world_bus.chips[t.mux.address].attach(t.mux.channel, address, chip)
+        else:
+            world_bus.attach(address, chip)
+            if faults is not None:
+                world_bus.set_faults(address, faults)
+        return I2cLink(muxed(self.i2c_bus(t.bus), t.bus, t.mux, simulated=True), address)
+
+    def _bridge(self, label: str) -> Any:
+        """The simulated bridge `label`: its simulator on the simulated USB, and the real transport
+        opened on it (once)."""
+        if label not in self.bridges:
+            from drivers.sim.i2c_wire import I2CWire
+
+            t = next(d.transport for d in self.station.devices()
+                     if d.simulated and getattr(d.transport, "bus", None) == label)
+            wire = I2CWire(self._world_bus(label))
+            if t.kind == "ft232h":  # pyusb and pyftdi (the `bridges` extra): only an FT232H needs them
+                from drivers.sim.ft232h import FT232HSim
+                from drivers.sim.usbfake import FakeUsbBackend
+
+                serial = _url_serial(t.url) or f"FT0SIM{len(self.bridges):02d}"
+                chip = FT232HSim(wire, self.clock, serial=serial)
+                self.usb_backend = self.usb_backend or FakeUsbBackend()
+                self.usb_backend.plug(chip)
+            else:
+                from drivers.sim.cp2112 import CP2112Sim
+                from drivers.sim.hidbus import FakeHid
+                from drivers.sim.mcp2221 import MCP2221ASim
+
+                model = MCP2221ASim if t.kind == "mcp2221" else CP2112Sim
+                chip = model(wire, self.clock, serial=t.serial or f"SIM{len(self.bridges):04d}")
+                self.hid = self.hid or FakeHid(self.clock)
+                self.hid.plug(chip)
+            self.bridge_chips[label] = chip
+            self.bridges[label] = open_bridge(t, self.clock, hid_module=self.hid,
+                                              usb_backend=self.usb_backend)
+        return self.bridges[label]
+
+    def i2c_bus(self, number: int | str):
+        """The bus the simulated devices on bus `number` talk to: the simulated bus with every switch
+        the station puts on it (all channels off), or for a bridge's label the bridge transport."""
+        return self._bridge(number) if isinstance(number, str) else self._world_bus(number)
+
+    def _world_bus(self, number: int | str) -> FakeSMBus:
+        """The simulated chips and switches of bus `number` (a bus number, or a bridge's label)."""
         if number not in self.buses:
             bus = self.buses[number] = FakeSMBus(number)
             for dev_cfg in self.station.devices():
@@ -220,7 +279,18 @@ class SimBench:
         return sim.start()
 
     def stop(self) -> None:
+        for bridge in self.bridges.values():
+            with contextlib.suppress(Exception):
+                bridge.close()
+        self.bridges.clear()
         for sim in reversed(self.running):
             with contextlib.suppress(Exception):
                 sim.stop()
         self.running.clear()
+
+
+def _url_serial(url: str) -> str | None:
+    """The serial number an ftdi:// URL names, if it names one (ftdi://ftdi:232h:SERIAL/1)."""
+    fields = url.split("://", 1)[-1].split("/", 1)[0].split(":")
+    serial = fields[2] if len(fields) > 2 else ""
+    return serial if serial and not (serial.isdigit() and len(serial) < 3) else None

@@ -3,7 +3,8 @@
     link = open_link(device_config, device_config.transport, clock)
 
 Modbus TCP/RTU -> a ModbusTransport (retries, reconnects, raw-frame log); I2C -> an I2cLink on
-/dev/i2c-N (one per bus number, shared; behind a `mux:` switch a MuxedBus on it); serial -> a
+/dev/i2c-N (one per bus number, shared; behind a `mux:` switch a MuxedBus on it), or on a USB-to-I2C
+bridge (mcp2221, cp2112, ft232h: one per serial number or URL, shared the same way); serial -> a
 SerialLink on the port's one SerialLine (devices naming the same port share it, each by its device id).
 Simulated devices get the same kinds of link from rig/devices/bench.py (a Modbus server on 127.0.0.1, a
 pty, a simulated I2C bus). `switch_banks` gives the I2C switches as devices (safe state: channels off).
@@ -39,7 +40,18 @@ class Shared:
 
     def __init__(self) -> None:
         self.i2c: dict[int, Any] = {}
+        self.bridges: dict[str, Any] = {}  # by the bridge's bus label ("mcp2221 0001234567")
         self.lines: dict[str, SerialLine] = {}
+
+    def bridge(self, t, clock: Clock | None = None) -> Any:
+        """The bridge transport `t` names, opened once (DeviceNotFound naming it when it is missing)."""
+        if t.bus not in self.bridges:
+            self.bridges[t.bus] = open_bridge(t, clock)
+        return self.bridges[t.bus]
+
+    def bus(self, t) -> Any:
+        """The bus object of an I2C transport: /dev/i2c-N, or the bridge."""
+        return self.i2c_bus(t.bus) if t.kind == "i2c" else self.bridge(t)
 
     def i2c_bus(self, number: int) -> Any:
         from drivers.transports.i2c import open_smbus
@@ -54,8 +66,30 @@ class Shared:
         return self.lines[port]
 
 
-def switch_name(bus: int, address: int, simulated: bool = False) -> str:
-    return f"{'sim ' if simulated else ''}i2c-{bus} switch 0x{address:02X}"
+def open_bridge(t, clock: Clock | None, *, hid_module: Any = None, usb_backend: Any = None) -> Any:
+    """A USB-to-I2C bridge transport from its station settings; `hid_module` / `usb_backend` are the
+    simulated USB's stand-ins for hidapi and pyusb (rig/devices/bench.py), None for the real ones."""
+    if t.kind == "ft232h":
+        from drivers.transports.ft232h import FT232HBus
+
+        return FT232HBus(t.url, speed_hz=t.speed_hz, latency_ms=t.latency_ms, clock=clock,
+                         usb_backend=usb_backend)
+    if t.kind == "cp2112":
+        from drivers.transports.cp2112 import CP2112Bus
+
+        return CP2112Bus(t.serial, speed_hz=t.speed_hz, clock=clock, hid_module=hid_module)
+    from drivers.transports.mcp2221 import MCP2221Bus
+
+    return MCP2221Bus(t.serial, speed_hz=t.speed_hz, clock=clock, hid_module=hid_module)
+
+
+def bus_label(bus: int | str) -> str:
+    """"i2c-1" for /dev/i2c-1; a bridge's bus by its own label ("mcp2221 0001234567")."""
+    return f"i2c-{bus}" if isinstance(bus, int) else bus
+
+
+def switch_name(bus: int | str, address: int, simulated: bool = False) -> str:
+    return f"{'sim ' if simulated else ''}{bus_label(bus)} switch 0x{address:02X}"
 
 
 def muxed(bus: Any, number: int, mux, simulated: bool = False) -> Any:
@@ -69,29 +103,40 @@ def _i2c(dev_cfg, t, clock: Clock, shared: Shared) -> I2cLink:
     return I2cLink(muxed(shared.i2c_bus(t.bus), t.bus, t.mux), t.address)
 
 
+def _bridge(dev_cfg, t, clock: Clock, shared: Shared) -> I2cLink:
+    return I2cLink(muxed(shared.bridge(t, clock), t.bus, t.mux), t.address)
+
+
 def _serial(dev_cfg, t, clock: Clock, shared: Shared) -> SerialLink:
     return SerialLink(t.port, t.baudrate, t.timeout_s, line=shared.serial_line(t.port, t.baudrate))
+
+
+def _bus_order(item) -> tuple:
+    (simulated, bus), _ = item
+    return (simulated, isinstance(bus, str), bus if isinstance(bus, int) else 0, str(bus))
 
 
 def switch_banks(station, shared: Shared, sim_bus: Callable[[int], Any] | None = None) -> list[SwitchBank]:
     """One SwitchBank per bus with switches on it (real, and simulated through `sim_bus(number)`): the
     station's safe state switches every channel off at the end."""
-    found: dict[tuple[bool, int], set[int]] = {}
+    found: dict[tuple[bool, int | str], tuple[Any, set[int]]] = {}
     for dev_cfg in station.devices():
-        mux = getattr(dev_cfg.transport, "mux", None)
-        if mux is not None:
-            found.setdefault((dev_cfg.simulated, dev_cfg.transport.bus), set()).add(mux.address)
+        t = dev_cfg.transport
+        if getattr(t, "mux", None) is not None:
+            found.setdefault((dev_cfg.simulated, t.bus), (t, set()))[1].add(t.mux.address)
     banks = []
-    for (simulated, number), addresses in sorted(found.items()):
+    for (simulated, number), (t, addresses) in sorted(found.items(), key=_bus_order):
         if simulated and sim_bus is None:
             continue
-        bus = sim_bus(number) if simulated else shared.i2c_bus(number)
+        bus = sim_bus(number) if simulated else shared.bus(t)
         names = {a: switch_name(number, a, simulated) for a in sorted(addresses)}
-        banks.append(SwitchBank(bus, names, name=f"{'sim ' if simulated else ''}i2c-{number} switches"))
+        label = f"{'sim ' if simulated else ''}{bus_label(number)} switches"
+        banks.append(SwitchBank(bus, names, name=label))
     return banks
 
 
-OPENERS = {"modbus_tcp": _modbus_tcp, "modbus_rtu": _modbus_rtu, "i2c": _i2c, "serial": _serial}
+OPENERS = {"modbus_tcp": _modbus_tcp, "modbus_rtu": _modbus_rtu, "i2c": _i2c, "serial": _serial,
+           "mcp2221": _bridge, "cp2112": _bridge, "ft232h": _bridge}
 
 
 def open_link(dev_cfg, transport, clock: Clock, shared: Shared | None = None):

@@ -4,7 +4,12 @@ into a station file. The scanning itself is drivers/busscan.py; this module pick
 
     report = scan_station(station)           # every bus and port its devices name, simulated ones too
     report = scan_targets(buses=[1], ports=[("/dev/ttyUSB0", 9600)])   # /dev/i2c-1 and one port
+    report = scan_targets(bridges=True)      # every USB-to-I2C bridge plugged in, and its bus
     report.lines() -> the text `rig devices scan` prints; report.problems -> [...]
+
+A USB-to-I2C bridge (MCP2221A, CP2112, FT232H) is listed by its USB vendor:product id and serial number
+and its bus scanned through the bridge transport itself (drivers/transports/), as a station's devices
+use it; a bridge that cannot be opened, or a bus that is stuck, is that bus's error.
 
 Against a station, each finding is matched with the station device configured there, and station
 devices that do not answer are listed. Simulated devices are scanned on their simulated buses and lines
@@ -19,10 +24,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from drivers import busscan
-from drivers.clock import SimClock
+from drivers.clock import RealClock, SimClock
 from drivers.errors import DeviceError
 from drivers.transports.serial import SerialLine
+from drivers.transports.usb_bridges import bridges_present
+from rig.core.configbase import BRIDGE_KINDS, Cp2112, Ft232h, Mcp2221
 from rig.core.errors import ERRORS
+from rig.devices.links import open_bridge
 
 SERIAL_TIMEOUT_S = 0.05  # an HMR2300 answers in about 2 ms; a USB adapter adds a few
 
@@ -47,6 +55,7 @@ class PortReport:
 
 @dataclass
 class ScanReport:
+    bridges: list[str] = field(default_factory=list)  # the USB-to-I2C bridges plugged in, and notes
     buses: list[BusReport] = field(default_factory=list)
     ports: list[PortReport] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)  # devices not scanned (Modbus), by name
@@ -63,7 +72,7 @@ class ScanReport:
         return out
 
     def lines(self) -> list[str]:
-        out: list[str] = []
+        out: list[str] = list(self.bridges)
         for b in self.buses:
             out.append(b.label)
             if b.error:
@@ -112,9 +121,16 @@ def _where(switch, channel, address) -> str:
 
 # --- what to scan -------------------------------------------------------------------------------------------
 def scan_targets(buses: list[int] = (), ports: list[tuple[str, int]] = (), *, device_ids=None,
-                 timeout_s: float = SERIAL_TIMEOUT_S) -> ScanReport:
-    """Real buses /dev/i2c-N and serial ports, with no station to compare against."""
+                 timeout_s: float = SERIAL_TIMEOUT_S, bridges: bool = False) -> ScanReport:
+    """Real buses /dev/i2c-N, serial ports and (`bridges`) every USB-to-I2C bridge plugged in, with no
+    station to compare against."""
     report = ScanReport()
+    if bridges:
+        found, notes = bridges_present()
+        report.bridges = [f"USB-to-I2C bridges plugged in: {len(found) or 'none'}"]
+        report.bridges += [f"  {_bridge_text(f)}" for f in found] + [f"  note: {n}" for n in notes]
+        for f in found:
+            report.buses.append(_scan_bridge(_bridge_transport(f)))
     for number in buses:
         report.buses.append(_scan_real_bus(number))
     for port, baud in ports:
@@ -125,6 +141,7 @@ def scan_targets(buses: list[int] = (), ports: list[tuple[str, int]] = (), *, de
 def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_S) -> ScanReport:
     report = ScanReport()
     real_buses: dict[int, BusReport] = {}
+    real_bridges: dict[str, tuple[Any, BusReport]] = {}
     sim_buses: dict[Any, BusReport] = {}
     ports: dict[str, PortReport] = {}
     bench = None
@@ -138,7 +155,13 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
             kinds = dev.spec.transports
             mux = getattr(t, "mux", None)
             key_switch = (None, None) if mux is None else (mux.address, mux.channel)
-            if "i2c" in kinds and dev.simulated:
+            if "i2c" in kinds and dev.simulated and t.kind in BRIDGE_KINDS:
+                link = bench.link(dev)
+                bus = bench.i2c_bus(t.bus)
+                label = f"{t.bus} (simulated, {_bridge_text(_chip_info(t.kind, bench.bridge_chips[t.bus]))})"
+                entry = sim_buses.setdefault(bus, BusReport(label))
+                entry.expected[(*key_switch, link.address)] = dev.name
+            elif "i2c" in kinds and dev.simulated:
                 link = bench.link(dev)
                 if mux is not None:
                     bus = bench.i2c_bus(t.bus)
@@ -146,6 +169,9 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
                 else:
                     entry = sim_buses.setdefault(link.bus, BusReport(f"simulated bus of {dev.name}"))
                 entry.expected[(*key_switch, link.address)] = dev.name
+            elif t.kind in BRIDGE_KINDS:
+                _, entry = real_bridges.setdefault(t.bus, (t, BusReport(f"{t.bus} (USB-to-I2C bridge)")))
+                entry.expected[(*key_switch, t.address)] = dev.name
             elif "i2c" in kinds:
                 entry = real_buses.setdefault(t.bus, BusReport(f"i2c-{t.bus} (/dev/i2c-{t.bus})"))
                 entry.expected[(*key_switch, t.address)] = dev.name
@@ -164,8 +190,15 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
             scanned = _scan_real_bus(number)
             entry.scan, entry.error = scanned.scan, scanned.error
             report.buses.append(entry)
+        for t, entry in real_bridges.values():
+            scanned = _scan_bridge(t)
+            entry.scan, entry.error = scanned.scan, scanned.error
+            report.buses.append(entry)
         for bus, entry in sim_buses.items():
-            entry.scan = busscan.scan_i2c(bus)
+            try:
+                entry.scan = busscan.scan_i2c(bus)
+            except DeviceError as exc:  # a bridge's stuck bus, a bridge gone
+                entry.error = str(exc)
             report.buses.append(entry)
         for entry in ports.values():
             report.ports.append(_scan_port(entry, device_ids, timeout_s))
@@ -186,6 +219,46 @@ def _scan_real_bus(number: int) -> BusReport:
         return entry
     try:
         entry.scan = busscan.scan_i2c(bus)
+    finally:
+        with contextlib.suppress(Exception):
+            bus.close()
+    return entry
+
+
+def _bridge_text(found: dict) -> str:
+    serial = found.get("serial_number")
+    return f"{found['model']} USB {found['usb_id']}, serial number {serial or '(none given)'}"
+
+
+def _chip_info(kind: str, chip) -> dict:
+    """A simulated bridge as bridges_present() describes a real one."""
+    model = {"mcp2221": "MCP2221A", "cp2112": "CP2112", "ft232h": "FT232H"}[kind]
+    return {"kind": kind, "model": model, "usb_id": f"{chip.vendor_id:04x}:{chip.product_id:04x}",
+            "serial_number": chip.serial_number}
+
+
+def _bridge_transport(found: dict):
+    """The station transport settings that open a bridge found plugged in (at 100 kHz)."""
+    serial = found["serial_number"]
+    if found["kind"] == "ft232h":
+        url = f"ftdi://ftdi:232h:{serial}/1" if serial else "ftdi://ftdi:232h/1"
+        return Ft232h(kind="ft232h", url=url, address=0x08)
+    model = Mcp2221 if found["kind"] == "mcp2221" else Cp2112
+    return model(kind=found["kind"], serial=serial, address=0x08)
+
+
+def _scan_bridge(t) -> BusReport:
+    """Open the bridge, scan its bus, close it; what fails is the bus's error."""
+    entry = BusReport(f"{t.bus} (USB-to-I2C bridge)")
+    try:
+        bus = open_bridge(t, RealClock())
+    except DeviceError as exc:
+        entry.error = exc.detail
+        return entry
+    try:
+        entry.scan = busscan.scan_i2c(bus)
+    except DeviceError as exc:
+        entry.error = str(exc)
     finally:
         with contextlib.suppress(Exception):
             bus.close()

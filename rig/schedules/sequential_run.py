@@ -7,7 +7,7 @@ air is. CollectPoint of a sweep's last point calls `decide` with the point's row
 
 1. each DUT's data so far, its temperature moved to the element's (calib/lag.py, when the lag shows),
    gives its Gram, noise and standard errors; the worst ratio to the targets (calib/targets.py);
-2. calib/planner.py `next_leg`: stop (every DUT meets its targets and the model check's temperatures are
+2. calib/sequential.py `next_leg`: stop (every DUT meets its targets and the model check's temperatures are
    done; or max_duration_h is reached), stay at the current leg's temperature, or start the next leg;
 3. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag behind the air
    plus its recorded temperature's lag estimated so far);
@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.design import gain_for, regressors, worst_parameter
-from calib.planner import CHECK, END, DutModel, Leg, State, crossing_rate, next_leg, temp_ref_of
+from calib.planner import CHECK, END, DutModel, Leg, State, crossing_rate, temp_ref_of
+from calib.sequential import next_leg
 from rig.config import SequentialTemperatures
 from rig.core.errors import ERRORS
 from rig.core.points import RampPoint

@@ -22,12 +22,12 @@ from calib.planner import (
     crossing_rate,
     design_schedule,
     element_path,
-    next_leg,
     predict,
     summarise,
     sweeps_with_hold,
     worst_ratios,
 )
+from calib.sequential import next_leg
 from calib.synthetic import coil_directions
 
 FIELDS = 50_000 * coil_directions(26)

@@ -9,7 +9,8 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
-from drivers.sim.i2c_bus import FakeSMBus, RecordingSMBus, RegisterChip, ScriptedSMBus
+from drivers.sim.i2c_bus import FakeSMBus, RegisterChip
+from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
 from drivers.transports.i2c import I2CTransport, open_smbus
 
 ADDR = 0x30

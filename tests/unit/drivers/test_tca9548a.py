@@ -10,8 +10,9 @@ import pytest
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, OptionError, ProtocolError
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.i2c_bus import FakeSMBus, I2CSwitchSim, RecordingSMBus, RegisterChip, ScriptedSMBus
+from drivers.sim.i2c_bus import FakeSMBus, I2CSwitchSim, RegisterChip
 from drivers.sim.mmc5983ma import MMC5983MASim
+from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
 from drivers.sim.world import DutTruth, World
 from drivers.tca9548a import TCA9548A, MuxedBus, disable_all
 
