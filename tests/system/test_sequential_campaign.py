@@ -20,7 +20,7 @@ pytestmark = pytest.mark.system
 TARGETS = {"S": 1e-3, "K": 1e-4, "b": 25.0, "kb": 1.5}
 DIRECTIONS = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
               [1, 1, 1], [-1, -1, 1], [1, -1, -1], [-1, 1, -1]]
-SAMPLES = 10
+SAMPLES = 4
 
 
 def seq_plan(tmp_path, name: str = "seq") -> str:

@@ -263,7 +263,7 @@ def test_only_resume_resumes(new_session, answer):
     assert engine.run(rig.steps(IDS)).status == ABORTED
 
 
-def test_a_real_sigint_pauses_at_the_next_safe_point_instead_of_raising(new_session):
+def test_a_real_sigint_pauses_at_the_next_safe_point_instead_of_raising(new_session, default_sigint):
     session = new_session()
     prompts = []
 
