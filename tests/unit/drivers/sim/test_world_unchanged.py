@@ -14,6 +14,7 @@ import yaml
 from drivers.clock import SimClock
 from rig.config import load_station
 from rig.simstation import make_world
+from tests.unit.drivers.sim.benches import write_station
 
 HERE = Path(__file__).parent
 STATIONS = HERE.parents[3] / "configs" / "stations"
@@ -67,6 +68,35 @@ def test_the_world_without_deviation_keys_reads_as_before(tmp_path):
     for name, values in now.items():
         # the same draws and the same formulas: only a BLAS's last bits may differ between machines
         np.testing.assert_allclose(values, before[name], rtol=1e-12, atol=1e-9, err_msg=name)
+
+
+ZERO3 = [0.0, 0.0, 0.0]
+ALL_ZERO = {
+    "current_source": {"gain_error_ppm": ZERO3, "offset_ma": ZERO3, "noise_ma": ZERO3,
+                       "readback_error_ppm": ZERO3},
+    "coil_loops": {axis: {"turns_error_ppm": [0, 0], "offset_mm": [ZERO3, ZERO3], "tilt_deg": [0, 0]}
+                   for axis in "xyz"},
+    "ambient_gradient_nt_per_m": [ZERO3, ZERO3, ZERO3],
+    "ambient_steps": {"mean_interval_h": 1.0, "size_nt": 0.0},
+    "chamber": {"max_rate_c_per_min": 3.0, "overshoot_c": 0.0, "heater_field_nt": ZERO3,
+                "compressor_field_nt": ZERO3},
+}
+DUT_ZERO = {"random_walk_nt_per_sqrt_h": 0.0, "flicker_nt": 0.0, "air_offset_c": 0.0}
+TRUTH_ZERO = {"K2_per_c2": [ZERO3, ZERO3, ZERO3], "kb2_nt_per_c2": ZERO3, "cubic_ppm_at_50ut": ZERO3,
+              "hysteresis": {"offset_nt": ZERO3, "band_c": 2.0}}
+
+
+def test_every_deviation_key_at_zero_is_the_world_without_them(tmp_path):
+    data = yaml.safe_load((STATIONS / "sim-commissioned.yaml").read_text())
+    for dut in data["sim"]["duts"].values():
+        dut.update(DUT_ZERO)
+        if isinstance(dut["truth"], dict):
+            dut["truth"].update(TRUTH_ZERO)
+    data["sim"].update(ALL_ZERO)
+    data["field_source"]["commissioning"] = str(STATIONS / data["field_source"]["commissioning"])
+    data["reference_magnetometers"][0]["calibration"] = str(STATIONS / "sim-reference-cal.yaml")
+    path = write_station(tmp_path, data)
+    assert readings(load_station(path)) == readings(load_station(STATIONS / "sim-commissioned.yaml"))
 
 
 if __name__ == "__main__":  # records world_before.json (run once, on the world before the deviations)
