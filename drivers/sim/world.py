@@ -73,7 +73,7 @@ def _ry(deg: float) -> np.ndarray:
 
 
 # streams of the world's generators beside the white noise's (np.random.default_rng([seed, stream, ...]))
-OFFSET_NOISE_STREAM, CURRENT_NOISE_STREAM, AMBIENT_STEP_STREAM = 1, 2, 3
+OFFSET_NOISE_STREAM, CURRENT_NOISE_STREAM, AMBIENT_STEP_STREAM, READ_BACK_STREAM = 1, 2, 3, 4
 
 
 def _stream(seed: int, stream: int, name: str = "") -> np.random.Generator:
@@ -141,16 +141,16 @@ class World:
         self.coils_enabled = False
         self.coil_outputs_on = np.zeros(3, bool)
         self.coil_loops = coil_loops
-        errors = current_source
-        self.current_source = None if errors is None or errors.is_zero() else \
-            CurrentSource(errors, _stream(seed, CURRENT_NOISE_STREAM, "read-back"))
-        self._centre_rng = _stream(seed, CURRENT_NOISE_STREAM)
+        self.current_source = None
+        if current_source is not None and not current_source.is_zero():
+            self.current_source = CurrentSource(current_source, _stream(seed, READ_BACK_STREAM))
+        self._centre_rng = _stream(seed, CURRENT_NOISE_STREAM)  # the current noise at the centre
         # the lab's field beyond a uniform, steady ambient
-        gradient = None if ambient_gradient_nt_per_m is None or not np.any(ambient_gradient_nt_per_m) \
-            else ambient_gradient_nt_per_m
-        steps = None if ambient_steps is None or ambient_steps[1] == 0 else \
-            AmbientSteps(_stream(seed, AMBIENT_STEP_STREAM), self._t, mean_interval_h=ambient_steps[0],
-                         size_nt=ambient_steps[1])
+        gradient = ambient_gradient_nt_per_m if np.any(ambient_gradient_nt_per_m) else None
+        steps = None
+        if ambient_steps is not None and ambient_steps[1] > 0:
+            steps = AmbientSteps(_stream(seed, AMBIENT_STEP_STREAM), self._t,
+                                 mean_interval_h=ambient_steps[0], size_nt=ambient_steps[1])
         self.lab = None if gradient is None and steps is None else LabField(gradient, steps)
         # turntable
         self.table_deg = np.zeros(2)  # az, el

@@ -6,9 +6,9 @@ Only what the station file says is kept here; a key left out (None) takes the si
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal, Union
 
-from pydantic import Field
+from pydantic import Discriminator, Field, Tag
 
 from rig.configbase import Strict
 from rig.fieldsources.coilgeometry import CoilGeometry
@@ -47,8 +47,17 @@ class TruthSpec(Strict):
                                        "growing as |B|^2")
 
 
+def _truth_kind(value) -> str:
+    """A mapping is an explicit truth: its errors are then about its keys, never "not 'random'"."""
+    return "random" if isinstance(value, str) else "explicit"
+
+
+Truth = Annotated[Union[Annotated[Literal["random"], Tag("random")],  # noqa: UP007 - tags need Union
+                        Annotated[TruthSpec, Tag("explicit")]], Discriminator(_truth_kind)]
+
+
 class SimDut(Strict):
-    truth: Literal["random"] | TruthSpec = "random"
+    truth: Truth = "random"
     noise_nt: bounded(lo=0, hi=NT_MAX) | None = Field(None, description="default: the simulator's")
     thermal_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="default: the simulator's")
     sensor_lag_s: bounded(lo=0, hi=DAY_S) = Field(0.0, description="its temperature sensors lag the element "

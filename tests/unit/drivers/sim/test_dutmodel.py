@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from drivers.sim.dutmodel import FLICKER_TIME_CONSTANTS_S, DutDeviations, DutTruth, OffsetNoise
-from tests.unit.drivers.sim.benches import IDEAL, hold, reading_nt, world_of
+from rig.config import load_station
+from rig.errors import ConfigError
+from tests.unit.drivers.sim.benches import IDEAL, hold, reading_nt, station_data, world_of, write_station
 
 Z = 5.0  # statistical checks at 5 sigma: a false failure less than once in a million runs
 
@@ -167,3 +169,18 @@ def test_random_deviations_have_the_typical_sizes_and_leave_the_t24_draws_alone(
     assert 1.1e-6 < np.std(k2) < 1.4e-6
     assert np.all(np.abs([d.hysteresis_offset_nt for d in many]) <= 100.0)
     assert DutDeviations().is_zero()
+
+
+# --- the station keys' mistakes ------------------------------------------------------------------------
+@pytest.mark.parametrize(("spec", "message"), [
+    ({"truth": {**IDEAL, "hysteresis": {"offset_nt": [1, 2, 3]}}},
+     r"sim\.duts\.dut1\.truth\.hysteresis\.band_c: required key is missing \(line \d+\)$"),
+    ({"truth": {**IDEAL, "cubic_ppm": [1, 2, 3]}},
+     r"sim\.duts\.dut1\.truth\.cubic_ppm: unknown key \(line \d+\)$"),
+    ({"truth": {**IDEAL, "K2_per_c2": [[1, 0, 0], [0, 0, 0], [0, 0, 0]]}},
+     r"sim\.duts\.dut1\.truth\.K2_per_c2\[0\]: each component must be within \+-0\.01 \(line \d+\)$"),
+    ({"truth": IDEAL, "flicker_nt": -1}, r"sim\.duts\.dut1\.flicker_nt: must be >= 0 \(line \d+\)$"),
+])
+def test_a_mistake_in_a_dut_key_is_one_line_naming_it(tmp_path, spec, message):
+    with pytest.raises(ConfigError, match=message):
+        load_station(write_station(tmp_path, station_data(duts={"dut1": {"sim": spec}})))
