@@ -42,12 +42,9 @@ from calib import calfile
 from calib.calibration import Calibration
 from calib.uncertainty import raw_for
 from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
+from drivers.sim.truths import world_deviations
 from rig.config import load_station
-from rig.devices.bench import (
-    dut_truths,
-    true_position_m,
-    world_field,  # noqa: E402
-)
+from rig.devices.bench import dut_truths, true_position_m, world_field
 from rig.reference import budget
 from rig.reference.loading import load_campaign
 from rig.reference.procedure import commission
@@ -100,11 +97,12 @@ class Truth:
         self.geometry = None if geometry is None else CoilGeometry(*geometry)
         self.ambient = np.asarray(world["ambient_nt"], float)
         self.drift_per_s = np.asarray(world.get("ambient_drift_nt_per_s", np.zeros(3)), float)
+        self.loops = world_deviations(station.sim.model_dump()).get("coil_loops")
         self.duts = dut_truths(station)
 
     def matrix_at(self, dut: str) -> np.ndarray:
         where = true_position_m(self.station, self.station.dut(dut))
-        return coil_matrix_at(self.matrix, self.geometry, where)
+        return coil_matrix_at(self.matrix, self.geometry, where, self.loops)
 
     def ambient_at(self, t: np.ndarray) -> np.ndarray:
         return self.ambient + np.outer(t - SIM_CLOCK_START, self.drift_per_s)

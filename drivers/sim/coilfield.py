@@ -9,6 +9,13 @@ A real coil pair differs from its drawing: its constant is off by a scale factor
 The simulated pair j is the drawn pair scaled by k_j and turned by the smallest rotation R_j that takes
 axis j to the direction of the true matrix's column j: B_j(r) = k_j R_j b_j(R_j^T r), so that at the
 centre it gives exactly `coil_constants_nt_per_a[:, j]` per ampere.
+
+Each loop of a pair may also differ from its drawing on its own (LoopErrors: turns, centre offset, tilt
+of its normal); the pair is then integrated loop by loop, and the pair-level truth still holds on top:
+the deviated pair is scaled and turned (the smallest rotation taking its own centre field to column j)
+so that the centre matrix stays exactly `coil_constants_nt_per_a`, which is what a commissioning at the
+centre measures. The loop errors shape the field away from the centre (hardware-notes §9.2: a turns
+imbalance gives a gradient along the axis, a shifted or tilted loop a transverse field).
 """
 
 from __future__ import annotations
@@ -57,14 +64,49 @@ def _loop_path(shape: str, axis: int, offset_m: float, size_m: float) -> tuple[n
     return np.vstack(all_pts), np.vstack(all_dl)
 
 
-def drawn_pair_field(geometry: CoilGeometry, axis: int, point_m: np.ndarray) -> np.ndarray:
-    """Field (T) of 1 A in the drawn pair of `axis` at one point."""
+@dataclass(frozen=True)
+class LoopErrors:
+    """How the two loops of one axis's pair differ from the drawing: loop 0 is the one on the + side of
+    the centre, loop 1 the one on the - side. A tilt turns the loop about its own centre, about the next
+    lab axis in cyclic order (x loops about y, y loops about z, z loops about x), right-handed."""
+
+    turns_error_ppm: tuple[float, float] = (0.0, 0.0)
+    offset_m: tuple[tuple[float, float, float], tuple[float, float, float]] = ((0.0, 0.0, 0.0),) * 2
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
+
+    def is_zero(self) -> bool:
+        return not (any(self.turns_error_ppm) or np.any(self.offset_m) or any(self.tilt_deg))
+
+
+def _axis_rotation(axis: int, angle_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    u, v = (axis + 1) % 3, (axis + 2) % 3
+    rot = np.eye(3)
+    rot[v, v], rot[v, u], rot[u, v], rot[u, u] = c, s, -s, c
+    return rot
+
+
+def _loop_field(pts: np.ndarray, dl: np.ndarray, point_m: np.ndarray) -> np.ndarray:
+    r = point_m - pts
+    d3 = np.linalg.norm(r, axis=1) ** 3
+    return MU0 / (4 * math.pi) * np.sum(np.cross(dl, r) / d3[:, None], axis=0)
+
+
+def drawn_pair_field(geometry: CoilGeometry, axis: int, point_m: np.ndarray,
+                     errors: LoopErrors | None = None) -> np.ndarray:
+    """Field (T) of 1 A in the pair of `axis` at one point: the drawn pair, or its loops as `errors` say."""
     total = np.zeros(3)
-    for offset in (geometry.spacing_m[axis] / 2, -geometry.spacing_m[axis] / 2):
+    for k, offset in enumerate((geometry.spacing_m[axis] / 2, -geometry.spacing_m[axis] / 2)):
         pts, dl = _loop_path(geometry.shape, axis, offset, geometry.size_m[axis])
-        r = point_m - pts
-        d3 = np.linalg.norm(r, axis=1) ** 3
-        total += MU0 / (4 * math.pi) * np.sum(np.cross(dl, r) / d3[:, None], axis=0)
+        if errors is None:
+            total += _loop_field(pts, dl, point_m)
+            continue
+        centre = np.zeros(3)
+        centre[axis] = offset
+        tilt = _axis_rotation((axis + 1) % 3, errors.tilt_deg[k])
+        pts = centre + (pts - centre) @ tilt.T + np.asarray(errors.offset_m[k], float)
+        turns = 1.0 + errors.turns_error_ppm[k] * 1e-6
+        total += turns * _loop_field(pts, dl @ tilt.T, point_m)
     return total
 
 
@@ -81,19 +123,24 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def coil_matrix_at(constants_nt_per_a: np.ndarray, geometry: CoilGeometry | None,
-                   position_m) -> np.ndarray:
-    """The true coil matrix (nT/A) at `position_m`: every pair its drawn field, scaled and turned to
-    match the true centre matrix (module docstring). Without a geometry the field is uniform."""
+                   position_m, loops: dict[int, LoopErrors] | None = None) -> np.ndarray:
+    """The true coil matrix (nT/A) at `position_m`: every pair its field (drawn, or loop by loop as
+    `loops` says by axis), scaled and turned to match the true centre matrix (module docstring). Without a
+    geometry the field is uniform."""
     m = np.asarray(constants_nt_per_a, float)
     if geometry is None:
         return m.copy()
     p = np.asarray(position_m, float)
     out = np.empty((3, 3))
     for j in range(3):
-        axis = np.zeros(3)
-        axis[j] = 1.0
-        centre = drawn_pair_field(geometry, j, np.zeros(3))  # along +j
-        rot = _rotation_between(axis, m[:, j] / np.linalg.norm(m[:, j]))
+        errors = None if loops is None or loops.get(j) is None or loops[j].is_zero() else loops[j]
+        centre = drawn_pair_field(geometry, j, np.zeros(3), errors)
+        if errors is None:
+            along = np.zeros(3)
+            along[j] = 1.0  # the drawn pair's centre field, exactly
+        else:
+            along = centre / np.linalg.norm(centre)
+        rot = _rotation_between(along, m[:, j] / np.linalg.norm(m[:, j]))
         scale = np.linalg.norm(m[:, j]) / np.linalg.norm(centre)
-        out[:, j] = scale * (rot @ drawn_pair_field(geometry, j, rot.T @ p))
+        out[:, j] = scale * (rot @ drawn_pair_field(geometry, j, rot.T @ p, errors))
     return out

@@ -5,9 +5,11 @@
 
 Physics: each channel drives min(|setpoint|, compliance limit) with the setpoint's sign while its output
 is on and it has no over-temperature fault; the world gets those currents at once
-(world.set_coil_currents), and the readback approaches them with a first-order lag of settle_tau_s on
-the world's clock. A setpoint beyond the compliance limit sets the compliance bit (the field is then
-not what was asked). Setpoints beyond the rating get exception 3.
+(world.set_coil_currents), and the regulation approaches them with a first-order lag of settle_tau_s on
+the world's clock. The read-back registers show the regulated current as the world's current source
+reports it (world.coil_readback_a: exact, unless the station gives `sim.current_source` errors); the
+settled bit judges the regulation itself. A setpoint beyond the compliance limit sets the compliance
+bit (the field is then not what was asked). Setpoints beyond the rating get exception 3.
 Fault hooks: the server's, plus trip_over_temperature(axis) (latched until the clear-faults command).
 """
 
@@ -74,19 +76,23 @@ class CoilSim(SimulatedModbusDevice):
         clamped = np.clip(self.setpoints_a, -self.compliance_limit_a, self.compliance_limit_a)
         return np.where(on, clamped, 0.0)
 
-    def readback_a(self) -> np.ndarray:
+    def regulated_a(self) -> np.ndarray:
+        """Where the regulation loop is now, on its way to output_a()."""
         dt = max(0.0, self.world.clock.now() - self._t0)
         target = self.output_a()
         return target + (self._from_a - target) * math.exp(-dt / self.settle_tau_s)
 
+    def readback_a(self) -> np.ndarray:
+        return self.world.coil_readback_a(self.regulated_a())
+
     def _before_change(self) -> None:
-        """Restart the readback lag from where the readback is now."""
-        self._from_a = self.readback_a()
+        """Restart the regulation's lag from where it is now."""
+        self._from_a = self.regulated_a()
         self._t0 = self.world.clock.now()
 
     def _after_change(self) -> None:
         on = self.enabled & ~self.over_temperature
-        self.world.set_coil_currents(self.output_a(), enabled=bool(np.any(on)))
+        self.world.set_coil_currents(self.output_a(), enabled=bool(np.any(on)), outputs_on=on)
 
     def trip_over_temperature(self, axis: int) -> None:
         """Fault hook: the channel's driver overheats; its output goes off until faults are cleared."""
@@ -96,7 +102,7 @@ class CoilSim(SimulatedModbusDevice):
         self._after_change()
 
     def status_words(self) -> list[int]:
-        readback, out = self.readback_a(), self.output_a()
+        readback, out = self.regulated_a(), self.output_a()
         words = []
         for i in range(3):
             word = regs.STATUS_OUTPUT_ON if self.enabled[i] and not self.over_temperature[i] else 0

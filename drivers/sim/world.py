@@ -12,6 +12,14 @@
 - Each DUT has known calibration errors of the T24 form, B = (S + tau K) h + b + tau kb, plus a bridge
   offset that a SET/RESET pair cancels and that drifts with temperature, and white noise.
 
+Deviations from every one of these models, each off unless stated, live beside the physics they bend:
+the DUT beyond T24 and the slow noise on its offset (drivers/sim/dutmodel.py; a DUT's place may also be
+warmer than the air, `air_offset_c`), each coil loop on its own (coilfield.py), the current source's
+errors (currentsource.py), the ambient's gradient and steps (labfield.py), and the chamber's real rate,
+overshoot and heater and compressor fields (chamberair.py). This module composes them. Every random
+process has its own generator from the seed (per DUT where it belongs to one), so the white noise's
+draws, and so a world without deviations, stay exactly as they were.
+
 State is advanced lazily to `clock.now()` on every access, so simulated time may jump by hours.
 Thread-safe: Modbus servers and the pty firmware run in their own threads.
 """
@@ -20,60 +28,22 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass, field
+import zlib
+from dataclasses import dataclass
 
 import numpy as np
 
-from calib.synthetic import random_t24_params
 from drivers.clock import Clock
-from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
+from drivers.sim.chamberair import ChamberAir, ChamberTruth
+from drivers.sim.coilfield import CoilGeometry, LoopErrors, coil_matrix_at
+from drivers.sim.currentsource import CurrentSource, CurrentSourceErrors
+from drivers.sim.dutmodel import DutState, DutTruth
+from drivers.sim.labfield import AmbientSteps, LabField
 from drivers.turntable import rotation_deg
 
+__all__ = ["DutTruth", "TableAxes", "World"]  # DutTruth lives in dutmodel.py; imported from here too
+
 MAX_THERMAL_STEP_S = 2.0  # integration sub-step; the lag model is exact within a step of constant air
-
-
-@dataclass
-class DutTruth:
-    """The injected calibration errors of one DUT (absolute-tau T24 convention, tau in degC)."""
-
-    S: np.ndarray  # 3x3, dimensionless
-    K: np.ndarray  # 3x3, per degC
-    b_nt: np.ndarray  # 3
-    kb_nt_per_c: np.ndarray  # 3
-    bridge_offset_nt: np.ndarray = field(default_factory=lambda: np.zeros(3))  # at 25 degC
-    bridge_offset_tc_nt_per_c: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    noise_nt: float = 0.0  # white noise per axis, RMS
-    thermal_lag_s: float = 600.0  # DUT temperature time constant against the chamber air
-    mount: np.ndarray = field(default_factory=lambda: np.eye(3))  # lab frame -> sensor frame rotation
-    sensor_lag_s: float = 0.0  # the reported temperature lags the element's by this time constant
-    position_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # where it sits in the coil set
-
-    def field_from_raw(self, h_nt: np.ndarray, temp_c: float) -> np.ndarray:
-        """The T24 model itself: true field from a raw reading."""
-        return (self.S + temp_c * self.K) @ h_nt + self.b_nt + temp_c * self.kb_nt_per_c
-
-    def raw_from_field(self, field_nt: np.ndarray, temp_c: float) -> np.ndarray:
-        """Noise-free raw reading (offset-cancelled) that the T24 model maps to `field_nt`."""
-        return np.linalg.solve(self.S + temp_c * self.K, field_nt - self.b_nt - temp_c * self.kb_nt_per_c)
-
-    def bridge_offset_at(self, temp_c: float) -> np.ndarray:
-        return self.bridge_offset_nt + (temp_c - 25.0) * self.bridge_offset_tc_nt_per_c
-
-    @classmethod
-    def random(cls, rng: np.random.Generator, *, noise_nt: float = 20.0, thermal_lag_s: float = 600.0):
-        """Errors of the size an AMR datasheet allows (calib.synthetic.random_t24_params), then a bridge
-        offset of a few uT drifting some 10 nT/degC."""
-        p = random_t24_params(rng)
-        return cls(
-            S=p["S"],
-            K=p["K"],
-            b_nt=p["b_nt"],
-            kb_nt_per_c=p["kb_nt_per_c"],
-            bridge_offset_nt=rng.normal(0, 2000, 3),
-            bridge_offset_tc_nt_per_c=rng.normal(0, 20, 3),
-            noise_nt=noise_nt,
-            thermal_lag_s=thermal_lag_s,
-        )
 
 
 @dataclass(frozen=True)
@@ -102,15 +72,12 @@ def _ry(deg: float) -> np.ndarray:
     return rotation_deg(0.0, deg)
 
 
-@dataclass
-class _Dut:
-    truth: DutTruth
-    temp_c: float  # the element's
-    sensor_c: float = math.nan  # what its temperature sensors report
+# streams of the world's generators beside the white noise's (np.random.default_rng([seed, stream, ...]))
+OFFSET_NOISE_STREAM, CURRENT_NOISE_STREAM, AMBIENT_STEP_STREAM, READ_BACK_STREAM = 1, 2, 3, 4
 
-    def __post_init__(self):
-        if math.isnan(self.sensor_c):
-            self.sensor_c = self.temp_c
+
+def _stream(seed: int, stream: int, name: str = "") -> np.random.Generator:
+    return np.random.default_rng([seed, stream, zlib.crc32(name.encode())])
 
 
 class World:
@@ -128,10 +95,15 @@ class World:
         coil_nonlinearity_per_a=(0.0, 0.0, 0.0),
         site_field_nt=(19148.0, 894.0, 45587.0),
         air_c: float = 22.0,
-        ramp_c_per_min: float = 3.0,
+        ramp_c_per_min: float = 3.0,  # the fastest the air moves (the chamber's own, whatever it is told)
         turntable_rate_deg_s: float = 20.0,
         seed: int = 0,
         ambient_drift_nt_per_s=(0.0, 0.0, 0.0),
+        chamber: ChamberTruth | None = None,  # the chamber's real rate, overshoot, heater, compressor
+        current_source: CurrentSourceErrors | None = None,
+        coil_loops: dict[int, LoopErrors] | None = None,  # by axis
+        ambient_gradient_nt_per_m=None,  # 3x3, dB_i/dx_j
+        ambient_steps: tuple[float, float] | None = None,  # (mean_interval_h, size_nt)
     ):
         self.clock = clock
         self.field_source = field_source
@@ -153,25 +125,40 @@ class World:
         self.site_field_nt = np.asarray(site_field_nt, float)
         self.ambient_drift_nt_per_s = np.asarray(ambient_drift_nt_per_s, float)
         self._t0 = clock.now()  # the drift counts from here
-        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)  # the DUTs' white noise
         self._lock = threading.RLock()
         self._t = clock.now()
         # chamber
         self.air_c = air_c
         self.setpoint_c = air_c
         self.ramp_c_per_min = ramp_c_per_min
+        self.chamber = ChamberAir(chamber or ChamberTruth(), air_c, self._t, ramp_c_per_min)
         self.chamber_alarm = False
         self.chamber_running = True
         # coils
         self.coil_currents_a = np.zeros(3)
         self.coils_enabled = False
+        self.coil_outputs_on = np.zeros(3, bool)
+        self.coil_loops = coil_loops
+        self.current_source = None
+        if current_source is not None and not current_source.is_zero():
+            self.current_source = CurrentSource(current_source, _stream(seed, READ_BACK_STREAM))
+        self._centre_rng = _stream(seed, CURRENT_NOISE_STREAM)  # the current noise at the centre
+        # the lab's field beyond a uniform, steady ambient
+        gradient = ambient_gradient_nt_per_m if np.any(ambient_gradient_nt_per_m) else None
+        steps = None
+        if ambient_steps is not None and ambient_steps[1] > 0:
+            steps = AmbientSteps(_stream(seed, AMBIENT_STEP_STREAM), self._t,
+                                 mean_interval_h=ambient_steps[0], size_nt=ambient_steps[1])
+        self.lab = None if gradient is None and steps is None else LabField(gradient, steps)
         # turntable
         self.table_deg = np.zeros(2)  # az, el
         self.table_target_deg = np.zeros(2)
         self.turntable_rate_deg_s = turntable_rate_deg_s
         self.table_fault = False
         # DUTs and fixed temperature probes
-        self.duts: dict[str, _Dut] = {}
+        self.duts: dict[str, DutState] = {}
         # the fault schedules of the simulated devices, by device name (drivers/sim/faults.py)
         self.faults: dict[str, object] = {}
 
@@ -186,13 +173,14 @@ class World:
         while t < dt_total:
             dt = min(MAX_THERMAL_STEP_S, dt_total - t)
             if self.chamber_running:
-                step = self.ramp_c_per_min / 60.0 * dt
-                delta = self.setpoint_c - self.air_c
-                self.air_c += max(-step, min(step, delta))
+                self.air_c = self.chamber.step(self.air_c, self.setpoint_c, self.ramp_c_per_min, dt)
             for d in self.duts.values():
-                d.temp_c = self.air_c + (d.temp_c - self.air_c) * math.exp(-dt / d.truth.thermal_lag_s)
+                place_c = self.air_c + d.truth.air_offset_c
+                d.temp_c = place_c + (d.temp_c - place_c) * math.exp(-dt / d.truth.thermal_lag_s)
                 lag = d.truth.sensor_lag_s
                 d.sensor_c = d.temp_c + (d.sensor_c - d.temp_c) * math.exp(-dt / lag) if lag > 0 else d.temp_c
+                if d.play is not None:
+                    d.play.follow(d.temp_c)
             t += dt
         self._t = now
 
@@ -225,9 +213,11 @@ class World:
     def add_dut(self, name: str, truth: DutTruth, temp_c: float | None = None) -> None:
         with self._lock:
             self._advance()
-            self.duts[name] = _Dut(truth, self.air_c if temp_c is None else temp_c)
+            start_c = self.air_c + truth.air_offset_c if temp_c is None else temp_c
+            self.duts[name] = DutState(truth, start_c, self._t, _stream(self.seed, OFFSET_NOISE_STREAM, name),
+                                       _stream(self.seed, CURRENT_NOISE_STREAM, name))
             self._coil_matrix[name] = coil_matrix_at(self.coil_constants, self.coil_geometry,
-                                                     truth.position_m)
+                                                     truth.position_m, self.coil_loops)
 
     def dut_temp_c(self, name: str) -> float:
         """What the DUT's temperature sensors report (its element's, unless sensor_lag_s > 0)."""
@@ -255,7 +245,8 @@ class World:
         with self._lock:
             self._advance()
             d = self.duts[dut]
-            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(dut), d.temp_c)
+            extra = d.extra_offset_nt(self._t)
+            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(dut), d.temp_c, extra)
             out = polarity * h + d.truth.bridge_offset_at(d.temp_c)
             if noisy and d.truth.noise_nt > 0:
                 out = out + self.rng.normal(0, d.truth.noise_nt, 3)
@@ -273,16 +264,42 @@ class World:
             self._advance()
             if self.field_source == "coils":
                 currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
+                if self.current_source is not None and self.coils_enabled:
+                    rng = self._centre_rng if dut is None else self.duts[dut].current_rng
+                    currents = self.current_source.delivered_a(currents, self.coil_outputs_on, rng)
                 currents = currents * (1.0 + self.coil_nonlinearity_per_a * np.abs(currents))
                 matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
-                return matrix @ currents + self.ambient_nt + self.drift_nt()
-            return self.turntable_axes.rotation(*self.table_deg).T @ (self.site_field_nt + self.drift_nt())
+                field = matrix @ currents + self.ambient_nt + self.drift_nt()
+                return field if not self._bent() else field + self._environment_nt(dut)
+            site = self.site_field_nt + self.drift_nt()
+            if self._bent():
+                site = site + self._environment_nt(dut)
+            return self.turntable_axes.rotation(*self.table_deg).T @ site
 
-    def set_coil_currents(self, currents_a, enabled: bool = True) -> None:
+    def _bent(self) -> bool:
+        return self.lab is not None or self.chamber.makes_field
+
+    def _environment_nt(self, dut: str | None) -> np.ndarray:
+        """The lab's field beyond its ambient where `dut` sits: gradient, steps, heater and compressor."""
+        position = np.zeros(3) if dut is None else self.duts[dut].truth.position_m
+        out = np.zeros(3) if self.lab is None else self.lab.field_nt(position, self._t)
+        return out + self.chamber.field_nt(self._t) if self.chamber.makes_field else out
+
+    def coil_readback_a(self, regulated_a: np.ndarray) -> np.ndarray:
+        """What the coil controller's read-back registers show while it regulates to `regulated_a`."""
+        with self._lock:
+            if self.current_source is None:
+                return regulated_a
+            return self.current_source.reported_a(regulated_a, self.coil_outputs_on)
+
+    def set_coil_currents(self, currents_a, enabled: bool = True, outputs_on=None) -> None:
+        """The currents the controller regulates to; `outputs_on` (per channel, default: all as `enabled`)
+        says which outputs drive (a current source's offset flows only in those)."""
         with self._lock:
             self._advance()
             self.coil_currents_a = np.asarray(currents_a, float).copy()
             self.coils_enabled = enabled
+            self.coil_outputs_on = np.full(3, enabled) if outputs_on is None else np.asarray(outputs_on, bool)
 
     def set_turntable_target(self, az_deg: float, el_deg: float) -> None:
         with self._lock:

@@ -189,6 +189,20 @@ class Station(Strict):
         return self
 
     @model_validator(mode="after")
+    def _simulated_coil_keys(self):
+        """sim.current_source and sim.coil_loops bend coils (a field source with a `geometry` key); the
+        loops also need a geometry to be loops of."""
+        coils = "geometry" in type(self.field_source).model_fields
+        for key in ("current_source", "coil_loops"):
+            if getattr(self.sim, key) is not None and not coils:
+                raise KeyPathError(("sim", key), f"needs coils, not {self.field_source.described}")
+        if self.sim.coil_loops is not None and self.sim.coil_geometry is None and \
+                getattr(self.field_source, "geometry", None) is None:
+            raise KeyPathError(("sim", "coil_loops"), "needs a coil geometry to place the loops: give "
+                               "sim.coil_geometry or field_source.geometry")
+        return self
+
+    @model_validator(mode="after")
     def _positions(self):
         """Every stated position inside the coil set (declared and simulated geometry) and no two
         sensors at one place."""

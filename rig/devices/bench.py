@@ -35,7 +35,14 @@ from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.serialmag import SerialMagLine
-from drivers.sim.truths import AIR_C, CHAMBER_RAMP_C_PER_MIN, dut_truth, mount_truth
+from drivers.sim.truths import (
+    AIR_C,
+    CHAMBER_RAMP_C_PER_MIN,
+    DUT_KEYS,
+    dut_truth,
+    mount_truth,
+    world_deviations,
+)
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.core.configbase import BRIDGE_KINDS, ModbusTcp
@@ -57,7 +64,8 @@ def dut_truths(station) -> dict[str, DutTruth]:
             out[dut.name] = dut_truth(station.sim.seed, position)
         else:
             truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
-            out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s)
+            out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s,
+                                      **spec.model_dump(include=set(DUT_KEYS)))
             out[dut.name].sensor_lag_s = spec.sensor_lag_s
         out[dut.name].position_m = true_position_m(station, dut)
     return out
@@ -80,13 +88,14 @@ def reference_truths(station) -> dict[str, DutTruth]:
         if not ref.simulated:
             continue
         spec = station.sim.duts.get(ref.name)
+        beside = {} if spec is None else spec.model_dump(include=set(DUT_KEYS))  # as a DUT's
         if spec is None or spec.truth == "random":
             out[ref.name] = dut_truth(station.sim.seed, 0, {"S": np.eye(3)},
                                       None if spec is None else spec.noise_nt,
-                                      None if spec is None else spec.thermal_lag_s)
+                                      None if spec is None else spec.thermal_lag_s, **beside)
         else:
             out[ref.name] = dut_truth(station.sim.seed, 0, spec.truth.model_dump(), spec.noise_nt,
-                                      spec.thermal_lag_s)
+                                      spec.thermal_lag_s, **beside)
         out[ref.name].position_m = true_position_m(station, ref)
     return out
 
@@ -121,9 +130,10 @@ def world_field(station) -> dict:
 
 
 def make_world(station, clock: Clock) -> World:
+    """The station's world: its field source's field, its deviations (drivers/sim/truths.py), its DUTs."""
     air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
-    world = World(clock, air_c=air_c, seed=station.sim.seed, ramp_c_per_min=CHAMBER_RAMP_C_PER_MIN,
-                  **world_field(station))
+    world = World(clock, air_c=air_c, seed=station.sim.seed, **world_field(station),
+                  **world_deviations(station.sim.model_dump()))
     for name, truth in (dut_truths(station) | reference_truths(station)).items():
         world.add_dut(name, truth)
     for sensor in station.temperature_sensors:

@@ -161,7 +161,8 @@ def test_kill_9_mid_write_leaves_whole_points_only(tmp_path):
     resumed.close()
 
 
-def test_ctrl_c_during_the_commit_is_held_until_the_point_is_stored(tmp_path, campaign, points, default_sigint):
+def test_ctrl_c_during_the_commit_is_held_until_the_point_is_stored(tmp_path, campaign, points,
+                                                                   default_sigint):
     s = new_session(tmp_path, campaign, points)
 
     def rows_with_ctrl_c():
