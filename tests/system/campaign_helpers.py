@@ -34,6 +34,18 @@ def small_plan(tmp_path: Path, *, steps=(10, 40), samples=5, dwell_s=60, name="s
     return path
 
 
+def quick_demo(tmp_path: Path, *, steps=(-20, 60), samples: int = 2, name: str = "demo") -> Path:
+    """The demo plan at fewer temperatures and samples: for tests whose point is not the campaign's size."""
+    plan = yaml.safe_load(DEMO_PLAN.read_text())
+    plan.pop("station", None)
+    plan["name"] = name
+    plan["temperatures"]["steps"] = list(steps)
+    plan["samples_per_point"] = samples
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    return path
+
+
 def rig_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "rig", *args]
 

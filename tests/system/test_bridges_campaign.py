@@ -1,7 +1,8 @@
-"""Stations on simulated USB-to-I2C bridges: the demo campaign with an MMC5983MA behind a simulated
-MCP2221A and a TCA9548A switch and another on a simulated FT232H gives the calibrations the smbus2 fake
-gives with the same seed; `rig devices scan` and `rig devices check` work through the bridges; a bridge
-in a station file is checked like any I2C transport."""
+"""Stations on simulated USB-to-I2C bridges: the demo campaign (at two temperatures and two samples a
+point) with an MMC5983MA behind a simulated MCP2221A and a TCA9548A switch and another on a simulated
+FT232H gives the calibrations the smbus2 fake gives with the same seed; `rig devices scan` and
+`rig devices check` work through the bridges; a bridge in a station file is checked like any I2C
+transport."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import yaml
 
 from rig import config as cfg
 from rig.devices.bench import dut_truths
-from tests.system.campaign_helpers import DEMO_PLAN, REPO, run_rig
+from tests.system.campaign_helpers import REPO, quick_demo, run_rig
 
 pytestmark = pytest.mark.system
 
@@ -45,8 +46,9 @@ def test_the_demo_campaign_through_bridges_calibrates_as_on_the_smbus_fake(tmp_p
     for name, truth in dut_truths(a).items():  # truths are drawn per DUT position from sim.seed
         assert np.array_equal(truth.S, dut_truths(b)[name].S)
         assert np.array_equal(truth.b_nt, dut_truths(b)[name].b_nt)
+    demo = quick_demo(tmp_path)
     for station, out in ((BRIDGES, tmp_path / "bridges"), (twin, tmp_path / "smbus")):
-        done = run_rig("run", str(DEMO_PLAN), "--station", str(station), "--out", str(out), "--no-live",
+        done = run_rig("run", str(demo), "--station", str(station), "--out", str(out), "--no-live",
                        timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
     for dut in ("mmc0", "mmc1"):
