@@ -40,7 +40,7 @@ Z_975 = 1.959963984540054
 NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: usually 1 or 2)
 BATCH_DRAWS = 2000  # J = 100 / (1 - p) for p = 0.95 (S1 7.9.4 asks for max(J, 10^4); see the report)
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
-VALIDATION_SHARE = 0.25  # of the numerical tolerance: how far they may stray from the map
+VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
 
 def needs_monte_carlo(cal: Calibration, sources: list[InputSource]) -> list[str]:
@@ -150,7 +150,7 @@ class _Draws:
 def _scalar_data(rng, qs, m: int, n: int, noise_nt):
     """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets."""
     dh = None if noise_nt is None else rng.standard_normal((m, n, 3)) * noise_nt
-    dref = _total(np.einsum("niq,mq->mni", a, q) for q, a, _ in qs if a is not None)
+    dref = _total((q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
     dt = _total(q @ a.T for q, _, a in qs if a is not None)
     return dh, dref, dt
 
@@ -159,11 +159,11 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
                     statistical: bool, ndig: int, draws: int = VALIDATION_DRAWS) -> tuple[bool, str, int]:
     """(the first-order map holds, what was found, refits failed): `draws` datasets drawn from every input
     are refitted exactly and compared draw by draw with the first-order map. When no parameter moves off
-    it by more than VALIDATION_SHARE of its numerical tolerance delta (GUM S1 7.9.2), the quantiles and u
-    of draws made through the map are those of refitted draws to within that share (an order statistic
-    moves no more than the draws do; the largest of 10^4 draws of a quadratic discrepancy is ~2x the
-    largest of 100), which leaves the adaptive procedure's own allowance (2 s <= delta) its room: the
-    Monte Carlo may use the map. Else every draw is refitted."""
+    it by more than VALIDATION_SHARE (half) of its numerical tolerance delta (GUM S1 7.9.2), the quantiles
+    and u of draws made through the map are those of refitted draws to within delta / 2 (an order
+    statistic moves no more than the draws do, and the draws that set a 95 % interval's ends lie about
+    2 sd out, where 100 draws already reach): the same allowance the adaptive rule gives its own scatter
+    (2 s <= delta), so the Monte Carlo may use the map. Else every draw is refitted (slower, said so)."""
     by_name = {c.name: c for c in linear.contributions}
     qs, linear_change = [], np.zeros((draws, linear.layout.size))
     for source in sources:
