@@ -9,6 +9,10 @@ with the full covariance of the inputs).
     lin.radius_nt                  # (G,): the 95 % radius of the calibrated field's 3-D error per grid point
     cross_covariance(lin_a, lin_b) # (Pa,Pb): two calibrations sharing input quantities
 
+Sources of the usual shapes: `matrix_source` (a coil matrix, or its change with position or geometry, times
+each sample's currents), `offset_source` (an ambient field), `temperature_source` (temperature changes as
+columns times q) and `reference_source` (a reference magnetometer's calibration error in what it measured).
+
 An input source is a set of input quantities q (Q of them) with covariance Sigma_q and the way they change
 the data, linearly: the references by a_ref q (a_ref (N,3,Q): sample n's reference changes by
 a_ref[n] @ q) and/or the temperatures by a_temp q (a_temp (N,Q)). The parameters then change by J q with
@@ -98,6 +102,43 @@ def temperature_source(name: str, columns: np.ndarray, covariance, **kw) -> Inpu
     """Temperature changes columns @ q (columns (N,Q): e.g. ones for an offset, T - 25 for a gradient)."""
     columns = np.asarray(columns, float)
     return InputSource(name, np.asarray(covariance, float), temp_c=columns.reshape(len(columns), -1), **kw)
+
+
+def affine_map(cal: Calibration, temp_c: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """(A, c) with cal.apply(h) = A h + c at temp_c (every model is affine in its reading)."""
+    h = np.vstack([np.zeros(3), np.eye(3)])
+    out = cal.apply(h, None if temp_c is None else np.full(4, float(temp_c)))
+    return (out[1:] - out[0]).T, out[0]
+
+
+def reference_source(name: str, measured_nt: np.ndarray, cal: Calibration, param_cov: np.ndarray,
+                     temp_c: float | None, **kw) -> InputSource:
+    """A reference magnetometer's calibration error. Its calibration maps its reading to A h + c; with its
+    parameters off by dp the field it reported, B' (measured_nt (N,3): the fields it measured that went
+    into the references), is off by dB = dT B' + dd, dT = dA A^-1, dd = dc - dT c (first order; A, c at
+    its measuring temperature temp_c). The input quantities are its parameters (flat, in the order of
+    cal.params) with covariance param_cov: its budget's covariance, else diag(u^2)."""
+    layout = ParamLayout.of(cal.params)
+    flat = layout.flatten(cal.params)
+    a0, c0 = affine_map(cal, temp_c)
+    a_inv = np.linalg.inv(a0)
+    jac = np.empty((12, flat.size))  # d (vec dT, dd) / d p, central differences
+    for j in range(flat.size):
+        step = 1e-6 * (abs(flat[j]) + np.mean(np.abs(flat)) * 1e-3 + 1e-12)
+        moved = []
+        for sign in (1.0, -1.0):
+            p = flat.copy()
+            p[j] += sign * step
+            a, c = affine_map(Calibration(cal.model, layout.unflatten(p), {}, cal.temp_ref_c), temp_c)
+            d_t = (a - a0) @ a_inv
+            moved.append(np.concatenate([d_t.ravel(), c - c0 - d_t @ c0]))
+        jac[:, j] = (moved[0] - moved[1]) / (2 * step)
+    measured = np.asarray(measured_nt, float)
+    per_q = np.zeros((len(measured), 3, 12))  # dB_n for a unit change of (vec dT, dd)
+    for i in range(3):
+        per_q[:, i, 3 * i:3 * i + 3] = measured
+        per_q[:, i, 9 + i] = 1.0
+    return InputSource(name, np.asarray(param_cov, float), ref_nt=per_q @ jac, **kw)
 
 
 @dataclass

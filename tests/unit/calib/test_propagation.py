@@ -311,3 +311,23 @@ def test_the_old_monte_carlo_counts_the_draws_it_could_not_refit():
                     draws_per_source=50)
     assert b.failed_draws == 6 and any("refits failed" in n for n in b.notes)
     assert b.as_dict()["failed_draws"] == 6
+
+
+def test_a_reference_magnetometers_error_moves_what_it_measured():
+    """The source's first-order change of the references against the field a drawn reference calibration
+    reports for the same readings, B = A2 A^-1 (B' - c) + c2."""
+    from calib.propagation import affine_map, reference_source
+
+    ref_ds, _ = synthetic.t24_dataset(np.random.default_rng(24), samples_per_point=2)
+    ref_cal = calib.fit(ref_ds, "t24")
+    layout = ParamLayout.of(ref_cal.params)
+    measured = np.random.default_rng(25).normal(0, 30_000.0, (40, 3))
+    u = layout.flatten(ref_cal.std_errors)
+    source = reference_source("reference magnetometer", measured, ref_cal, np.diag(u**2), 23.0,
+                              shared="reference magnetometer")
+    dp = np.random.default_rng(26).normal(0, 1.0, u.size) * u
+    drawn = Calibration("t24", layout.unflatten(layout.flatten(ref_cal.params) + dp), {}, ref_cal.temp_ref_c)
+    (a, c), (a2, c2) = affine_map(ref_cal, 23.0), affine_map(drawn, 23.0)
+    truth = (measured - c) @ np.linalg.solve(a.T, a2.T) + c2 - measured  # (A2 A^-1 (B' - c))^T, rows
+    np.testing.assert_allclose(source.ref_nt @ dp, truth, atol=1e-3 * np.abs(truth).max())
+    assert source.shared == "reference magnetometer" and source.covariance.shape == (24, 24)
