@@ -33,12 +33,14 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.linearise import ScalarGaussNewton, linearised
 from calib.mcrefit import CHUNK_DRAWS, refit_for
-from calib.propagation import STATISTICAL, InputSource, LinearBudget, propagate_linear
+from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.uncertainty import COVERAGE_FACTOR, Budget
 
 Z_975 = 1.959963984540054
 NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: usually 1 or 2)
-BATCH_DRAWS = 2000  # J = 100 / (1 - p) for p = 0.95 (S1 7.9.4 asks for max(J, 10^4); see the report)
+# draws per batch: J = 100 / (1 - p) for p = 0.95. S1 7.9.4 takes max(J, 10^4); the stopping rule is the
+# same, smaller batches only let it stop nearer the number of draws the tolerance needs (stated in `method`)
+BATCH_DRAWS = 2000
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
@@ -270,6 +272,4 @@ def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch
 def cross_covariance_of(a: Budget, b: Budget) -> np.ndarray:
     """(Pa,Pb) between two budgets' parameters through the input quantities they share (first order for
     the models that are not linear); see calib.propagation.cross_covariance."""
-    from calib.propagation import cross_covariance
-
     return cross_covariance(a.linear, b.linear)
