@@ -13,7 +13,7 @@ from calib import synthetic
 from calib.budgeting import budget, cross_covariance_of
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.errors import FitError
+from calib.errors import DataError, FitError
 from calib.linearise import ParamLayout, linearised
 from calib.mcrefit import ScalarRefit, TemperatureRefit
 from calib.propagation import (
@@ -331,3 +331,17 @@ def test_a_reference_magnetometers_error_moves_what_it_measured():
     truth = (measured - c) @ np.linalg.solve(a.T, a2.T) + c2 - measured  # (A2 A^-1 (B' - c))^T, rows
     np.testing.assert_allclose(source.ref_nt @ dp, truth, atol=1e-3 * np.abs(truth).max())
     assert source.shared == "reference magnetometer" and source.covariance.shape == (24, 24)
+
+
+def test_a_badly_described_source_is_one_line_naming_it():
+    ds, currents = small_case(27)
+    cal = calib.fit(ds, "t24")
+    wrong_shape = offset_source("ambient", len(ds) - 1, np.eye(3))
+    with pytest.raises(DataError, match=r"'ambient': ref_nt sensitivity has shape \(51, 3, 3\), expected"):
+        propagate_linear(ds, cal, [wrong_shape], grid())
+    lopsided = offset_source("ambient", len(ds), np.eye(3) + np.diag([2.0, 0.0], 1))
+    with pytest.raises(DataError, match="source 'ambient': covariance must be a symmetric"):
+        propagate_linear(ds, cal, [lopsided], grid())
+    odd = dataclasses.replace(coil_sources(ds, currents)[0], distribution="triangular")
+    with pytest.raises(DataError, match="distribution 'triangular' \\(known: normal, rectangular\\)"):
+        propagate_linear(ds, cal, [odd], grid())
