@@ -3,15 +3,18 @@ Carlo (GUM S1) where it is needed.
 
     b = budget(ds, cal, sources, grid, rng=rng)      # calib.uncertainty.Budget
     cal.uncertainty = b.as_dict()                    # the calibration file's `uncertainty:` section
-    cross_covariance(b_a.linear, b_b.linear)         # two DUTs sharing the campaign's coil matrix
+    cross_covariance_of(b_a, b_b)                    # two DUTs sharing the campaign's coil matrix
 
 1. Law of propagation (calib/propagation.py): every source's covariance J Sigma_q J^T, the fit's own
    sigma^2 G^-1, their sum, each one's RMS field error over the grid. Exact for T24 / T36 and sources
    that change the references; first order for P12, the scalar fit and temperature changes (said so).
 2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`): a temperature source on T24 /
    T36 (the regressors hold the temperature: each draw is refitted exactly, calib/mcrefit.py), the
-   scalar fit (each draw refitted, the readings' noise redrawn), or a non-normal input (a rectangular
-   tolerance: the coverage interval is not 1.96 u). Every draw adds the linear sources' J q to the
+   scalar fit, or a non-normal input (a rectangular tolerance: the coverage interval is not 1.96 u).
+   The scalar fit is first refitted on VALIDATION_DRAWS draws of every input (its readings' noise
+   redrawn) and compared draw by draw with its first-order map (`validate_scalar`): the draws go through
+   the map when it holds to half the numerical tolerance, else every draw is refitted (said in the
+   notes). Every draw adds the linear sources' J q to the
    refitted part, so the draws are of all inputs together; the number of draws is chosen by the
    adaptive procedure of GUM S1 7.9 (calib/adaptive.py). Parameters' u and coverage intervals, and the
    calibrated field's error at each grid point, come from the draws; the covariance from the draws when
