@@ -4,6 +4,7 @@ fits (calib/t24.py, p12.py, scalar.py) and the registry that ties a model to its
 above this module, and calib/calibration.py uses it to apply and validate a calibration.
 
 - t24 (absolute-tau convention of the paper): B = (S + T K) h + b + T kb, T the DUT temperature in degC.
+- t36 (same convention): B = (S + T K + T^2 K2) h + b + T kb + T^2 kb2, T24 with quadratic temperature terms.
 - p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
   row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
   e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
@@ -23,17 +24,19 @@ PARAM_SHAPES: dict[str, dict[str, tuple[int, ...]]] = {
     "t24": {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)},
     "p12": {"k": (3,), "angles_deg": (3,), "b_nt": (3,)},
     "scalar": {"A": (3, 3), "c_nt": (3,)},
+    "t36": {"S": (3, 3), "K": (3, 3), "K2": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,), "kb2_nt_per_c2": (3,)},
 }
 OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
     "t24": {},
     "p12": {},
     "scalar": {"KA_per_c": (3, 3), "kc_nt_per_c": (3,)},
+    "t36": {},
 }
 MODELS = tuple(PARAM_SHAPES)
 
 
 def needs_temperature(model: str, params: dict) -> bool:
-    return model == "t24" or (model == "scalar" and "KA_per_c" in params)
+    return model in ("t24", "t36") or (model == "scalar" and "KA_per_c" in params)
 
 
 def p12_matrix(k: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
@@ -87,6 +90,9 @@ def apply(model: str, params: dict, h_nt: np.ndarray, temp_c: np.ndarray | None,
         t = np.asarray(temp_c, dtype=float)[:, None]
     if model == "t24":
         return _t24_field(h, t[:, 0], params["S"], params["K"], params["b_nt"], params["kb_nt_per_c"])
+    if model == "t36":
+        linear = _t24_field(h, t[:, 0], params["S"], params["K"], params["b_nt"], params["kb_nt_per_c"])
+        return linear + (t * t) * (h @ params["K2"].T + params["kb2_nt_per_c2"])
     if model == "p12":
         m = p12_matrix(params["k"], params["angles_deg"])
         return np.linalg.solve(m, (h - params["b_nt"]).T).T

@@ -23,7 +23,7 @@ def fit(
     balance_orientations: bool | None = None,
     software_version: str = "unknown",
 ) -> Calibration:
-    """Fit `model` (a name in calib.models.REGISTRY: "t24", "p12", "scalar") to `ds`.
+    """Fit `model` (a name in calib.models.REGISTRY: "t24", "p12", "scalar", "t36") to `ds`.
 
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms

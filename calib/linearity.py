@@ -3,12 +3,14 @@
     check = linearity(h_nt, temp_c, ref_nt)   # {"testable", "holds", "quadratic_nt", "chi2", "p", "message"}
 
 T24 is B = (S + tau K) h + b + tau kb: linear in tau. Its next term is quadratic, (tau - tm)^2 (Q h + q),
-with tm the middle of the range. Both models are fitted by least squares to the same rows, per axis; the
-drop in the residual sum of squares, over the noise the larger model leaves, is chi-square distributed
-with 4 degrees of freedom per axis when T24 holds (12 for the three axes, for large N). A p-value below
-P_WARN says the curvature is real; `quadratic_nt` says how large it is: the largest change the quadratic
-term makes over the range, at the median field. Data at two temperatures only cannot tell a curve from a
-line: the check then says it is not testable and asks for interior temperatures.
+with tm the middle of the range. Both models are fitted by least squares to the same rows, per axis
+(calib/nested.py); the drop in the residual sum of squares, over the noise the larger model leaves, is
+chi-square distributed with 4 degrees of freedom per axis when T24 holds (12 for the three axes, for large
+N; the p-value takes it as F(12, 3(N - 12)), which stays honest on small data). A p-value below P_WARN
+says the curvature is real; `quadratic_nt` says how large it is: the largest change the quadratic term
+makes over the range, at the median field. Data at two temperatures only cannot tell a curve from a line:
+the check then says it is not testable and asks for interior temperatures. calib/checks.py puts this
+check beside the others in their common shape, with the practical threshold of its verdict.
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ import math
 import numpy as np
 
 from calib.errors import DataError
+from calib.nested import MIN_CURVATURE_SHARE, NestedTest, curvature_share, nested_test, t24_design
+from calib.stats import temperature_steps
 
 P_WARN = 1e-3
-TEMPS_NEEDED = 3  # distinct temperatures (0.5 degC apart) for a curve to show
+TEMPS_NEEDED = 3  # distinct temperatures for a curve to show
 N_EXTRA = 4  # per axis: (tau - tm)^2 [1, h1, h2, h3]
 
 
@@ -35,55 +39,40 @@ def chi2_sf_even(x: float, dof: int) -> float:
 
 
 def linearity(h_nt, temp_c, ref_nt) -> dict:
+    return linearity_with_test(h_nt, temp_c, ref_nt)[0]
+
+
+def linearity_with_test(h_nt, temp_c, ref_nt) -> tuple[dict, NestedTest | None]:
+    """(linearity's result, the nested test behind it, None when not testable)."""
     h = np.asarray(h_nt, float).reshape(-1, 3)
     temp = np.asarray(temp_c, float).ravel()
     ref = np.asarray(ref_nt, float).reshape(-1, 3)
     if not (len(h) == len(temp) == len(ref)):
         raise DataError(f"linearity: {len(h)} readings, {len(temp)} temperatures, {len(ref)} references")
     lo, hi = (float(temp.min()), float(temp.max())) if len(temp) else (0.0, 0.0)
-    distinct = np.unique(np.round(temp / 0.5)).size if len(temp) else 0
-    if distinct < TEMPS_NEEDED or len(h) < 8 + N_EXTRA + 10:
-        return {"testable": False, "holds": None,
-                "message": f"T24's linearity in temperature not tested: it needs samples at {TEMPS_NEEDED}"
-                " or more temperatures, interior ones included"}
-    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    s = (temp - mid) / half  # -1 .. 1
-    h_scale = float(np.median(np.linalg.norm(h, axis=1))) or 1.0
-    u = h / h_scale
-    base = np.column_stack([np.ones(len(s)), s, u, s[:, None] * u])
+    if len(h) < 8 + N_EXTRA + 10 or hi - lo < 0.5:
+        return _not_testable(), None
+    base, s, u = t24_design(h, temp)
+    if curvature_share(s) < MIN_CURVATURE_SHARE:
+        return _not_testable(), None
     extra = (s * s)[:, None] * np.column_stack([np.ones(len(s)), u])
-    full = np.column_stack([base, extra])
-    rss0 = _rss(base, ref)
-    beta, rss1 = _fit(full, ref)
-    dof_resid = len(s) - full.shape[1]
-    sigma2 = np.maximum(rss1 / dof_resid, 1e-300)
-    chi2 = float(np.sum((rss0 - rss1) / sigma2))
-    dof = 3 * N_EXTRA
-    p = chi2_sf_even(chi2, dof)
+    test = nested_test(base, extra, ref)
     grid = np.linspace(-1, 1, 21)
-    unit = np.eye(3)
     worst = 0.0
-    for d in (*unit, *-unit):  # the quadratic term's effect along each axis direction, at the median field
+    for d in (*np.eye(3), *-np.eye(3)):  # the quadratic term's effect along each axis direction, median field
         x = (grid * grid)[:, None] * np.concatenate([[1.0], d])[None, :]
-        worst = max(worst, float(np.abs(x @ beta[base.shape[1]:]).max()))
-    holds = p >= P_WARN
-    out = {"testable": True, "holds": holds, "quadratic_nt": worst, "chi2": chi2, "dof": dof, "p": p,
-           "range_c": [lo, hi], "temperatures": int(distinct)}
+        worst = max(worst, float(np.abs(x @ test.extra_coef).max()))
+    holds = test.p >= P_WARN
+    steps = int(temperature_steps(temp)[1].size)
+    out = {"testable": True, "holds": holds, "quadratic_nt": worst, "chi2": test.statistic, "dof": test.dof,
+           "p": test.p, "range_c": [lo, hi], "temperatures": steps, "sigma_nt": test.noise}
     out["message"] = (f"T24's linearity in temperature {'holds' if holds else 'does not hold'}: a quadratic "
                       f"term would change the field by up to {worst:.2f} nT over {lo:.1f} .. {hi:.1f} degC "
-                      f"(chi2 {chi2:.1f} on {dof} dof, p {p:.2g})")
-    return out
+                      f"(chi2 {test.statistic:.1f} on {test.dof} dof, p {test.p:.2g})")
+    return out, test
 
 
-def _fit(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares per output column, columns scaled: (coefficients, residual sum of squares per column)."""
-    scale = np.sqrt(np.mean(x * x, axis=0))
-    scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(x / scale, y, rcond=None)
-    coef = coef / scale[:, None]
-    r = y - x @ coef
-    return coef, np.sum(r * r, axis=0)
-
-
-def _rss(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return _fit(x, y)[1]
+def _not_testable() -> dict:
+    return {"testable": False, "holds": None,
+            "message": f"T24's linearity in temperature not tested: it needs samples at {TEMPS_NEEDED} or "
+                       "more temperatures, interior ones included"}

@@ -4,7 +4,7 @@ The registry is the one list of models: the CLI's --model choices, the plan's al
 campaign's fits and the report's model comparison all read it. Adding a model = its parameters and its
 field in calib/equations.py, its module (fit_weighted) + its `ModelSpec` in REGISTRY + its tests.
 
-Imports point one way: equations <- calibration <- the model modules (t24, p12, scalar) <- this registry
+Imports point one way: equations <- calibration <- the model modules (t24, t36, p12, scalar) <- this registry
 <- calib.fit. The equations' names are re-exported here for the callers that know them from here.
 """
 
@@ -17,6 +17,7 @@ import calib.p12 as p12
 import calib.scalar as scalar
 import calib.scalar_choice as scalar_choice
 import calib.t24 as t24
+import calib.t36 as t36
 from calib.equations import (  # noqa: F401 - re-exported: callers know them as calib.models.*
     MODELS,
     OPTIONAL_PARAMS,
@@ -60,6 +61,10 @@ def _fit_t24(ds, weights, o: FitOptions):
     return t24.fit_weighted(ds, weights, o.temp_ref_c)
 
 
+def _fit_t36(ds, weights, o: FitOptions):
+    return t36.fit_weighted(ds, weights, o.temp_ref_c)
+
+
 def _fit_p12(ds, weights, o: FitOptions):
     return p12.fit_weighted(ds, weights)
 
@@ -92,6 +97,8 @@ REGISTRY: dict[str, ModelSpec] = {
                   optional=OPTIONAL_PARAMS["scalar"],
                   options=frozenset({"temp_ref_c", "field_norm_nt", "temperature_terms",
                                      "balance_orientations"}), choose=_choose_scalar),
+        ModelSpec("t36", PARAM_SHAPES["t36"], _fit_t36, vector=True, needs_temperature=True,
+                  residuals_are_field_error=True),
     )
 }
 VECTOR_MODELS = tuple(name for name, spec in REGISTRY.items() if spec.vector)

@@ -59,6 +59,9 @@ class Source:
 
 @dataclass
 class Budget:
+    """A calibration's uncertainty. From `monte_carlo` (this module) or calib.budgeting.budget, which adds
+    the covariance, coverage intervals and the field error at every grid point."""
+
     coverage_factor: float
     standard: dict[str, np.ndarray]
     expanded: dict[str, np.ndarray]
@@ -67,19 +70,42 @@ class Budget:
     expanded_vector_error_nt: float
     draws: int
     notes: list[str] = field(default_factory=list)
+    method: str = ""
+    interval: dict | None = None  # {name: (low, high)}: the 95 % coverage interval of every parameter
+    covariance: np.ndarray | None = None  # (P,P) in the order of `parameter_labels`
+    parameter_labels: list[str] | None = None
+    vector_error_nt: dict | None = None  # the 95 % radius at every grid point, its maximum and percentile
+    failed_draws: int = 0
+    stated: bool = True  # False: too many refits failed; as_dict refuses
+    monte_carlo: dict | None = None
+    linear: object | None = field(default=None, repr=False)  # calib.propagation.LinearBudget
 
     def as_dict(self) -> dict:
-        """Plain values for the calibration file."""
-        return {
+        """Plain values for the calibration file; FitError when the uncertainty cannot be stated."""
+        if not self.stated:
+            raise FitError("the uncertainty cannot be stated: " + "; ".join(self.notes))
+        out = {
             "coverage_factor": self.coverage_factor,
-            "method": f"Monte Carlo (GUM S1), {self.draws} draws of every input together",
+            "method": self.method or f"Monte Carlo (GUM S1), {self.draws} draws of every input together",
             "expanded": {k: np.asarray(v, float).tolist() for k, v in self.expanded.items()},
             "budget": [dict(c) for c in self.contributions],
             "combined_standard_nt": self.combined_standard_nt,
             "expanded_vector_error_nt": self.expanded_vector_error_nt,
             "coverage_probability": COVERAGE_PROBABILITY,
+            "failed_draws": self.failed_draws,
             "notes": list(self.notes),
         }
+        if self.interval is not None:
+            out["interval"] = {k: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
+                               for k, (lo, hi) in self.interval.items()}
+        if self.covariance is not None:
+            out["covariance"] = {"parameters": list(self.parameter_labels),
+                                 "matrix": np.asarray(self.covariance, float).tolist()}
+        if self.vector_error_nt is not None:
+            out["vector_error_nt"] = dict(self.vector_error_nt)
+        if self.monte_carlo is not None:
+            out["monte_carlo"] = dict(self.monte_carlo)
+        return out
 
 
 def with_draw(ds: Dataset, d: Draw) -> Dataset:
@@ -126,6 +152,9 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
     grid_h = raw_for(cal, grid_field, grid_temp)
     nominal = cal.apply(grid_h, grid_temp)
 
+    failures: list[str] = []
+    failed: list[int] = []
+
     def run(chosen: list[Source], n: int) -> tuple[np.ndarray, dict[str, list[np.ndarray]]]:
         errors = []
         params: dict[str, list[np.ndarray]] = {k: [] for k in cal.params}
@@ -144,10 +173,13 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
             errors.append(fitted.apply(grid_h, grid_temp) - nominal)
             for k in params:
                 params[k].append(np.asarray(fitted.params[k], float))
+        names = ", ".join(s.name for s in chosen)
         if len(errors) < MIN_SHARE_FITTED * n:
-            names = ", ".join(s.name for s in chosen)
             raise FitError(f"{cal.model}: only {len(errors)} of {n} Monte Carlo draws ({names}) could be "
                            "fitted: the fit is too close to unidentifiable for an uncertainty")
+        if len(errors) < n:
+            failures.append(f"{n - len(errors)} of {n} refits failed ({names}) and are not in the figures")
+            failed.append(n - len(errors))
         return np.array(errors), params
 
     contributions = []
@@ -162,7 +194,8 @@ def monte_carlo(ds: Dataset, cal: Calibration, sources: list[Source], refit: Cal
         coverage_factor=coverage_factor, standard=standard,
         expanded={k: coverage_factor * v for k, v in standard.items()},
         contributions=contributions, combined_standard_nt=_rms_length(errors),
-        expanded_vector_error_nt=float(np.quantile(lengths, COVERAGE_PROBABILITY)), draws=draws)
+        expanded_vector_error_nt=float(np.quantile(lengths, COVERAGE_PROBABILITY)), draws=draws,
+        notes=failures, failed_draws=sum(failed))
 
 
 def _rms_length(errors: np.ndarray) -> float:

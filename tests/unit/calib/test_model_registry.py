@@ -43,5 +43,6 @@ def test_calib_fit_dispatches_through_the_registry(monkeypatch):
         "p12", p12.params, counting, vector=True, needs_temperature=False, options=frozenset()))
     cal = calib.fit(ds, "p12", temp_ref_c=5.0)
     assert cal.model == "p12" and calls[0].temp_ref_c == 5.0
-    with pytest.raises(DataError, match="unknown calibration model 'nope' \\(known: t24, p12, scalar\\)"):
+    known = "t24, p12, scalar, t36"
+    with pytest.raises(DataError, match=f"unknown calibration model 'nope' \\(known: {known}\\)"):
         calib.fit(ds, "nope")

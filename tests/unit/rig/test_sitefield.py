@@ -123,7 +123,7 @@ def test_a_calibration_of_the_wrong_model_or_device_is_refused(station_dir):
 
     msg = calibration_error(station_dir, cal_change=scalar)
     assert "reference_magnetometers[0].calibration:" in msg and "a scalar calibration" in msg
-    assert "needs a vector model (t24, p12)" in msg
+    assert "needs a vector model (t24, p12, t36)" in msg
 
     def other_device(cal):
         cal.source["device_type"] = "serialmag"

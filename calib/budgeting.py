@@ -1,0 +1,278 @@
+"""A calibration's uncertainty budget: exact linear propagation where the model is linear, adaptive Monte
+Carlo (GUM S1) where it is needed.
+
+    b = budget(ds, cal, sources, grid, rng=rng)      # calib.uncertainty.Budget
+    cal.uncertainty = b.as_dict()                    # the calibration file's `uncertainty:` section
+    cross_covariance_of(b_a, b_b)                    # two DUTs sharing the campaign's coil matrix
+
+1. Law of propagation (calib/propagation.py): every source's covariance J Sigma_q J^T, the fit's own
+   sigma^2 G^-1, their sum, each one's RMS field error over the grid. Exact for T24 / T36 and sources
+   that change the references; first order for P12, the scalar fit and temperature changes (said so).
+2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`): a temperature source on T24 /
+   T36 (the regressors hold the temperature: each draw is refitted exactly, calib/mcrefit.py), the
+   scalar fit, or a non-normal input (a rectangular tolerance: the coverage interval is not 1.96 u).
+   The scalar fit is first refitted on VALIDATION_DRAWS draws of every input (its readings' noise
+   redrawn) and compared draw by draw with its first-order map (`validate_scalar`): the draws go through
+   the map when it holds to half the numerical tolerance, else every draw is refitted (said in the
+   notes). Every draw adds the linear sources' J q to the
+   refitted part, so the draws are of all inputs together; the number of draws is chosen by the
+   adaptive procedure of GUM S1 7.9 (calib/adaptive.py). Parameters' u and coverage intervals, and the
+   calibrated field's error at each grid point, come from the draws; the covariance from the draws when
+   refits were made, else from the law of propagation (exact whatever the inputs' distributions).
+3. Without Monte Carlo (all inputs normal, the model linear in them): u and the covariance from the law
+   of propagation, intervals +-1.96 u, the field's 95 % radius at each point from its 3x3 covariance.
+
+The field error is judged at every grid point: `vector_error_nt` holds the 95 % radius per point, its
+maximum and the 95th percentile over the points; `expanded_vector_error_nt` is the maximum, so the worst
+point is covered.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.adaptive import MAX_DRAWS, adaptive_monte_carlo, numerical_tolerance, quantiles
+from calib.calibration import Calibration
+from calib.dataset import Dataset
+from calib.linearise import ScalarGaussNewton, linearised
+from calib.mcrefit import CHUNK_DRAWS, refit_for
+from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
+from calib.uncertainty import COVERAGE_FACTOR, Budget
+
+Z_975 = 1.959963984540054
+NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: usually 1 or 2)
+# draws per batch: J = 100 / (1 - p) for p = 0.95. S1 7.9.4 takes max(J, 10^4); the stopping rule is the
+# same, smaller batches only let it stop nearer the number of draws the tolerance needs (stated in `method`)
+BATCH_DRAWS = 2000
+VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
+VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
+
+
+def needs_monte_carlo(cal: Calibration, sources: list[InputSource]) -> list[str]:
+    """Why the law of propagation alone is not the whole answer (empty: it is)."""
+    why = []
+    if cal.model == "scalar":
+        why.append("the scalar fit is not linear in its data")
+    if cal.model in ("t24", "t36") and any(s.temp_c is not None for s in sources):
+        why.append("temperature changes move the regressors")
+    rect = [s.name for s in sources if s.distribution != "normal"]
+    if rect:
+        why.append(f"{', '.join(rect)}: not normal, the coverage interval is not 1.96 u")
+    return why
+
+
+def _root(cov: np.ndarray) -> np.ndarray:
+    """L with L L^T = cov (positive semi-definite), taken on the correlation matrix: the parameters'
+    variances span twenty decades (K2 against b), which an eigen-solve of cov itself would not resolve."""
+    cov = np.atleast_2d(cov)
+    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    safe = np.where(d > 0, d, 1.0)
+    w, v = np.linalg.eigh(cov / np.outer(safe, safe))
+    return d[:, None] * (v * np.sqrt(np.clip(w, 0.0, None)))
+
+
+def _unit(rng: np.random.Generator, distribution: str, shape) -> np.ndarray:
+    if distribution == "rectangular":
+        return rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), shape)
+    return rng.standard_normal(shape)
+
+
+class _Draws:
+    """Makes batches of draws of every input: (parameter changes (m,P), field error lengths (m,G), failed).
+
+    Every draw is the sum of J q over the sources handled by a linear map and of the refitted change for
+    the others: T24 / T36 refitted exactly for their temperature sources (calib/mcrefit.py); the scalar
+    fit through its first-order map when `validate_scalar` showed refits agree with it, else refitted."""
+
+    def __init__(self, ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
+                 statistical: bool, scalar_refits: bool):
+        self.cal, self.lin, self.linear = cal, lin, linear
+        self.scalar = isinstance(lin, ScalarGaussNewton)
+        self.scalar_refits = self.scalar and scalar_refits
+        self.linear_parts = []  # (J (P,Q), root of Sigma_q, distribution): J q added to every draw
+        self.data_parts = []  # (root, distribution, a_ref, a_temp): changes the data of a refit
+        by_name = {c.name: c for c in linear.contributions}
+        if statistical and not self.scalar_refits:
+            own = _root(by_name[STATISTICAL].covariance)
+            self.linear_parts.append((np.eye(linear.layout.size), own, "normal"))
+        for source in sources:
+            a_ref, a_temp = source.sensitivities(ds)
+            root = _root(source.covariance)
+            if self.scalar_refits:
+                self.data_parts.append((root, source.distribution, a_ref, a_temp))
+            elif a_temp is not None and cal.model in ("t24", "t36"):
+                if a_ref is not None:
+                    self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution))
+                self.data_parts.append((root, source.distribution, None, a_temp))
+            else:
+                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution))
+        temps = [a for (_, _, _, a) in self.data_parts if a is not None]
+        self.refit = None
+        if self.scalar_refits or temps:
+            self.refit = refit_for(lin, np.column_stack(temps) if temps else None)
+        self.noise_nt = np.sqrt(lin.sigma2) if self.scalar_refits and statistical else None
+
+    def __call__(self, rng: np.random.Generator, m: int):
+        change = np.zeros((m, self.linear.layout.size))
+        for jac, root, dist in self.linear_parts:
+            change += (_unit(rng, dist, (m, root.shape[1])) @ root.T) @ jac.T
+        failed = np.zeros(m, bool)
+        if self.refit is not None:
+            qs = [(_unit(rng, dist, (m, root.shape[1])) @ root.T, a_ref, a_temp)
+                  for root, dist, a_ref, a_temp in self.data_parts]
+            if self.scalar_refits:  # in chunks: every draw holds a copy of the data
+                for lo in range(0, m, CHUNK_DRAWS):
+                    rows = slice(lo, min(lo + CHUNK_DRAWS, m))
+                    dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs], rows.stop - lo,
+                                                len(self.lin.ds), self.noise_nt)
+                    change[rows], failed[rows] = self.refit(dh, dref, dt)
+            else:
+                moved, failed = self.refit(np.column_stack([q for q, _, _ in qs]))
+                change += moved
+        error = self._field_error(change)
+        return change, np.sqrt(np.einsum("mgi,mgi->mg", error, error)), failed
+
+    def _field_error(self, change: np.ndarray) -> np.ndarray:
+        """(m,G,3): exact for the scalar model (bilinear in its parameters), F dtheta for the others (exact
+        for T24 and T36, linear in their parameters; first order for P12)."""
+        lb = self.linear
+        if not self.scalar:
+            g = len(lb.grid_h_nt)
+            return (change @ lb.field_jacobian.reshape(3 * g, -1).T).reshape(len(change), g, 3)
+        drawn = lb.layout.unflatten(lb.estimate + change)
+        h, temp = lb.grid_h_nt, lb.grid_temp_c
+        t = np.zeros(len(h)) if temp is None or self.cal.temp_ref_c is None else temp - self.cal.temp_ref_c
+        v = h[None] - drawn["c_nt"][:, None, :]
+        if "KA_per_c" in drawn:
+            v = v - t[None, :, None] * drawn["kc_nt_per_c"][:, None, :]
+            field = (v @ drawn["A"].transpose(0, 2, 1)
+                     + t[None, :, None] * (v @ drawn["KA_per_c"].transpose(0, 2, 1)))
+        else:
+            field = v @ drawn["A"].transpose(0, 2, 1)
+        return field - self.cal.apply(h, temp)[None]
+
+
+def _scalar_data(rng, qs, m: int, n: int, noise_nt):
+    """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets."""
+    dh = None if noise_nt is None else rng.standard_normal((m, n, 3)) * noise_nt
+    dref = _total((q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
+    dt = _total(q @ a.T for q, _, a in qs if a is not None)
+    return dh, dref, dt
+
+
+def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[InputSource], rng, *,
+                    statistical: bool, ndig: int, draws: int = VALIDATION_DRAWS) -> tuple[bool, str, int]:
+    """(the first-order map holds, what was found, refits failed): `draws` datasets drawn from every input
+    are refitted exactly and compared draw by draw with the first-order map. When no parameter moves off
+    it by more than VALIDATION_SHARE (half) of its numerical tolerance delta (GUM S1 7.9.2), the quantiles
+    and u of draws made through the map are those of refitted draws to within delta / 2 (an order
+    statistic moves no more than the draws do, and the draws that set a 95 % interval's ends lie about
+    2 sd out, where 100 draws already reach): the same allowance the adaptive rule gives its own scatter
+    (2 s <= delta), so the Monte Carlo may use the map. Else every draw is refitted (slower, said so)."""
+    by_name = {c.name: c for c in linear.contributions}
+    qs, linear_change = [], np.zeros((draws, linear.layout.size))
+    for source in sources:
+        a_ref, a_temp = source.sensitivities(lin.ds)
+        q = _unit(rng, source.distribution, (draws, np.atleast_2d(source.covariance).shape[0])) @ \
+            _root(source.covariance).T
+        qs.append((q, a_ref, a_temp))
+        linear_change += q @ by_name[source.name].jacobian.T
+    noise = np.sqrt(lin.sigma2) if statistical else None
+    dh, dref, dt = _scalar_data(rng, qs, draws, len(lin.ds), noise)
+    if dh is not None:
+        linear_change += lin.reading_change(dh)
+    if dh is None and dref is None and dt is None:
+        return True, "no input to draw", 0
+    refitted, failed = refit_for(lin, None)(dh, dref, dt)
+    off = np.max(np.abs(refitted[~failed] - linear_change[~failed]), axis=0, initial=0.0)
+    delta = numerical_tolerance(np.sqrt(np.diag(linear.covariance)), ndig)
+    ratio = float(np.max(np.where(delta > 0, off / np.where(delta > 0, delta, 1.0), 0.0)))
+    holds = ratio <= VALIDATION_SHARE and not failed.any()
+    return holds, (f"{draws} refitted draws stay within {ratio:.2g} of the numerical tolerance of the "
+                   f"first-order map ({'it holds' if holds else 'refitting every draw'})"), int(failed.sum())
+
+
+def _total(parts):
+    """The sum of the arrays given, None when none is."""
+    out = None
+    for part in parts:
+        out = part if out is None else out + part
+    return out
+
+
+def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, rng: np.random.Generator,
+           weights: np.ndarray | None = None, statistical: bool = True, monte_carlo: str = "auto",
+           ndig: int = NDIG, batch_draws: int | None = BATCH_DRAWS, max_draws: int = MAX_DRAWS,
+           coverage_factor: float = COVERAGE_FACTOR, scalar_refits: bool | None = None) -> Budget:
+    """The uncertainty budget of `cal` (fitted to `ds` with row `weights`) over `sources` and the fit's own
+    noise (`statistical`), the field error judged over `grid` = (fields (G,3) nT, temperatures (G,) or
+    None). monte_carlo: "auto" (where needed), "always" or "never" (the law of propagation alone).
+    scalar_refits: refit every draw of a scalar calibration (True), or only when `validate_scalar` finds
+    its first-order map does not hold (None)."""
+    lin = linearised(ds, cal, weights)
+    linear = propagate_linear(ds, cal, sources, grid, statistical=statistical, lin=lin)
+    if monte_carlo == "auto":
+        why = needs_monte_carlo(cal, sources)
+    else:
+        why = ["asked for"] if monte_carlo == "always" else []
+    notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
+    if why:
+        figures = _monte_carlo(ds, cal, lin, linear, sources, rng, statistical=statistical, ndig=ndig,
+                               batch_draws=batch_draws, max_draws=max_draws, why=why, notes=notes,
+                               scalar_refits=scalar_refits)
+    else:
+        u = np.sqrt(np.diag(linear.covariance))
+        method = "law of propagation (GUM), " + ("first order" if linear.first_order
+                                                 else "exact: a linear model")
+        figures = {"u": u, "low": -Z_975 * u, "high": Z_975 * u, "radius": linear.radius_nt,
+                   "rms": linear.field_rms_nt, "covariance": linear.covariance, "method": method, "mc": None}
+    layout, radius, mc = linear.layout, figures["radius"], figures["mc"]
+    standard = layout.unflatten(figures["u"])
+    low, high = (layout.unflatten(linear.estimate + figures[k]) for k in ("low", "high"))
+    return Budget(
+        coverage_factor=coverage_factor, standard=standard,
+        expanded={k: coverage_factor * v for k, v in standard.items()},
+        contributions=[{"source": c.name, "contribution_nt": c.field_rms_nt, "method": c.method,
+                        **({"note": c.source.origin} if c.source is not None and c.source.origin else {})}
+                       for c in linear.contributions],
+        combined_standard_nt=figures["rms"], expanded_vector_error_nt=float(np.max(radius)),
+        draws=0 if mc is None else mc["draws"], notes=notes, method=figures["method"],
+        interval={k: (low[k], high[k]) for k in layout.names},
+        covariance=figures["covariance"], parameter_labels=layout.labels(),
+        vector_error_nt={"per_point": radius.tolist(), "max": float(np.max(radius)),
+                         "percentile_95": float(quantiles(radius[:, None], [0.95])[0, 0]),
+                         "grid_field_nt": linear.grid_field_nt.tolist(),
+                         "grid_temp_c": None if linear.grid_temp_c is None else linear.grid_temp_c.tolist()},
+        failed_draws=0 if mc is None else mc["failed"], stated=True if mc is None else mc["stated"],
+        monte_carlo=mc, linear=linear)
+
+
+def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch_draws, max_draws, why,
+                 notes, scalar_refits) -> dict:
+    """The figures of the adaptive Monte Carlo (u, interval offsets, radius per grid point, ...)."""
+    refits, checked_failed = bool(scalar_refits), 0
+    if isinstance(lin, ScalarGaussNewton) and scalar_refits is None:
+        holds, found, checked_failed = validate_scalar(lin, linear, sources, rng, statistical=statistical,
+                                                       ndig=ndig)
+        notes.append(found)
+        refits = not holds
+    draws = _Draws(ds, cal, lin, linear, sources, statistical, refits)
+    result = adaptive_monte_carlo(draws, rng, ndig=ndig, batch_size=batch_draws, max_draws=max_draws)
+    refitted = draws.refit is not None  # else every draw is a linear map: its covariance is exact
+    if not result.stated:
+        notes.append(result.message)
+    failed = result.failed + checked_failed
+    return {"u": result.u if refitted else np.sqrt(np.diag(linear.covariance)),
+            "low": result.low, "high": result.high, "radius": result.length_quantile,
+            "rms": float(np.sqrt(np.mean(result.length_rms**2))),
+            "covariance": np.cov(result.values, rowvar=False) if refitted else linear.covariance,
+            "method": f"Monte Carlo (GUM S1, adaptive), {result.message}; because {'; '.join(why)}",
+            "mc": {"draws": result.draws, "failed": failed, "batches": result.batches,
+                   "batch_size": result.batch_size, "converged": result.converged, "ndig": ndig,
+                   "stated": result.stated, "refits": "every draw" if refitted else "none (linear maps)"}}
+
+
+def cross_covariance_of(a: Budget, b: Budget) -> np.ndarray:
+    """(Pa,Pb) between two budgets' parameters through the input quantities they share (first order for
+    the models that are not linear); see calib.propagation.cross_covariance."""
+    return cross_covariance(a.linear, b.linear)

@@ -1,0 +1,175 @@
+"""Refits of many Monte Carlo draws at once, using the structure of each model instead of calling the fit.
+
+- `TemperatureRefit` (T24, T36): drawn temperature changes d_n = a_n . q move the regressors to
+  x(t + d) = X0 + d X1 (+ d^2 X2 for T36) exactly, so the Gram and the right-hand sides are polynomials in
+  q whose coefficients are sums over the samples, taken once: every draw then costs a few small matrix
+  products and a 12x12 solve, whatever the number of samples. The refit is exact (not linearised).
+- `ScalarRefit`: the scalar fit re-solved for every draw by Newton-type steps from the calibration's own
+  solution (warm start) with the exact gradient J^T W r of the drawn data and the step matrix
+  (J^T W J)^-1 taken once at the solution: the fixed point is the drawn data's least-squares solution;
+  the steps shrink by the factor the Jacobian moves (~1e-4 here), so two or three suffice. A draw stops
+  when its step is below STEP_TOLERANCE of every parameter's uncertainty; one still moving after
+  MAX_SCALAR_STEPS counts as failed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.errors import FitError
+from calib.linearise import LinearInReference, ScalarGaussNewton
+
+MAX_TENSOR_TERMS = 4096  # q^(x k) terms kept per power before the sums are taken per draw instead
+MAX_SCALAR_STEPS = 8
+STEP_TOLERANCE = 1e-3
+CHUNK_DRAWS = 512
+
+
+def _kron_power(a: np.ndarray, k: int) -> np.ndarray:
+    """Rows of a (N,Q) raised to the k-th Kronecker power: (N, Q^k)."""
+    out = np.ones((a.shape[0], 1))
+    for _ in range(k):
+        out = np.einsum("na,nb->nab", out, a).reshape(a.shape[0], -1)
+    return out
+
+
+class TemperatureRefit:
+    """Exact T24 / T36 refits for temperatures changed by a_temp q (q (m,Q) per draw)."""
+
+    def __init__(self, lin: LinearInReference, a_temp: np.ndarray):
+        ds, w, reg = lin.ds, lin.w, lin.regressors
+        t = ds.temp_c
+        x0, up, down = reg(ds.h_nt, t), reg(ds.h_nt, t + 1.0), reg(ds.h_nt, t - 1.0)
+        xs = [x0, 0.5 * (up - down), 0.5 * (up + down) - x0]  # x(t + d) = sum_j d^j xs[j], exactly
+        degree = lin.temp_degree  # T24's regressors are linear in t, T36's quadratic
+        xs = xs[:degree + 1]
+        p = lin.p
+        self.lin, self.p, self.a = lin, p, a_temp
+        grams = [sum((xs[j][:, :, None] * xs[k - j][:, None, :]) for j in range(max(0, k - degree),
+                                                                           min(k, degree) + 1))
+                 for k in range(2 * degree + 1)]  # (N,p,p) per power of d
+        rhs = [xs[k][:, :, None] * ds.ref_nt[:, None, :] for k in range(degree + 1)]  # (N,p,3)
+        self.g0 = np.einsum("n,nab->ab", w, grams[0])
+        self.b0 = np.einsum("n,nab->ab", w, rhs[0])
+        self.scale = np.sqrt(np.diag(self.g0))
+        self.theta0 = self._solve(self.g0[None], self.b0[None])[0]
+        self.terms = []  # (power k, coefficient tensor (Q^k or N, p*p + 3p)) per power k >= 1
+        for k in range(1, 2 * degree + 1):
+            both = grams[k].reshape(len(t), -1)
+            if k <= degree:
+                both = np.column_stack([both, rhs[k].reshape(len(t), -1)])
+            else:
+                both = np.column_stack([both, np.zeros((len(t), 3 * p))])
+            if a_temp.shape[1] ** k <= MAX_TENSOR_TERMS:
+                self.terms.append((k, True, (_kron_power(a_temp, k) * w[:, None]).T @ both))
+            else:
+                self.terms.append((k, False, both * w[:, None]))
+
+    def _solve(self, g: np.ndarray, b: np.ndarray) -> np.ndarray:
+        s = self.scale
+        return np.linalg.solve(g / np.outer(s, s), b / s[:, None]) / s[:, None]
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(parameter changes (m,P) in the layout's order, failed (m,))."""
+        m, p = q.shape[0], self.p
+        total = np.zeros((m, p * p + 3 * p))
+        d = None
+        for k, tensor, coef in self.terms:
+            if tensor:
+                total += _kron_power(q, k) @ coef
+            else:
+                d = q @ self.a.T if d is None else d
+                total += (d**k) @ coef
+        g = self.g0 + total[:, :p * p].reshape(m, p, p)
+        b = self.b0 + total[:, p * p:].reshape(m, p, 3)
+        failed = np.zeros(m, bool)
+        try:
+            theta = self._solve(g, b)
+        except np.linalg.LinAlgError:  # one singular draw spoils the stacked solve: solve them one by one
+            theta = np.zeros((m, p, 3))
+            for i in range(m):
+                try:
+                    theta[i] = self._solve(g[i:i + 1], b[i:i + 1])[0]
+                except np.linalg.LinAlgError:
+                    failed[i] = True
+        change = np.einsum("ab,mbi->mai", self.lin.to_abs, theta - self.theta0)
+        return change.reshape(m, -1)[:, self.lin.index], failed
+
+
+class ScalarRefit:
+    """Scalar refits of drawn data: readings h + dh, reference norms |ref + dref| (when the fit took |B|
+    from the references), temperatures t + dt; every argument (m,N,3), (m,N,3) or (m,N), or None."""
+
+    def __init__(self, lin: ScalarGaussNewton):
+        self.lin = lin
+        self.step = lin.n_inv  # (P,P), symmetric
+        self.u = np.sqrt(np.diag(lin.n_inv) * lin.sigma2)
+        self.temp = lin.temp
+
+    def _gradient(self, theta, h, fn, t):
+        """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian."""
+        a = _upper(theta[:, :6])
+        c = theta[:, 6:9]
+        if self.temp:
+            ka = _upper(theta[:, 9:15])
+            v = h - c[:, None, :] - t[..., None] * theta[:, None, 15:18]
+            y = v @ a.transpose(0, 2, 1) + t[..., None] * (v @ ka.transpose(0, 2, 1))
+        else:
+            v = h - c[:, None, :]
+            y = v @ a.transpose(0, 2, 1)
+        norm = np.sqrt(np.einsum("mni,mni->mn", y, y))
+        wu = y * (self.lin.w * (norm - fn) / norm)[..., None]  # w r u, u = y / |y|
+        upper = np.triu_indices(3)
+        g_a = (wu.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
+        su = wu.sum(axis=1)
+        if not self.temp:
+            return np.column_stack([g_a, -np.einsum("mji,mj->mi", a, su)])
+        wut = wu * t[..., None]
+        g_ka = (wut.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
+        sut = wut.sum(axis=1)
+        sutt = np.einsum("mni,mn->mi", wut, t)
+        g_c = -(np.einsum("mji,mj->mi", a, su) + np.einsum("mji,mj->mi", ka, sut))
+        g_kc = -(np.einsum("mji,mj->mi", a, sut) + np.einsum("mji,mj->mi", ka, sutt))
+        return np.column_stack([g_a, g_c, g_ka, g_kc])
+
+    def __call__(self, dh=None, dref=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
+        """(parameter changes (m,P) in the layout's order, failed (m,))."""
+        lin = self.lin
+        m = next(x.shape[0] for x in (dh, dref, dt) if x is not None)
+        h = lin.ds.h_nt[None] if dh is None else lin.ds.h_nt[None] + dh
+        if dref is not None and lin.norm_from_ref:
+            fn = np.linalg.norm(lin.ds.ref_nt[None] + dref, axis=2)
+        else:
+            fn = np.broadcast_to(lin.fn, (m, len(lin.fn)))
+        t = np.broadcast_to(lin.t, (m, len(lin.t))) if dt is None or not self.temp else lin.t + dt
+        theta = np.repeat(lin.theta[None], m, axis=0)
+        moving = np.arange(m)  # the draws still taking steps
+        for _ in range(MAX_SCALAR_STEPS):
+            step = self._gradient(theta[moving], h[moving] if h.shape[0] > 1 else h, fn[moving],
+                                  t[moving]) @ self.step
+            theta[moving] -= step
+            moving = moving[~np.all(np.abs(step) <= STEP_TOLERANCE * self.u, axis=1)]
+            if moving.size == 0:
+                break
+        failed = np.zeros(m, bool)
+        failed[moving] = True  # still moving after MAX_SCALAR_STEPS: not converged
+        failed |= ~np.all(np.isfinite(theta), axis=1)
+        return (theta - lin.theta) @ lin.select.T, failed
+
+
+def _upper(entries: np.ndarray) -> np.ndarray:
+    """(m,6) upper-triangular entries (row by row) -> (m,3,3)."""
+    out = np.zeros((entries.shape[0], 3, 3))
+    out[:, np.triu_indices(3)[0], np.triu_indices(3)[1]] = entries
+    return out
+
+
+def refit_for(lin, a_temp: np.ndarray | None):
+    """The batch refit a model's Monte Carlo draws need, or None when its draws are linear maps."""
+    if isinstance(lin, ScalarGaussNewton):
+        return ScalarRefit(lin)
+    if isinstance(lin, LinearInReference) and a_temp is not None:
+        return TemperatureRefit(lin, a_temp)
+    if a_temp is not None and np.any(a_temp):
+        raise FitError("temperature changes of a model without temperature terms")
+    return None

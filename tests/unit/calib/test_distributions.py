@@ -1,0 +1,53 @@
+"""calib/distributions.py against mpmath and closed forms."""
+
+from __future__ import annotations
+
+import math
+
+import mpmath
+import numpy as np
+import pytest
+
+from calib.distributions import chi2_sf, erf, f_sf, gaussian_radius
+
+
+@pytest.mark.parametrize(("x", "d1", "d2"), [(1.0, 3, 100), (5.0, 12, 500), (0.1, 1, 10), (2.5, 36, 3000),
+                                              (8.0, 4, 20)])
+def test_f_tail(x, d1, d2):
+    exact = 1 - mpmath.betainc(d1 / 2, d2 / 2, 0, d1 * x / (d1 * x + d2), regularized=True)
+    assert f_sf(x, d1, d2) == pytest.approx(float(exact), rel=1e-10)
+
+
+@pytest.mark.parametrize(("x", "k"), [(1.0, 3), (26.217, 12), (100.0, 12), (3.0, 1), (0.5, 7)])
+def test_chi2_tail(x, k):
+    assert chi2_sf(x, k) == pytest.approx(float(mpmath.gammainc(k / 2, x / 2, mpmath.inf, regularized=True)),
+                                          rel=1e-10)
+
+
+def test_erf():
+    x = np.linspace(-5, 5, 2001)
+    assert np.max(np.abs(erf(x) - np.array([math.erf(v) for v in x]))) < 1.5e-7
+
+
+def test_gaussian_radius_closed_forms_and_a_general_case():
+    assert gaussian_radius(np.eye(3)) == pytest.approx(2.795483482915108, rel=1e-6)  # sqrt(chi2_3 0.95)
+    assert gaussian_radius(np.diag([4.0, 0.0, 0.0])) == pytest.approx(2 * 1.959963984540054, rel=1e-6)
+    two_d = math.sqrt(-2 * math.log(0.05))  # the Rayleigh quantile
+    assert gaussian_radius(np.diag([1.0, 1.0, 0.0])) == pytest.approx(two_d, rel=1e-6)
+    assert gaussian_radius(np.zeros((3, 3))) == 0.0
+    a = np.array([[2.0, 0.3, -0.4], [0.1, 0.7, 0.2], [0.0, 0.5, 0.3]])
+    cov = a @ a.T
+    # P(|e| <= r) by 1-D quadrature over the sphere in mpmath (three eigenvalues, chi2_3 along each ray)
+    lam = np.linalg.eigvalsh(cov)
+    r = gaussian_radius(cov)
+
+    def inside(mu, phi):
+        q = lam[0] * (1 - mu * mu) * mpmath.cos(phi) ** 2 + lam[1] * (1 - mu * mu) * mpmath.sin(phi) ** 2 \
+            + lam[2] * mu * mu
+        x = r * r / q
+        return mpmath.erf(mpmath.sqrt(x / 2)) - mpmath.sqrt(2 * x / mpmath.pi) * mpmath.exp(-x / 2)
+
+    prob = mpmath.quad(inside, [0, 1], [0, mpmath.pi / 2]) * 2 / mpmath.pi
+    assert float(prob) == pytest.approx(0.95, abs=1e-6)
+    stack = gaussian_radius(np.stack([cov, 4 * cov]))
+    assert stack.shape == (2,) and stack[1] == pytest.approx(2 * stack[0], rel=1e-6)
