@@ -1,4 +1,5 @@
-"""Fixtures of the system tests: a throwaway PostgreSQL server for the fleet database tests."""
+"""Fixtures of the system tests: a throwaway PostgreSQL server for the fleet database tests. Every test in
+this folder is marked `system` (the inner loop is `pytest -m "not system"`)."""
 
 from __future__ import annotations
 
@@ -26,3 +27,9 @@ def pg():
 def fleet_db(pg) -> str:
     """The URL of a fresh, empty database on that server."""
     return pg_server.create_database(pg, f"fleet_test_{next(_names)}")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if "tests/system/" in item.nodeid or item.nodeid.startswith("system/"):
+            item.add_marker(pytest.mark.system)
