@@ -86,7 +86,8 @@ def register(group: click.Group) -> None:
     def run(plan, station, session_path, out_dir, resume_path, no_live):
         """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
         from rig.core.paths import session_file
-        from rig.engine.executor import COMPLETED, prompt_from_tty
+        from rig.engine.commands import COMPLETED
+        from rig.engine.executor import prompt_from_tty
         from rig.reference.loading import load_campaign
         from rig.run.campaign import run_campaign
         from rig.run.display import make_display

@@ -24,6 +24,11 @@ from rig.core.errors import MagrigError
 from rig.engine.stability import StabilityCriteria
 from rig.session.events import Reason
 
+# how a run ends (its exit status in the session)
+COMPLETED = "completed"
+ABORTED = "aborted"
+FAILED = "failed"
+
 
 @dataclass(frozen=True)
 class SetChamber:

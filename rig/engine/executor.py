@@ -41,14 +41,11 @@ from typing import Any, Protocol
 from drivers.base import make_all_safe
 from drivers.clock import Clock
 from rig.core.errors import ERRORS, DeviceError, MagrigError
-from rig.engine.commands import CollectPoint, Hold, Task
+from rig.engine.commands import ABORTED, COMPLETED, FAILED, CollectPoint, Hold, Task
 from rig.session.events import Kind, Reason, code_of, device_of
 
 log = logging.getLogger("magrig.engine")
 
-COMPLETED = "completed"
-ABORTED = "aborted"
-FAILED = "failed"
 
 
 class SessionLike(Protocol):

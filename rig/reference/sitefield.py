@@ -31,8 +31,7 @@ from calib import calfile, models
 from calib.calibration import Calibration
 from rig.core.errors import ERRORS, ConfigError, DataError, DeviceFault
 from rig.core.yamlload import locate_in_text
-from rig.engine.commands import Hold
-from rig.engine.executor import FAILED
+from rig.engine.commands import FAILED, Hold
 from rig.session.events import Kind, Reason, code_of, device_of
 
 MIN_GOOD_SAMPLES = 2  # a standard error needs two readings

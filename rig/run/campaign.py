@@ -27,7 +27,8 @@ from rig.analysis import postrun
 from rig.core.errors import ERRORS, ConfigError, SessionError
 from rig.core.points import Point
 from rig.devices.build import Rig, open_rig
-from rig.engine.executor import COMPLETED, Engine, RunResult, RunStatus
+from rig.engine.commands import COMPLETED
+from rig.engine.executor import Engine, RunResult, RunStatus
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.fieldsources.fieldmaths import reference_for
 from rig.reference import chain_record, sitefield

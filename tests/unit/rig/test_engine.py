@@ -11,8 +11,18 @@ import pytest
 
 from drivers.clock import SimClock
 from rig.core.errors import DeviceTimeout
-from rig.engine.commands import Checkpoint, CollectPoint, Hold, MoveField, SetChamber, Task
-from rig.engine.executor import ABORTED, COMPLETED, FAILED, Engine
+from rig.engine.commands import (
+    ABORTED,
+    COMPLETED,
+    FAILED,
+    Checkpoint,
+    CollectPoint,
+    Hold,
+    MoveField,
+    SetChamber,
+    Task,
+)
+from rig.engine.executor import Engine
 from rig.session.reader import SessionReader
 from rig.session.writer import Session
 

@@ -9,7 +9,7 @@ import os
 import pytest
 
 from rig.core.errors import SessionError
-from rig.engine.executor import ABORTED
+from rig.engine.commands import ABORTED
 from rig.session.events import Reason
 from rig.session.inbox import Inbox, post, request_path, running_pid
 from tests.unit.rig.test_engine import IDS, RecordingSession, Rig, make_engine

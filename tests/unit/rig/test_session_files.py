@@ -19,8 +19,8 @@ import pytest
 from drivers.clock import SimClock
 from rig.cli import main
 from rig.core.errors import SessionError
-from rig.engine.commands import CollectPoint, Task
-from rig.engine.executor import FAILED, Engine
+from rig.engine.commands import FAILED, CollectPoint, Task
+from rig.engine.executor import Engine
 from rig.report.sources import from_session
 from rig.session.events import Kind, Reason
 from rig.session.reader import SessionReader
