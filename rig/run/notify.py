@@ -89,6 +89,7 @@ class Notifier:
         self._last_point: str | None = None
         self._stall_told = False
         self._latest = ""  # the latest event's message, for a stall's word
+        self._closed = False
 
     # --- life -------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -103,6 +104,7 @@ class Notifier:
         """Tell the completion (with the verdicts recorded since), then let the queue go out."""
         self.session.unsubscribe(self)
         with self._lock:
+            self._closed = True  # no stall is noticed any more: the run is over
             if self._completion is not None:
                 self._queue(self._message("completed", self._completion, self._completion_body()))
                 self._completion = None
@@ -149,7 +151,7 @@ class Notifier:
         minutes = self.config.stalled_after_min
         with self._lock:
             idle_s = self.clock.now() - self._progress_t
-            if minutes is None or self._stall_told or idle_s < minutes * 60.0:
+            if minutes is None or self._closed or self._stall_told or idle_s < minutes * 60.0:
                 return
             self._stall_told = True
             since = f"since point {self._last_point}" if self._last_point else "since the run started"
