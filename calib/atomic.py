@@ -9,11 +9,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
+# not handed to child processes; binary, so Windows never turns \n into \r\n behind io's back
+_PLATFORM_FLAGS = (getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOINHERIT", 0) | getattr(os, "O_BINARY", 0))
+
 
 def create_new(path: str | os.PathLike, mode: int = 0o666) -> int:
     """Create `path` (it must not exist) and return a writable descriptor. The mode goes through the
     umask like any file's (tempfile.mkstemp would force 0600 on what we write for others to read)."""
-    return os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | os.O_CLOEXEC, mode)
+    return os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | _PLATFORM_FLAGS, mode)
 
 
 @contextlib.contextmanager

@@ -37,13 +37,11 @@ from __future__ import annotations
 
 import functools
 import logging
-import termios
+import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import Any, TypeVar
-
-import serial
 
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError
@@ -56,12 +54,25 @@ BITS_PER_BYTE_8N1 = 10  # start + 8 data + stop
 
 
 # A pulled cable shows up as OSError (SerialException is one) or, from termios calls, termios.error.
-PORT_ERRORS = (OSError, termios.error)
+# Windows has no termios (pyserial raises SerialException there): only OSError.
+try:
+    from termios import error as _TermiosError
+
+    PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, _TermiosError)
+except ImportError:
+    PORT_ERRORS = (OSError,)
 
 
 def line_time_s(n_bytes: int, baudrate: int) -> float:
     """Time `n_bytes` take on an 8N1 line."""
     return n_bytes * BITS_PER_BYTE_8N1 / baudrate
+
+
+def _is_write_timeout(exc: BaseException) -> bool:
+    """pyserial's write timeout (a SerialException, so an OSError too). pyserial is loaded where a port
+    is opened; before that no error can be one of its classes."""
+    pyserial = sys.modules.get("serial")
+    return pyserial is not None and isinstance(exc, getattr(pyserial, "SerialTimeoutException", ()))
 
 
 def _locked(method: Callable[..., T]) -> Callable[..., T]:
@@ -76,6 +87,8 @@ def _locked(method: Callable[..., T]) -> Callable[..., T]:
 
 
 def _open_with_pyserial(port: str, *, baudrate: int, timeout_s: float) -> Any:
+    import serial  # here, not at import: pyserial's POSIX backend needs fcntl and termios
+
     return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s)
 
 
@@ -220,9 +233,9 @@ class SerialTransport:
             log.debug("%s > %r", self.name, data, extra={"device": self.name})
         try:
             ser.write(data)
-        except serial.SerialTimeoutException as exc:
-            raise DeviceTimeout(self.name, operation, f"write of {len(data)} bytes timed out") from exc
         except PORT_ERRORS as exc:
+            if _is_write_timeout(exc):
+                raise DeviceTimeout(self.name, operation, f"write of {len(data)} bytes timed out") from exc
             raise self._lost(operation, exc) from exc
 
     @_locked

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rig.core.errors import ConfigError
+from rig.core.signals import set_terminate_handler
 
 
 class RunNotCompleted(click.ClickException):
@@ -107,7 +107,7 @@ def register(group: click.Group) -> None:
             path = Path(session_path) if session_path else session_file(
                 out_dir or campaign.plan.outputs.dir, campaign.plan.name)
         interactive = sys.stdin.isatty()
-        signal.signal(signal.SIGTERM, _terminate)  # outside the engine's own handling: clean exit too
+        set_terminate_handler(_terminate)  # outside the engine's own handling: clean exit too
         with located_errors(campaign):  # a plan refused while compiling names its file, key and line
             outcome = run_campaign(
                 campaign=campaign, session_path=path, resume=bool(resume_path),

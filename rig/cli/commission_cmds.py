@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import signal
 from pathlib import Path
 
 import click
+
+from rig.core.signals import set_terminate_handler
 
 
 def _terminate(signum, frame):
@@ -31,7 +32,7 @@ def register(group: click.Group) -> None:
         from rig.reference.commissioning_file import read
         from rig.reference.procedure import commission
 
-        signal.signal(signal.SIGTERM, _terminate)  # every exit leaves the coils safe (commission's finally)
+        set_terminate_handler(_terminate)  # every exit leaves the coils safe (commission's finally)
         out_dir.mkdir(parents=True, exist_ok=True)
         path = commission(station_path, out_dir, repeats=repeats, current_a=current_a)
         com = read(path)

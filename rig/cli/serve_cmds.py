@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-import signal
 from pathlib import Path
 
 import click
 
 from rig.cli.fleet_cmds import DB_OPTION
 from rig.core.errors import SessionError
+from rig.core.signals import set_terminate_handler
 
 DEFAULT_DIR = Path("sessions")
 NICENESS = 10  # the cockpit yields the CPU to a campaign running on the same machine
@@ -49,8 +49,9 @@ def serve_cmd(sessions_dirs: tuple[Path, ...], db_url: str | None, host: str, po
                    + (" and the fleet database" if db_url else "")
                    + ("; open it once with ?token=YOUR_TOKEN" if token else "") + "; Ctrl-C stops it")
 
-    signal.signal(signal.SIGTERM, _stop)
-    os.nice(NICENESS)
+    set_terminate_handler(_stop)
+    if hasattr(os, "nice"):  # Windows has no nice: the cockpit then runs at normal priority
+        os.nice(NICENESS)
     serve(app, host, port, ready=ready)
 
 

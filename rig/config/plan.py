@@ -1,7 +1,8 @@
 """Plan files (what to do): name; station (path relative to the plan file, optional; the CLI overrides
 it); temperatures (the schedule: rig/config/temperatures.py); fields (rig/config/fields.py);
 samples_per_point, settle_s, set_reset; fit {models, robust}; acceptance (PASS/FAIL limits per DUT);
-outputs {dir}; accuracy_ppm; stop_when {S, K, b, kb} (target standard errors).
+outputs {dir}; accuracy_ppm; stop_when {S, K, b, kb} (target standard errors); notify (word to the
+operator: rig/config/notify.py).
 
 A "temperature step" is one setpoint of a step schedule (T03 in a point id); the engine runs "tasks".
 """
@@ -14,6 +15,7 @@ from pydantic import BeforeValidator, Field, model_validator
 
 from calib.models import MODELS as CALIBRATION_MODELS
 from rig.config.fields import FieldSet
+from rig.config.notify import Notify
 from rig.config.temperatures import AnyTemperatures, RampTemperatures, SequentialTemperatures
 from rig.core.configbase import Strict
 from rig.core.names import SafeName
@@ -89,6 +91,8 @@ class Plan(Strict):
     accuracy_ppm: bounded(gt=0, hi=1e6) | None = Field(
         None, description="the reference field's accuracy target, relative to the field: `rig check` refuses "
         "a DUT position where the coil field's non-uniformity exceeds it")
+    notify: Notify | None = Field(
+        None, description="word to the operator (rig/config/notify.py); replaces the station's notify:")
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
         "them (calib/targets.py)")

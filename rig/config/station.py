@@ -22,6 +22,7 @@ from pydantic import Field, create_model, model_validator
 
 from drivers import registry
 from drivers.chamber import ChamberAlarm, ChamberSettings
+from rig.config.notify import Notify
 from rig.config.sim import SimWorld
 from rig.core import names
 from rig.core.configbase import DeviceConfig, Strict, transport_type
@@ -141,6 +142,7 @@ class Station(Strict):
     duts: list[Dut] = Field(min_length=1)
     temperature_sensors: list[TemperatureSensor] = []
     reference_magnetometers: list[ReferenceMagnetometer] = []
+    notify: Notify | None = None  # word to the operator (rig/config/notify.py); a plan's notify: replaces it
 
     @model_validator(mode="after")
     def _references(self):

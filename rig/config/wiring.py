@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from rig.core.configbase import BRIDGE_KINDS
+from rig.core.ports import port_key
 
 Problem = tuple[tuple[str | int, ...], str]
 
@@ -73,7 +74,7 @@ def serial_problems(devices: list[tuple[tuple, Any]]) -> Iterator[Problem]:
                 continue
             lines.setdefault(("sim", t.line), []).append((path, dev))
         elif t.kind == "serial":
-            lines.setdefault(("serial", t.port), []).append((path, dev))
+            lines.setdefault(("serial", port_key(t.port)), []).append((path, dev))
     for (_, line), members in lines.items():
         ids: dict[int, tuple[str, tuple]] = {}
         bauds: dict[int, tuple[str, tuple]] = {}

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from drivers import registry
 from rig.core.names import SafeName
 from rig.core.numbers import BAUDRATE, TIMEOUT_S, Count, NonNegativeFloat, PositiveFloat, Vec3  # noqa: F401 - the config models'
+from rig.core.ports import SerialPort
 from rig.core.yamlload import KeyPathError
 
 Mat3 = tuple[Vec3, Vec3, Vec3]  # finite numbers (rig/core/numbers.py)
@@ -32,7 +33,7 @@ class ModbusTcp(Strict):
 
 class ModbusRtu(Strict):
     kind: Literal["modbus_rtu"]
-    port: str
+    port: SerialPort
     baudrate: BAUDRATE = 9600
     parity: Literal["N", "E", "O"] = "N"
     timeout_s: TIMEOUT_S = 1.0
@@ -109,7 +110,7 @@ BRIDGE_KINDS = ("mcp2221", "cp2112", "ft232h")
 
 class Serial(Strict):
     kind: Literal["serial"]
-    port: str
+    port: SerialPort  # /dev/ttyUSB0, COM7, \\.\COM12 or a pyserial URL (rig/core/ports.py)
     baudrate: BAUDRATE = 115200
     timeout_s: TIMEOUT_S = 0.5
 

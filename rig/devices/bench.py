@@ -21,6 +21,8 @@ A chip behind a simulated USB-to-I2C bridge (`{kind: mcp2221 | cp2112 | ft232h, 
 that bridge's own simulated bus (its switches too); the bridge's simulator (drivers/sim/mcp2221.py,
 cp2112.py, ft232h.py) is plugged into one simulated USB (a hidapi stand-in, a pyusb backend), and the
 REAL bridge transport is opened on it: `i2c_bus(label)` is that transport.
+A simulated serial device runs on a pty (drivers/sim/pty.py: POSIX only): where the system has none
+(Windows), such a device is refused with one line before anything is written; the rest runs.
 """
 
 from __future__ import annotations
@@ -34,7 +36,6 @@ from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.serialmag import SerialMagLine
 from drivers.sim.truths import (
     AIR_C,
     CHAMBER_RAMP_C_PER_MIN,
@@ -46,6 +47,7 @@ from drivers.sim.truths import (
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.core.configbase import BRIDGE_KINDS, ModbusTcp
+from rig.core.errors import ConfigError
 from rig.devices.links import muxed, open_bridge, open_link
 from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
 
@@ -166,7 +168,7 @@ class SimBench:
         if getattr(t, "line", None) is not None:
             line, timeout_s = self._line(t.line)
             return SerialLink(line.port, line.baudrate, timeout_s, line=line)
-        endpoint = dev_cfg.spec.load_simulator()(dev_cfg.sim_request(self.world))
+        endpoint = self._simulator(dev_cfg)(dev_cfg.sim_request(self.world))
         faults = self.faults_of(dev_cfg)
         match endpoint:
             case SimModbus(server=server):
@@ -196,6 +198,17 @@ class SimBench:
                     bus.set_faults(address, faults)
                 return I2cLink(bus, address)
         raise TypeError(f"{dev_cfg.name}: simulator returned {endpoint!r}")
+
+    def _simulator(self, dev_cfg):
+        """The device's `simulate`; one that cannot load for want of a POSIX module (a serial device's
+        pty and termios on Windows) is refused naming the device."""
+        try:
+            return dev_cfg.spec.load_simulator()
+        except ImportError as exc:
+            raise ConfigError(
+                f"station {self.station.name}: {dev_cfg.name} ({dev_cfg.spec.type}) cannot be simulated on "
+                f"this system ({exc}); its simulator needs a POSIX pseudo-terminal. Use a station without "
+                "simulated serial devices (configs/stations/sim-4.yaml), or run on Linux or macOS") from None
 
     def faults_of(self, dev_cfg) -> DeviceFaults | None:
         """The device's fault schedule from its `transport: {kind: sim, faults: ...}` (None: no faults),
@@ -277,7 +290,9 @@ class SimBench:
         if name not in self.lines:
             members = [d for d in self.station.devices()
                        if d.simulated and getattr(d.transport, "line", None) == name]
-            endpoints = [d.spec.load_simulator()(d.sim_request(self.world)) for d in members]
+            endpoints = [self._simulator(d)(d.sim_request(self.world)) for d in members]
+            from drivers.sim.serialmag import SerialMagLine  # loads only where the pty above did
+
             firmware = SerialMagLine([e.firmware for e in endpoints])
             port = self._start(firmware)
             line = SerialLine(port, baudrate=endpoints[0].baudrate)

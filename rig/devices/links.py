@@ -20,6 +20,7 @@ from drivers.registry import I2cLink, SerialLink
 from drivers.tca9548a import MuxedBus, SwitchBank
 from drivers.transports.modbus import ModbusTransport
 from drivers.transports.serial import SerialLine
+from rig.core.ports import port_key
 
 MODBUS_TRIES = 3
 
@@ -61,9 +62,10 @@ class Shared:
         return self.i2c[number]
 
     def serial_line(self, port: str, baudrate: int) -> SerialLine:
-        if port not in self.lines:
-            self.lines[port] = SerialLine(port, baudrate=baudrate)
-        return self.lines[port]
+        key = port_key(port)  # COM7 and \\.\COM7 are one port
+        if key not in self.lines:
+            self.lines[key] = SerialLine(port, baudrate=baudrate)
+        return self.lines[key]
 
 
 def open_bridge(t, clock: Clock | None, *, hid_module: Any = None, usb_backend: Any = None) -> Any:

@@ -29,7 +29,8 @@ from drivers.errors import DeviceError
 from drivers.transports.serial import SerialLine
 from drivers.transports.usb_bridges import bridges_present
 from rig.core.configbase import BRIDGE_KINDS, Cp2112, Ft232h, Mcp2221
-from rig.core.errors import ERRORS
+from rig.core.errors import ERRORS, ConfigError
+from rig.core.ports import check_port, port_key
 from rig.devices.links import open_bridge
 
 SERIAL_TIMEOUT_S = 0.05  # an HMR2300 answers in about 2 ms; a USB adapter adds a few
@@ -133,9 +134,21 @@ def scan_targets(buses: list[int] = (), ports: list[tuple[str, int]] = (), *, de
             report.buses.append(_scan_bridge(_bridge_transport(f)))
     for number in buses:
         report.buses.append(_scan_real_bus(number))
-    for port, baud in ports:
+    for port, baud in _distinct_ports(ports):
         report.ports.append(_scan_port(PortReport("serial port", port, baud), device_ids, timeout_s))
     return report
+
+
+def _distinct_ports(ports) -> list[tuple[str, int]]:
+    """Each port once (COM7 and \\\\.\\COM7 are one); a name that is no port is refused naming it."""
+    out: dict[str, tuple[str, int]] = {}
+    for port, baud in ports:
+        try:
+            check_port(port)
+        except ValueError as exc:
+            raise ConfigError(f"--port: {exc}") from None
+        out.setdefault(port_key(port), (port, baud))
+    return list(out.values())
 
 
 def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_S) -> ScanReport:
@@ -182,7 +195,7 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
                 entry = ports.setdefault(link.port, PortReport(label, link.port, link.baudrate))
                 entry.expected[getattr(dev.device_options, "device_id", 0)] = dev.name
             elif "serial" in kinds:
-                entry = ports.setdefault(t.port, PortReport("serial port", t.port, t.baudrate))
+                entry = ports.setdefault(port_key(t.port), PortReport("serial port", t.port, t.baudrate))
                 entry.expected[getattr(dev.device_options, "device_id", 0)] = dev.name
             else:
                 report.skipped.append(dev.name)

@@ -31,7 +31,6 @@ by point id and the final safe state stay as they are.
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
@@ -41,6 +40,7 @@ from typing import Any, Protocol
 from drivers.base import make_all_safe
 from drivers.clock import Clock
 from rig.core.errors import ERRORS, DeviceError, MagrigError
+from rig.core.signals import TERMINATE, handled, name_of
 from rig.engine.commands import ABORTED, COMPLETED, FAILED, CollectPoint, Hold, Task
 from rig.session.events import Kind, Reason, code_of, device_of
 
@@ -368,24 +368,13 @@ def _record_code(record: logging.LogRecord) -> Reason:
     return code_of(fault) if isinstance(fault, BaseException) else Reason.LOGGED
 
 
-class _signals_to:
-    """While running: SIGINT asks for a pause, SIGTERM for an abort (main thread only; elsewhere no-op)."""
+def _signals_to(engine: Engine):
+    """While running: SIGINT asks for a pause, SIGTERM (Windows: SIGBREAK) for an abort; only where the
+    platform has the signal and this is the main thread (rig/core/signals.py), elsewhere nothing."""
+    def abort(signum, _frame):
+        engine.request_abort(name_of(signum), Reason.TERMINATED)
 
-    def __init__(self, engine: Engine):
-        self.engine = engine
-        self.saved: dict[int, Any] = {}
-
-    def __enter__(self):
-        if threading.current_thread() is not threading.main_thread():
-            return self
-        self.saved[signal.SIGINT] = signal.signal(signal.SIGINT, lambda *_: self.engine.request_pause())
-        self.saved[signal.SIGTERM] = signal.signal(
-            signal.SIGTERM, lambda *_: self.engine.request_abort("SIGTERM", Reason.TERMINATED))
-        return self
-
-    def __exit__(self, *exc):
-        for sig, old in self.saved.items():
-            signal.signal(sig, old)
+    return handled({"SIGINT": lambda *_: engine.request_pause(), **dict.fromkeys(TERMINATE, abort)})
 
 
 def prompt_from_tty(message: str) -> str:

@@ -32,6 +32,7 @@ from rig.engine.executor import Engine, RunResult, RunStatus
 from rig.fieldsources.base import SETTLE_TIMEOUT_S
 from rig.fieldsources.fieldmaths import reference_for
 from rig.reference import chain_record, sitefield
+from rig.run.notify import watching
 from rig.run.runner import CampaignRunner
 from rig.schedules.compile import check_campaign
 from rig.schedules.sequential import decided_points
@@ -136,7 +137,7 @@ def run_campaign(
             else:
                 session = Session.create_for(session_path, campaign, points, clock=rig.clock,
                                              operator=os.environ.get("USER"))
-            with session:
+            with session, watching(session, plan, station):  # word to the operator: rig/run/notify.py
                 outcome = _run_in_session(rig, plan, points, session, lock, prompt, display_factory,
                                           hold_wait_s, max_retakes, resume, calibrations)
         finally:

@@ -47,6 +47,7 @@ class Kind(StrEnum):
     ERROR = "error"  # an ERROR log record of the rig
     SITE_FIELD = "site_field"  # the ambient / site field measured by a reference magnetometer
     DECISION = "decision"  # a sequential schedule decided its next sweep (or to stop)
+    NOTIFY = "notify"  # word to the operator about an event (or a stall): sent, held back or failed
 
 
 class Reason(StrEnum):
@@ -91,6 +92,9 @@ class Reason(StrEnum):
     ACCEPTED = "accepted"  # a DUT passed the plan's acceptance limits
     REJECTED = "rejected"  # ... or failed them
     LOGGED = "logged"  # a copied log record
+    NOTIFIED = "notified"  # the operator was told (rig/run/notify.py)
+    NOTIFY_HELD_BACK = "notify_held_back"  # not sent: one of its kind went out a moment ago
+    NOTIFY_FAILED = "notify_failed"  # an address could not be reached
     UNKNOWN = "unknown"  # a version 1 event whose wording is not recognised
 
     @property

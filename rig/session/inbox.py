@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.core.errors import SessionError
+from rig.session.lock import holder_pid
 from rig.session.schema import pid_alive
 
 ACTIONS = ("pause", "abort")
@@ -43,12 +44,8 @@ def request_path(session_path: str | Path) -> Path:
 def running_pid(session_path: str | Path) -> int | None:
     """The pid of the live run holding the session's lock; None when no run holds it (no lock file, or
     its holder died: a kill -9 leaves the file with a dead pid)."""
-    try:
-        text = Path(f"{session_path}.lock").read_text(encoding="ascii", errors="replace").strip()
-    except OSError:
-        return None
-    pid = int(text) if text.isdigit() else 0
-    return pid if pid > 0 and pid_alive(pid) else None
+    pid = holder_pid(session_path)
+    return pid if pid is not None and pid_alive(pid) else None
 
 
 def post(session_path: str | Path, action: str, source: str) -> Request:

@@ -7,6 +7,7 @@ import json
 import os
 import sqlite3
 import struct
+import sys
 from pathlib import Path
 
 from rig.core.errors import SessionError
@@ -156,6 +157,9 @@ def verify(conn: sqlite3.Connection, path: Path) -> int:
 
 
 def pid_alive(pid: int) -> bool:
+    """Whether process `pid` runs. Never os.kill on Windows: there any signal terminates the process."""
+    if sys.platform == "win32":
+        return _windows_pid_alive(pid)
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -163,3 +167,19 @@ def pid_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def _windows_pid_alive(pid: int) -> bool:
+    import ctypes
+
+    kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)
+    handle = kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
+    if not handle:
+        return ctypes.get_last_error() == 5  # ERROR_ACCESS_DENIED: it exists, it is someone else's
+    try:
+        code = ctypes.c_ulong()
+        if not kernel32.GetExitCodeProcess(handle, ctypes.byref(code)):
+            return True
+        return code.value == 259  # STILL_ACTIVE
+    finally:
+        kernel32.CloseHandle(handle)

@@ -14,6 +14,7 @@
     s.record_fit(dut, model, calibration: dict, residual_rms_nt=None)
     s.record_temperatures([TemperatureRow(t, setpoint_c, closed_loop_c, air_c, {dut: temp_c})])  # the cockpit
     s.finish(status, reason, code=Reason.X)      # ended, exit status, reason and code, completed flag
+    s.subscribe(listener)                        # listener.session_wrote(what, item) after each write
     s.close()
 
 A session file appears whole or not at all: it is built under a temporary name beside it and renamed.
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import signal
 import sqlite3
 import threading
@@ -41,7 +43,7 @@ from drivers.clock import Clock, RealClock
 from rig import __version__
 from rig.core.errors import SessionError
 from rig.session.create import create_file, open_for_writing, session_record
-from rig.session.events import Kind, Reason
+from rig.session.events import Event, Kind, Reason
 from rig.session.rows import (
     INSERT_SAMPLE,
     Decision,
@@ -53,6 +55,7 @@ from rig.session.rows import (
 )
 from rig.session.schema import read_decisions
 
+_log = logging.getLogger("magrig.session")
 _LEVELS = {"DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"}
 
 
@@ -83,6 +86,7 @@ class Session:
         self.path = path
         self.clock = clock
         self._lock = threading.RLock()
+        self._listeners: list = []
 
     # --- create / open --------------------------------------------------------------------------------
     @classmethod
@@ -128,6 +132,25 @@ class Session:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def subscribe(self, listener) -> None:
+        """`listener.session_wrote(what, item)` after each committed write, in the writing thread:
+        ("event", Event), ("point", point_id), ("temperatures", row count). The one place a run's events
+        reach a subscriber (rig/run/notify.py). One that raises is dropped (it would fail every write,
+        its own log record's too) and logged: never the writer's problem."""
+        self._listeners.append(listener)
+
+    def unsubscribe(self, listener) -> None:
+        with contextlib.suppress(ValueError):
+            self._listeners.remove(listener)
+
+    def _tell(self, what: str, item) -> None:
+        for listener in list(self._listeners):
+            try:
+                listener.session_wrote(what, item)
+            except Exception:
+                self.unsubscribe(listener)
+                _log.exception("session listener %r failed on %s; dropped", listener, what)
 
     # --- reads used while running ---------------------------------------------------------------------
     def info(self) -> dict:
@@ -196,6 +219,7 @@ class Session:
                 "WHERE id = ?",
                 (json.dumps(stability_stats or {}, default=float), started, finished, point_id),
             )
+        self._tell("point", point_id)
 
     def decisions(self) -> list[dict]:
         """The recorded decisions of a sequential schedule, in order ([] for any other session)."""
@@ -218,13 +242,17 @@ class Session:
             level = kind.upper() if kind.upper() in _LEVELS else "INFO"
         if code is None:
             code = Reason.LOGGED if kind in (Kind.WARNING, Kind.ERROR) else Reason.UNKNOWN
+        t = self.clock.now() if t is None else t
+        data_json = json.dumps(data, default=json_default)
         with self._transaction() as conn:
-            conn.execute(
+            row_id = conn.execute(
                 "INSERT INTO events (t, level, device, kind, message, data_json, point_id, code) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (self.clock.now() if t is None else t, level.upper(), device, kind, message,
-                 json.dumps(data, default=json_default), point_id, Reason(code).value),
-            )
+                (t, level.upper(), device, kind, message, data_json, point_id, Reason(code).value),
+            ).lastrowid
+        if self._listeners:
+            self._tell("event", Event(row_id, t, level.upper(), kind, Reason(code), message, point_id, device,
+                                      json.loads(data_json)))
 
     def record_snapshot(self, device: str, describe: dict) -> None:
         with self._transaction() as conn:
@@ -257,6 +285,7 @@ class Session:
         """Rows of table `temperatures` (made when first needed), for the cockpit's plot."""
         with self._transaction() as conn:
             insert_temperatures(conn, rows)
+        self._tell("temperatures", len(rows))
 
     def finish(self, status: str, reason: str = "", completed: bool | None = None,
                code: Reason | None = None) -> None:

@@ -3,7 +3,9 @@
 nothing from elsewhere.
 
     sessions_page(app)                  the sessions of every served folder, as `rig sessions` lists them
-    session_page(app, ref)              one session: summary, acceptance, calibrations, downloads, events
+    session_page(app, ref)              one session: summary, acceptance, calibrations, downloads, events;
+                                        while it runs, also the live view's progress, plot and DUTs, all
+                                        kept moving by the live view's own stream (cockpit.js)
     live_page(app, ref)                 the live view's frame (cockpit.js fills it from the event stream)
     fleet_page(app, query)              the fleet database: rigs, verdicts over time, sessions
     error_page(app, status, message)
@@ -134,24 +136,28 @@ def session_page(app, ref: SessionRef) -> str:
     running = running_pid(ref.path) is not None
     state = "running" if running else (s["exit_status"] or "not finished")
     summary = [
-        ["plan", s["plan"]], ["station", s["station"]], ["started", _utc(s["wall_started"])],
-        ["ended", _utc(s["wall_ended"]) if s["wall_ended"] else "-"],
-        ["state", state + (f" ({s['exit_code']})" if s["exit_code"] not in (None, state) and not running
-                           else "")],
-        ["exit reason", s["exit_reason"] or "-"],
-        ["points done", f"{s['points_done']} of {s['points_planned']}" +
-         (f" ({s['points_failed']} failed)" if s["points_failed"] else "")],
-        ["DUTs", ", ".join(s["duts"]) or "-"], ["acceptance", verdict_text(accepted)],
-        ["operator", s["operator"] or "-"], ["software", info["software_version"]],
-        ["simulated devices", ", ".join(k for k, v in s["simulated"].items() if v) or "none"],
+        ["plan", esc(s["plan"])], ["station", esc(s["station"])], ["started", esc(_utc(s["wall_started"]))],
+        ["ended", esc(_utc(s["wall_ended"]) if s["wall_ended"] else "-")],
+        ["state", _live_text("s-state", state + (f" ({s['exit_code']})" if s["exit_code"] not in (None, state)
+                                                 and not running else ""))],
+        ["exit reason", _live_text("s-reason", s["exit_reason"] or "-")],
+        ["points done", _live_text("s-points", f"{s['points_done']} of {s['points_planned']}" +
+                                   (f" ({s['points_failed']} failed)" if s["points_failed"] else ""))],
+        ["DUTs", esc(", ".join(s["duts"]) or "-")], ["acceptance", esc(verdict_text(accepted))],
+        ["operator", esc(s["operator"] or "-")], ["software", esc(info["software_version"])],
+        ["simulated devices", esc(", ".join(k for k, v in s["simulated"].items() if v) or "none")],
     ]
+    badge = ' <span id="run-state" class="badge state-running">running</span>' if running else ""
     parts = [
-        f"<h1>{esc(ref.name)}</h1>",
+        f"<h1>{esc(ref.name)}{badge}</h1>",
         '<p class="buttons">'
         f'<a class="button" href="{esc(ref.url("/live"))}">live view</a> '
         f'<a class="button" href="{esc(ref.url("/report"))}">report</a></p>',
-        f"<section><h2>Summary</h2>{table(['', ''], summary, cls='kv')}</section>",
+        f"<section><h2>Summary</h2>{table(['', ''], summary, raw_cells=True, cls='kv')}</section>",
     ]
+    if running:  # the live view's parts, moved by its stream (cockpit.js); the rest is shown when it ends
+        parts.append(f'<div class="cards">{PROGRESS_CARDS}</div>{TEMPERATURES}{DUT_TABLE}'
+                     '<p id="stream-note" class="muted"></p>')
     if accepted:
         rows = [[r["dut"], str(r["model"]).upper(), r["verdict"], r["failed"] or "-",
                  _fmt(r["heldout_rms_nt"]), _fmt(r["fit_rms_nt"]), r["notes"] or "-"] for r in accepted]
@@ -182,9 +188,18 @@ def session_page(app, ref: SessionRef) -> str:
     note = (f'<p class="muted">the newest {len(shown)} of {len(events)} events</p>'
             if len(events) > len(shown) else "")
     header = ["time (run clock, UTC)", "kind", "code", "point", "device", "message"]
-    listing = table(header, rows, cls="events")
+    listing = table(header, rows, cls="events").replace('<table class="events">',
+                                                        '<table class="events" id="event-table">', 1)
     parts.append(f"<section><h2>Events</h2>{note}{listing}</section>")
-    return layout(app, ref.name, "".join(parts), page="session")
+    data = {"session": ref.name, "last-event": str(events[-1].id if events else 0)}
+    if running:
+        data["events"] = ref.url("/events")
+    return layout(app, ref.name, "".join(parts), page="session", data=data)
+
+
+def _live_text(element_id: str, text: str) -> str:
+    """A summary value the page script keeps current while the run goes on."""
+    return f'<span id="{element_id}">{esc(text)}</span>'
 
 
 def _download_url(ref: SessionRef, kind: str, dut: str, model: str | None = None) -> str:
@@ -193,14 +208,25 @@ def _download_url(ref: SessionRef, kind: str, dut: str, model: str | None = None
 
 
 # --- live ----------------------------------------------------------------------------------------------
+# What the live view and a running session's page share; cockpit.js fills them from the same stream.
+PROGRESS_CARDS = """
+  <section class="card"><h2>Progress</h2><progress id="progress" max="1" value="0"></progress>
+    <p id="progress-text">-</p><p id="eta" class="muted"></p></section>
+  <section class="card"><h2>Now</h2><p id="current">-</p><p id="target" class="muted"></p></section>"""
+TEMPERATURES = """
+<section><h2>Temperatures</h2><div id="chart" class="chart"></div>
+  <p id="legend" class="legend"></p></section>"""
+DUT_TABLE = """
+<section><h2>DUTs</h2><div class="scroll"><table id="duts"><thead><tr><th>DUT</th><th>temperature (degC)</th>
+  <th>samples</th><th>running T24 RMS (nT)</th><th>acceptance</th></tr></thead><tbody></tbody></table></div>
+</section>"""
+
+
 def live_page(app, ref: SessionRef) -> str:
     main = f"""
 <h1><span class="name">{esc(ref.name)}</span> <span id="run-state" class="badge">connecting</span></h1>
 <p class="meta"><span id="meta"></span> <a href="{esc(ref.url())}">session page</a></p>
-<div class="cards">
-  <section class="card"><h2>Progress</h2><progress id="progress" max="1" value="0"></progress>
-    <p id="progress-text">-</p><p id="eta" class="muted"></p></section>
-  <section class="card"><h2>Now</h2><p id="current">-</p><p id="target" class="muted"></p></section>
+<div class="cards">{PROGRESS_CARDS}
   <section class="card" id="actions" hidden><h2>Operator</h2>
     <p class="buttons"><button type="button" id="ask-pause">Pause at the next safe point</button>
     <button type="button" id="ask-abort" class="danger">Abort to the safe state</button></p>
@@ -208,11 +234,7 @@ def live_page(app, ref: SessionRef) -> str:
       <p class="buttons"><button type="button" id="confirm-yes">Yes</button>
       <button type="button" id="confirm-no">Cancel</button></p></div>
     <p id="action-status" role="status" class="muted"></p></section>
-</div>
-<section><h2>Temperatures</h2><div id="chart" class="chart"></div><p id="legend" class="legend"></p></section>
-<section><h2>DUTs</h2><div class="scroll"><table id="duts"><thead><tr><th>DUT</th><th>temperature (degC)</th>
-  <th>samples</th><th>running T24 RMS (nT)</th><th>acceptance</th></tr></thead><tbody></tbody></table></div>
-</section>
+</div>{TEMPERATURES}{DUT_TABLE}
 <section><h2>Events</h2><ol id="events" class="events"></ol></section>
 <p id="stream-note" class="muted"></p>"""
     data = {"events": ref.url("/events"), "action": ref.url("/action"), "session": ref.name}

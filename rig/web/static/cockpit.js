@@ -1,6 +1,7 @@
 // The cockpit's page script: the live view (server-sent events, an SVG plot drawn here) and the operator's
-// confirmed actions. Plain JavaScript, nothing loaded from elsewhere; every text from the server goes into
-// the page through textContent, never as HTML.
+// confirmed actions; a running session's own page follows the same stream (its progress, plot, DUTs,
+// summary and events move; when the run ends it is shown again, finished). Plain JavaScript, nothing
+// loaded from elsewhere; every text from the server goes into the page through textContent, never as HTML.
 "use strict";
 
 (function () {
@@ -8,7 +9,7 @@
   const csrfMeta = document.querySelector('meta[name="csrf-token"]');
   // What tests and the bench read: when each point was first seen here (ms since the epoch).
   window.cockpit = { messages: 0, firstMessageAt: null, pointSeen: {}, state: null };
-  if (body.dataset.page === "live") {
+  if (body.dataset.page === "live" || (body.dataset.page === "session" && body.dataset.events)) {
     live();
   }
 
@@ -21,13 +22,16 @@
     const pending = { events: [] }; // events received, not drawn yet
     let textTimer = null, plotTimer = null, lastPlot = 0;
     let awaiting = null; // the action asked for, until the run records it
+    const onSessionPage = body.dataset.page === "session";
+    let lastEventShown = Number(body.dataset.lastEvent || 0); // the session page lists these already
+    let sawRunning = onSessionPage; // it was drawn running: any other state means the run has ended
 
     const source = new EventSource(body.dataset.events);
     source.addEventListener("state", (ev) => onMessage(JSON.parse(ev.data)));
     source.addEventListener("open", () => setNote(""));
     source.addEventListener("error", () => setNote("connection to the server lost; reconnecting..."));
     window.addEventListener("resize", () => schedulePlot());
-    setUpActions();
+    if ($("ask-pause")) setUpActions();
 
     function onMessage(msg) {
       const now = Date.now();
@@ -41,7 +45,7 @@
         st.telemetry = [];
         st.events = [];
         pending.events = [];
-        $("events").replaceChildren();
+        if ($("events")) $("events").replaceChildren();
       }
       st.summary = msg.summary;
       st.telemetry.push(...msg.telemetry);
@@ -65,16 +69,21 @@
     // --- summary ----------------------------------------------------------------------------------
     function renderSummary(s) {
       if (!s || !s.run) return;
-      setText($("meta"), "plan " + s.plan + " on station " + s.station +
+      put("meta", "plan " + s.plan + " on station " + s.station +
         (s.simulated ? " (simulated: times are the simulation's)" : ""));
       const badge = $("run-state");
-      setText(badge, s.run.state);
-      badge.className = "badge state-" + s.run.state.replace(/[^a-z]+/g, "-");
+      if (badge) {
+        setText(badge, s.run.state);
+        badge.className = "badge state-" + s.run.state.replace(/[^a-z]+/g, "-");
+      }
+      put("s-state", s.run.state);
+      put("s-reason", s.run.exit_reason || "-");
       const p = s.progress;
       $("progress").max = Math.max(p.planned, 1);
       $("progress").value = p.done;
-      setText($("progress-text"), p.done + " of " + p.planned + " points" +
-        (p.failed ? " (" + p.failed + " failed)" : ""));
+      const points = p.done + " of " + p.planned + " points" + (p.failed ? " (" + p.failed + " failed)" : "");
+      setText($("progress-text"), points);
+      put("s-points", points);
       const eta = [];
       if (p.eta_run_s !== null) eta.push("about " + duration(p.eta_run_s) + " left on the run's clock");
       if (p.eta_wall_s !== null) eta.push(duration(p.eta_wall_s) + " at the pace seen here");
@@ -87,7 +96,14 @@
         setText($("target"), "");
       }
       const running = s.run.state === "running";
-      $("actions").hidden = !running;
+      sawRunning = sawRunning || running;
+      if ($("actions")) $("actions").hidden = !running;
+      if (!running && onSessionPage && sawRunning) {
+        setNote("the run has ended; showing the finished session...");
+        source.close();
+        location.reload(); // its calibrations, acceptance and downloads, as for any finished session
+        return;
+      }
       if (!running) {
         const why = s.run.exit_reason ? s.run.state + ": " + s.run.exit_reason : s.run.state;
         const resume = s.run.completed ? "" : " Continue it with: rig run --resume " + body.dataset.session;
@@ -117,6 +133,10 @@
     }
 
     function renderEvents(events) {
+      if (onSessionPage) {
+        tableEvents(events);
+        return;
+      }
       const list = $("events");
       for (const e of events) {
         const li = document.createElement("li");
@@ -142,6 +162,23 @@
         }
       }
       while (list.children.length > 300) list.lastChild.remove();
+    }
+
+    // The session page's table: newest first, the columns the server wrote, each new event once.
+    function tableEvents(events) {
+      const rows = $("event-table").tBodies[0];
+      for (const e of events) {
+        if (e.id <= lastEventShown) continue;
+        lastEventShown = e.id;
+        const tr = document.createElement("tr");
+        for (const t of [utc(e.t), e.kind, e.code, e.point || "", e.device || "", e.message]) {
+          const td = document.createElement("td");
+          td.textContent = t;
+          tr.appendChild(td);
+        }
+        rows.prepend(tr);
+      }
+      while (rows.children.length > 500) rows.lastChild.remove();
     }
 
     // --- the plot ---------------------------------------------------------------------------------
@@ -279,8 +316,9 @@
     }
 
     // --- small helpers ----------------------------------------------------------------------------
-    function setStatus(t) { setText($("action-status"), t); }
-    function setNote(t) { setText($("stream-note"), t); }
+    function setStatus(t) { put("action-status", t); }
+    function setNote(t) { put("stream-note", t); }
+    function put(id, t) { const node = $(id); if (node) setText(node, t); }
   }
 
   // Writes text only when it changed: an unchanged page costs the browser nothing.
@@ -344,6 +382,10 @@
     if (h) return h + " h " + m + " min";
     if (m) return m + " min " + (s % 60) + " s";
     return s + " s";
+  }
+
+  function utc(t) { // as the server writes it: 2026-01-01 00:12:30 UTC
+    return new Date(t * 1000).toISOString().slice(0, 19).replace("T", " ") + " UTC";
   }
 
   function clock(t) {
