@@ -67,8 +67,12 @@ def test_a_small_ramp_runs_end_to_end_and_fits_with_the_lag(tmp_path):
     assert np.unique(np.round(up, 2)).size > 30  # no steps: every sample its own temperature
     for fit in outcome.fits:
         assert "error" not in fit, fit
+        # the lag was sought and its outcome stated: these probes read their element's own temperature,
+        # so a lag is either found with its standard error or said not identifiable, by chance
+        # (tests/system/test_ramp_campaign.py's lagging-sensor test recovers a real one)
         lag = calfile.load(fit["path"]).stats["thermal_lag"]
-        assert lag["tau_s"] is not None and lag["tau_se_s"] is not None  # estimated and stated
+        assert lag["message"]
+        assert (lag["tau_s"] is None) == (lag["tau_se_s"] is None) == ("not identifiable" in lag["message"])
     assert final_snapshots(session)["coils"][-1]["enabled"] == [False, False, False]
     # rig refit of the ramp session applies the lag too, unless told not to
     for flag, expected in (("--lag", True), ("--no-lag", False)):
