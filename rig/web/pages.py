@@ -122,7 +122,8 @@ def sessions_page(app) -> str:
 # --- one session -------------------------------------------------------------------------------------------
 def session_page(app, ref: SessionRef) -> str:
     from rig.analysis.acceptance import verdict_text
-    from rig.session.reader import SessionReader
+    from rig.analysis.judged import judged_cell, judged_fits, quality
+    from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
     from rig.web.downloads import CALIBRATION_KINDS, SAMPLES_KIND, recorded_fits
 
     with SessionReader(ref.path) as reader:
@@ -131,6 +132,8 @@ def session_page(app, ref: SessionRef) -> str:
         accepted = reader.acceptance()
         fits = recorded_fits(reader)
         events = reader.events()
+        judged_model, judged = judged_fits(reader)
+    sim_clock = runs_on_simulated_clock(s["simulated"])
     running = running_pid(ref.path) is not None
     state = "running" if running else (s["exit_status"] or "not finished")
     summary = [
@@ -143,7 +146,10 @@ def session_page(app, ref: SessionRef) -> str:
          (f" ({s['points_failed']} failed)" if s["points_failed"] else "")],
         ["DUTs", ", ".join(s["duts"]) or "-"], ["acceptance", verdict_text(accepted)],
         ["operator", s["operator"] or "-"], ["software", info["software_version"]],
-        ["simulated devices", ", ".join(k for k, v in s["simulated"].items() if v) or "none"],
+        ["station file", info["station_path"] or "not recorded"],
+        ["devices", simulated_text(s["simulated"])
+         + ("; on a simulated clock (event and fit times are that clock's)" if sim_clock else "")],
+        ["judged calibration", judged_cell(judged_model, judged)],
     ]
     parts = [
         f"<h1>{esc(ref.name)}</h1>",
@@ -161,16 +167,25 @@ def session_page(app, ref: SessionRef) -> str:
     cal_rows = []
     for (dut, model), fit in sorted(fits.items()):
         try:
-            stats = json.loads(fit["calibration_json"]).get("stats", {})
+            recorded = json.loads(fit["calibration_json"])
         except ValueError:
-            stats = {}
+            recorded = {}
+        stats = recorded.get("stats", {})
+        q = quality(stats, recorded.get("uncertainty"))
         links = " ".join(
             f'<a href="{esc(_download_url(ref, kind, dut, model))}" download>{esc(label)}</a>'
             for kind, (label, _, _) in CALIBRATION_KINDS.items())
-        cal_rows.append([esc(dut), esc(model), esc(stats.get("n_used", "-")),
-                         esc(_fmt(fit["residual_rms_nt"])), esc(_utc(fit["t"])), links])
-    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "fitted", "downloads"], cal_rows,
-                          raw_cells=True) if cal_rows else '<p class="muted">no calibration recorded yet</p>')
+        check = ("-" if q.expanded_nt is None else
+                 f'<span class="bad">RMS &gt; U: {esc(q.exceeds_text())}</span>' if q.exceeds else "ok")
+        fitted = str(recorded.get("created_utc") or "-") + (
+            f" (simulated clock {_utc(fit['t'])})" if sim_clock else "")
+        cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_model else "")),
+                         esc(stats.get("n_used", "-")), esc(_fmt(fit["residual_rms_nt"])),
+                         esc(q.uncertainty_text()), check, esc(q.dominant or "-"), esc(fitted), links])
+    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, k=2)",
+                           "check", "largest uncertainty contribution", "fitted (wall clock, UTC)",
+                           "downloads"], cal_rows, raw_cells=True)
+                    if cal_rows else '<p class="muted">no calibration recorded yet</p>')
     parts.append(f"<section><h2>Calibrations</h2>{calibrations}</section>")
     sample_links = " ".join(f'<a href="{esc(_download_url(ref, SAMPLES_KIND, dut))}" download>{esc(dut)}</a>'
                             for dut in s["duts"])
@@ -181,7 +196,8 @@ def session_page(app, ref: SessionRef) -> str:
             for e in reversed(shown)]
     note = (f'<p class="muted">the newest {len(shown)} of {len(events)} events</p>'
             if len(events) > len(shown) else "")
-    header = ["time (run clock, UTC)", "kind", "code", "point", "device", "message"]
+    header = ["time (simulated clock)" if sim_clock else "time (UTC)", "kind", "code", "point", "device",
+              "message"]
     listing = table(header, rows, cls="events")
     parts.append(f"<section><h2>Events</h2>{note}{listing}</section>")
     return layout(app, ref.name, "".join(parts), page="session")

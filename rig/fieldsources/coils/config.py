@@ -225,6 +225,15 @@ class Coils(FieldSourceConfig, CoilOptions):
             return lines
         return lines + nonuniformity_lines(self.geometry, station, plan)
 
+    def uncertainty_caveat(self) -> str | None:
+        if self.commissioned is not None:
+            return None
+        ppm = self.constants_uncertainty_ppm
+        return (f"the coils are not commissioned: each coil constant is taken as uncertain by its declared "
+                f"{ppm:g} ppm ({ppm / 1e4:g} %), which dominates every calibration's uncertainty (about "
+                f"{ppm / 1e4:g} % of the field); `rig commission` measures the coils "
+                "(configs/stations/sim-commissioned.yaml shows how)")
+
     def budget_chain(self, run, dut: str, ds):
         from rig.fieldsources.coils.budget import CoilChain
 
