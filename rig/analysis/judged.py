@@ -46,7 +46,7 @@ class Quality:
     @property
     def exceeds(self) -> bool:
         """The fit's residual is larger than the error it claims: the model does not describe the sensor
-        to its stated uncertainty (or the budget misses a source)."""
+        to its stated uncertainty, or the sensor's noise alone is larger than it."""
         return self.rms_nt is not None and self.expanded_nt is not None and self.rms_nt > self.expanded_nt
 
     def exceeds_text(self) -> str:
@@ -55,8 +55,8 @@ class Quality:
             return ""
         k = f"k = {self.coverage_factor:g}" if self.coverage_factor else "expanded"
         return (f"residual RMS {self.rms_nt:.1f} nT is above its stated uncertainty "
-                f"{self.expanded_nt:.1f} nT ({k}): the model does not describe this sensor to the "
-                "uncertainty it states")
+                f"{self.expanded_nt:.1f} nT ({k}): the fit leaves more than the budget states (a model "
+                "error, or noise above the stated uncertainty)")
 
     def uncertainty_text(self) -> str:
         return "-" if self.expanded_nt is None else f"{self.expanded_nt:.1f}"
