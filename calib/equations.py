@@ -7,9 +7,10 @@ above this module, and calib/calibration.py uses it to apply and validate a cali
 - p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
   row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
   e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
-- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c (the file's tau_0_c). A (and KA) upper-triangular: the field comes
-  out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in the sensor 1-2 plane), which is the
-  true frame up to one unknown rotation. The temperature terms are optional.
+- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c (the file's tau_0_c). A (and KA)
+  upper-triangular: the field comes out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in
+  the sensor 1-2 plane), which is the true frame up to one unknown rotation. The temperature terms are
+  optional.
 """
 
 from __future__ import annotations
