@@ -30,7 +30,7 @@ def summary_table(results: list[DutResult]) -> Table:
         rows.append(
             [
                 r.name,
-                r.main.model.upper() + (" (the run's)" if r.others or r.origin.startswith("the run") else ""),
+                r.main.model.upper() + (" (the run's)" if _written_by_run(r) else ""),
                 str(len(r.ds)),
                 "vector" if vec else "|B|",
                 _fmt(heldout.rms(before[kept])),
@@ -182,8 +182,12 @@ def dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]
     return sections
 
 
+def _written_by_run(r: DutResult) -> bool:
+    return r.origin.startswith("the run's")
+
+
 def _shown_title(r: DutResult) -> str:
-    if r.origin.startswith("the run"):
+    if _written_by_run(r):
         return "the calibration the run wrote"
     return "the given calibration" if r.given else f"fitted here (robust: {str(r.robust).lower()})"
 
