@@ -136,9 +136,16 @@ def session_page(app, ref: SessionRef) -> str:
     sim_clock = runs_on_simulated_clock(s["simulated"])
     running = running_pid(ref.path) is not None
     state = "running" if running else (s["exit_status"] or "not finished")
+    def on_clocks(wall: float | None, run: float | None) -> str:
+        """The wall-clock time, and the simulated clock's beside it when the run had one."""
+        if wall is None:
+            return "-"
+        return _utc(wall) + (f" (simulated clock {_utc(run)})" if sim_clock and run is not None else "")
+
     summary = [
-        ["plan", s["plan"]], ["station", s["station"]], ["started", _utc(s["wall_started"])],
-        ["ended", _utc(s["wall_ended"]) if s["wall_ended"] else "-"],
+        ["plan", s["plan"]], ["station", s["station"]],
+        ["started", on_clocks(s["wall_started"], s["started"])],
+        ["ended", on_clocks(s["wall_ended"], s["ended"])],
         ["state", state + (f" ({s['exit_code']})" if s["exit_code"] not in (None, state) and not running
                            else "")],
         ["exit reason", s["exit_reason"] or "-"],

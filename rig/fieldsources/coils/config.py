@@ -212,12 +212,10 @@ class Coils(FieldSourceConfig, CoilOptions):
                                       for name, m in self.matrices_at(positions_mm).items()}}
 
     def reference_check_lines(self, station, plan, warnings: list[str]) -> list[str]:
-        """The declared matrix's assumed uncertainty, and the coil field's non-uniformity over the DUT
-        positions: LimitError (blamed on the station's position_mm) above plan.accuracy_ppm."""
-        lines = []
-        if self.commissioned is None:
-            lines.append(f"coil matrix as declared (not commissioned): the uncertainty budget takes "
-                         f"{self.constants_uncertainty_ppm:g} ppm per element; `rig commission` measures it")
+        """The coil field's non-uniformity over the DUT positions: LimitError (blamed on the station's
+        position_mm) above plan.accuracy_ppm. (An uncommissioned matrix's declared uncertainty is the
+        `uncertainty_caveat` line, printed first.)"""
+        lines: list[str] = []
         if self.geometry is None:
             if any(d.position_mm is not None for d in station.duts):
                 warnings.append("DUT positions are stated but field_source has no geometry: the coil field "
