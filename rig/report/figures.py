@@ -11,6 +11,7 @@ import io
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from rig.analysis.heldout import nearest_sample_deg
 
@@ -18,6 +19,9 @@ BEFORE_COLOUR = "tab:orange"
 AFTER_COLOUR = "tab:blue"
 OUTLIER_COLOUR = "tab:red"
 MAX_SCATTER_POINTS = 20000  # more points only slow the render; a seeded subsample looks the same
+# titles at a fixed height above their axes (no axis has ticks on top): placing them automatically
+# measured every tick label of every axis, a fifth of the report's time
+TITLE_Y = 1.0
 
 
 def new_figure(width_in: float, height_in: float, *, left_in: float = 0.85, right_in: float = 0.25,
@@ -38,6 +42,16 @@ def png_bytes(fig: Figure, dpi: int = 100) -> bytes:
     fig.savefig(buf, format="png", dpi=dpi)
     fig.clear()
     return buf.getvalue()
+
+
+def _log_scale(axis, set_scale) -> None:
+    """A log axis ticked at 1, 2 and 5 of each decade, labelled as plain numbers (20, 50, 100), without
+    minor ticks: each tick is an artist of its own, and a log axis's default minor ticks and typeset
+    labels cost more to draw than the rest of its figure."""
+    set_scale("log")
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    axis.set_minor_locator(NullLocator())
 
 
 def _thin(n: int, limit: int = MAX_SCATTER_POINTS) -> np.ndarray:
@@ -109,8 +123,8 @@ def residuals_vs_temperature(
             ax.set_ylabel(f"{label} error (nT)")
             ax.legend(loc="upper right", fontsize=8, markerscale=3)
             ax.grid(alpha=0.3)
-    axes[0, 0].set_title("before calibration (raw − reference)")
-    axes[0, 1].set_title("after calibration (calibrated − reference)")
+    axes[0, 0].set_title("before calibration (raw − reference)", y=TITLE_Y)
+    axes[0, 1].set_title("after calibration (calibrated − reference)", y=TITLE_Y)
     for ax in axes[-1]:
         ax.set_xlabel(x_label)
     if title:
@@ -153,7 +167,7 @@ def norm_error_histogram(before_nt: np.ndarray, after_nt: np.ndarray, title: str
         )
         ax.set_xlabel("|B| error (nT)")
         ax.set_ylabel("samples")
-        ax.set_title(when)
+        ax.set_title(when, y=TITLE_Y)
         ax.legend(loc="upper right", fontsize=8, handlelength=0)
         ax.grid(alpha=0.3)
     if title:
@@ -206,7 +220,8 @@ def direction_map(
     ax_cov.scatter(az, el, s=6 if len(az) < 500 else 1, color="black", label="sample directions")
     fig.colorbar(mesh, ax=ax_cov, label="angle to the nearest sample (deg)")
     gap_share = float(np.mean(dist > gap_deg))
-    ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample")
+    ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample",
+                     y=TITLE_Y)
 
     rows = _thin(len(resid))
     finite = rows[np.isfinite(resid[rows])]
@@ -216,7 +231,7 @@ def direction_map(
         az[order], el[order], c=resid[order], s=14, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
     )
     fig.colorbar(sc, ax=ax_res, extend="max", label=residual_label)
-    ax_res.set_title("error after calibration, by field direction")
+    ax_res.set_title("error after calibration, by field direction", y=TITLE_Y)
     for ax in (ax_cov, ax_res):
         ax.set_xlim(-180, 180)
         ax.set_ylim(-90, 90)
@@ -253,7 +268,7 @@ def model_comparison(
             drawn.append((bars, vals))
         finite = np.concatenate([vals[np.isfinite(vals)] for _, vals in drawn])
         floor = float(finite.min()) / 2 if finite.size else 0.1
-        ax.set_yscale("log")
+        _log_scale(ax.yaxis, ax.set_yscale)
         ax.set_ylim(floor, float(finite.max()) * 3 if finite.size else 10.0)
         for bars, vals in drawn:
             for bar, v in zip(bars, vals, strict=True):
@@ -268,7 +283,7 @@ def model_comparison(
         ax.set_xticks(x, [m.upper() for m in models])
         ax.set_xlim(-0.75, len(models) - 0.25)
         ax.set_ylabel(f"{metric} error RMS (nT)")
-        ax.set_title(f"{metric} error")
+        ax.set_title(f"{metric} error", y=TITLE_Y)
         ax.legend(fontsize=8, loc="upper left")
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(title or "model comparison")
@@ -283,12 +298,12 @@ def step_rms(
     ax = fig.subplots()
     ax.plot(temp_c, rms_before_nt, "o-", color=BEFORE_COLOUR, label="before calibration")
     ax.plot(temp_c, rms_after_nt, "s-", color=AFTER_COLOUR, label="after calibration")
-    ax.set_yscale("log")
+    _log_scale(ax.yaxis, ax.set_yscale)
     ax.set_xlabel("temperature step (°C)")
     ax.set_ylabel("vector error RMS (nT)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    ax.set_title(title or "residual per temperature step")
+    ax.set_title(title or "residual per temperature step", y=TITLE_Y)
     return fig
 
 
@@ -306,8 +321,8 @@ def uncertainty_budget(sources: list[str], contributions_nt: list[float], combin
     for yi, v in zip(y, values, strict=True):
         ax.text(max(v, 1e-3) * 1.1, yi, f"{v:.3g}", va="center", fontsize=8)
     ax.set_yticks(y, labels, fontsize=8)
-    ax.set_xscale("log")
+    _log_scale(ax.xaxis, ax.set_xscale)
     ax.set_xlabel("nT")
     ax.grid(alpha=0.3, axis="x")
-    ax.set_title(title or "uncertainty budget")
+    ax.set_title(title or "uncertainty budget", y=TITLE_Y)
     return fig
