@@ -41,6 +41,7 @@ def _print_summary(outcome) -> None:
         calibration_files,
         calibration_notes,
         calibration_rows,
+        next_steps,
         outcome_lines,
     )
 
@@ -71,6 +72,8 @@ def _print_summary(outcome) -> None:
             table.add_row(v.dut, v.model, v.verdict, "-" if held is None else f"{held:.1f}",
                           "; ".join(v.failed + v.notes) or "-")
         console.print(table)
+    for line in next_steps(outcome):
+        console.print(line, soft_wrap=True, highlight=False, markup=False)
 
 
 def _station_path_text(campaign, resume_path: Path | None) -> str:

@@ -16,7 +16,10 @@ from rig.analysis.judged import quality_of
 from rig.core.errors import ERRORS
 from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
 
-CALIBRATION_COLUMNS = ("DUT", "model", "samples", "rms after (nT)", "uncertainty (nT, k=2)", "check")
+CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, k=2)", "check")
+LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models); "
+          "uncertainty: the calibrated field's expanded error (95 %); check: RMS > U where the residual "
+          "exceeds it")
 
 
 def station_line(name: str, path: str | Path | None, simulated: dict[str, bool]) -> str:
@@ -93,4 +96,12 @@ def calibration_notes(outcome) -> list[str]:
             lines.append(f"{f['dut']} {f['model']}: {q.exceeds_text()}")
     shared = [f"uncertainty of {', '.join(duts)} {judged}: largest contribution {phrase}"
               for phrase, duts in dominant.items()]
-    return shared + lines
+    return [LEGEND, *shared, *lines]
+
+
+def next_steps(outcome) -> list[str]:
+    """What a user does next with a completed session."""
+    if not outcome.fits:
+        return []
+    return [f"next: rig report {outcome.session_path} -o report/   (the report: figures, budgets, checks); "
+            f"rig sessions {Path(outcome.session_path).parent}   (every session there)"]

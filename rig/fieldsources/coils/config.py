@@ -228,9 +228,8 @@ class Coils(FieldSourceConfig, CoilOptions):
             return None
         ppm = self.constants_uncertainty_ppm
         return (f"the coils are not commissioned: each coil constant is taken as uncertain by its declared "
-                f"{ppm:g} ppm ({ppm / 1e4:g} %), which dominates every calibration's uncertainty (about "
-                f"{ppm / 1e4:g} % of the field); `rig commission` measures the coils "
-                "(configs/stations/sim-commissioned.yaml shows how)")
+                f"{ppm:g} ppm ({ppm / 1e4:g} %), which will dominate every calibration's uncertainty; "
+                "`rig commission` measures the coils (configs/stations/sim-commissioned.yaml shows how)")
 
     def budget_chain(self, run, dut: str, ds):
         from rig.fieldsources.coils.budget import CoilChain
