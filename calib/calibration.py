@@ -1,4 +1,12 @@
-"""A fitted calibration: model, parameters with standard errors, fit statistics and provenance."""
+"""A fitted calibration: model, parameters with standard errors, fit statistics and provenance.
+
+The file states its equation in keys a program reads, so that no one has to guess a convention:
+`equation` (calib/equations.py EQUATIONS, in the parameters' own names), `tau` (`absolute_c`: tau is the
+DUT temperature in degC as measured; `not_used`), and `tau_0_c` only where the equation itself subtracts
+a constant from tau. The centre a solve used internally (`temp_ref_c` in memory; it changes rounding, not
+the field) is `solve_centre_c`: not part of the equation, never to be applied. Files of format version 1
+(a top-level `temp_ref_c`) still load.
+"""
 
 from __future__ import annotations
 
@@ -7,11 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.equations import MODELS, OPTIONAL_PARAMS, PARAM_SHAPES, apply
+from calib.equations import MODELS, OPTIONAL_PARAMS, PARAM_SHAPES, apply, equation_of, tau_convention
 from calib.errors import DataError
 
 FORMAT_NAME = "magrig-calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: `equation`, `tau`, `tau_0_c` / `solve_centre_c` instead of `temp_ref_c`
+READABLE_VERSIONS = (1, 2)
+TAU_0_KEY = "tau_0_c"  # the constant an equation subtracts from tau (named in the equation)
+SOLVE_CENTRE_KEY = "solve_centre_c"  # internal to the solve: not part of the equation
 
 
 def _utc_now() -> str:
@@ -46,7 +57,7 @@ class Calibration:
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
             "model": self.model,
-            "temp_ref_c": None if self.temp_ref_c is None else float(self.temp_ref_c),
+            **self.equation_keys(),
             "params": {k: np.asarray(v, float).tolist() for k, v in self.params.items()},
             "std_errors": {k: np.asarray(v, float).tolist() for k, v in self.std_errors.items()},
             "stats": to_plain(self.stats),
@@ -55,6 +66,16 @@ class Calibration:
             "created_utc": self.created_utc,
             **({} if self.uncertainty is None else {"uncertainty": to_plain(self.uncertainty)}),
         }
+
+    def equation_keys(self) -> dict:
+        """`equation`, `tau` and the temperature constant in the key that says what it is (module doc)."""
+        equation = equation_of(self.model, self.params)
+        out = {"equation": equation, "tau": tau_convention(self.model, self.params)}
+        if TAU_0_KEY in equation:
+            out[TAU_0_KEY] = float(self.temp_ref_c or 0.0)  # what apply() subtracts
+        elif self.temp_ref_c is not None:
+            out[SOLVE_CENTRE_KEY] = float(self.temp_ref_c)
+        return out
 
     @classmethod
     def from_dict(cls, d: object, where: str = "calibration") -> Calibration:
@@ -68,9 +89,11 @@ class Calibration:
             raise DataError(f"{where}: key 'model' is {model!r}, expected one of {', '.join(MODELS)}")
         params = _read_arrays(d, "params", model, where)
         std_errors = _read_arrays(d, "std_errors", model, where, required=set(params))
-        temp_ref = d.get("temp_ref_c")
-        if temp_ref is not None and not _is_number(temp_ref):
-            raise DataError(f"{where}: key 'temp_ref_c' must be a number, got {temp_ref!r}")
+        version = d.get("format_version", FORMAT_VERSION)
+        if version not in READABLE_VERSIONS:
+            raise DataError(f"{where}: key 'format_version' is {version!r}; this magrig reads "
+                            f"{', '.join(map(str, READABLE_VERSIONS))}")
+        temp_ref = _read_centre(d, model, params, where, legacy=version == 1)
         for key in ("stats", "source"):
             if not isinstance(d.get(key, {}), dict):
                 raise DataError(f"{where}: key {key!r} must be a mapping")
@@ -85,6 +108,32 @@ class Calibration:
             created_utc=str(d.get("created_utc", "")),
             uncertainty=_read_uncertainty(d, params, where),
         )
+
+
+def _read_centre(d: dict, model: str, params: dict, where: str, legacy: bool) -> float | None:
+    """The temperature constant (tau_0_c, solve_centre_c, or a version 1 file's temp_ref_c), after checking
+    that the stated equation and tau convention are the ones this model applies: a file that says
+    otherwise would be applied differently from what it claims."""
+    equation = equation_of(model, params)
+    for key, expected in (("equation", equation), ("tau", tau_convention(model, params))):
+        if key in d and d[key] != expected:
+            raise DataError(f"{where}: key {key!r} is {d[key]!r}, but a {model} calibration with these "
+                            f"parameters applies {expected!r}")
+    given = [k for k in (TAU_0_KEY, SOLVE_CENTRE_KEY, "temp_ref_c") if d.get(k) is not None]
+    if len(given) > 1:
+        raise DataError(f"{where}: keys {' and '.join(map(repr, given))} both given; a file states one")
+    if not given:
+        if TAU_0_KEY in equation and legacy:
+            return 0.0  # how version 1 applied a missing temp_ref_c
+        if TAU_0_KEY in equation:
+            raise DataError(f"{where}: key {TAU_0_KEY!r} is missing (the equation subtracts it from tau)")
+        return None
+    value = d[given[0]]
+    if not _is_number(value):
+        raise DataError(f"{where}: key {given[0]!r} must be a number, got {value!r}")
+    if given[0] == SOLVE_CENTRE_KEY and TAU_0_KEY in equation:
+        raise DataError(f"{where}: key {SOLVE_CENTRE_KEY!r} given, but this equation needs {TAU_0_KEY!r}")
+    return float(value)
 
 
 def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:

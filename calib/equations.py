@@ -8,9 +8,10 @@ above this module, and calib/calibration.py uses it to apply and validate a cali
 - p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
   row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
   e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
-- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c. A (and KA) upper-triangular: the field comes
-  out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in the sensor 1-2 plane), which is the
-  true frame up to one unknown rotation. The temperature terms are optional.
+- scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c (the file's tau_0_c). A (and KA)
+  upper-triangular: the field comes out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in
+  the sensor 1-2 plane), which is the true frame up to one unknown rotation. The temperature terms are
+  optional.
 """
 
 from __future__ import annotations
@@ -33,6 +34,34 @@ OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
     "t36": {},
 }
 MODELS = tuple(PARAM_SHAPES)
+
+# Each model's equation as its calibration file states it (key `equation`), in the file's own parameter
+# names. tau is the DUT temperature in degC as measured (the file's `tau: absolute_c`); a constant an
+# equation subtracts from it is named in the equation and stated beside it (`tau_0_c`). A model whose
+# optional temperature terms change its equation has a second row, "<model> with temperature terms".
+EQUATIONS: dict[str, str] = {
+    "t24": "B = (S + tau K) h + b_nt + tau kb_nt_per_c",
+    "t36": "B = (S + tau K + tau^2 K2) h + b_nt + tau kb_nt_per_c + tau^2 kb2_nt_per_c2",
+    "p12": "B = inv(Q P) (h - b_nt); Q = diag(k); P rows (1, 0, 0), (sin e1, cos e1, 0), "
+           "(sin e2 cos e3, sin e3, cos e2 cos e3); (e1, e2, e3) = angles_deg",
+    "scalar": "B = A (h - c_nt)",
+    "scalar with temperature terms":
+        "B = (A + (tau - tau_0_c) KA_per_c) (h - c_nt - (tau - tau_0_c) kc_nt_per_c)",
+}
+TAU_ABSOLUTE = "absolute_c"  # tau is the temperature in degC, not a difference from a reference
+TAU_NOT_USED = "not_used"  # the equation has no temperature
+
+
+def equation_of(model: str, params: dict) -> str:
+    """The equation a calibration of `model` with these parameters applies (EQUATIONS)."""
+    with_temperature = f"{model} with temperature terms"
+    if with_temperature in EQUATIONS and needs_temperature(model, params):
+        return EQUATIONS[with_temperature]
+    return EQUATIONS[model]
+
+
+def tau_convention(model: str, params: dict) -> str:
+    return TAU_ABSOLUTE if needs_temperature(model, params) else TAU_NOT_USED
 
 
 def needs_temperature(model: str, params: dict) -> bool:

@@ -128,7 +128,7 @@ def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict
     from rig.session.reader import each_dataset
 
     acceptance = plan.acceptance
-    model = acceptance.model or plan.fit.models[0]
+    model = plan.judged_model
     out = []
     for dut, ds in each_dataset(session_path, station.duts):
         v = Verdict(dut.name, model, dut_type=dut.device_type)

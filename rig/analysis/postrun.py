@@ -7,8 +7,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from rig import __version__
 from rig import config as cfg
 from rig.core.errors import ERRORS
@@ -34,101 +32,45 @@ def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dic
 
 
 def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
-    """Fit each of the plan's models for each DUT from the session's own dataset; write one calibration
-    file per DUT and model next to the session and record each fit in it."""
-    import calib
+    """Fit each of the plan's models for each DUT from the session's own dataset, the way `rig refit` and
+    `rig refit-all` fit it (rig/analysis/sessionfit.py); write one calibration file per DUT and model next
+    to the session and record each fit in it."""
     from calib import calfile
+    from rig.analysis.sessionfit import SessionFitter
     from rig.core.paths import calibration_file
-    from rig.session.reader import each_dataset
+    from rig.session.reader import SessionReader
 
     out = []
-    inputs = run_inputs(session.path)
-    for dut, ds in each_dataset(session.path, station.duts):
+    with SessionReader(session.path) as reader:
+        fitter = SessionFitter.of(reader)
+        datasets = [(dut, _dataset(reader, dut.name)) for dut in station.duts]
+    for dut, ds in datasets:
         if isinstance(ds, Exception):
             out.append({"dut": dut.name, "model": "-", "error": str(ds)})
             continue
-        # every reference with the run's best ambient (rig/reference/ambient.py)
-        ds, ambient = refined(inputs, ds)
-        lag = None
-        if plan.moving:  # a ramp shows each DUT's thermal lag: fit the element's temperature
-            from rig.analysis.lagfit import lag_corrected
-
-            ds, lag = lag_corrected(ds)
+        prepared = fitter.prepare(ds)
         for model in plan.fit.models:
             entry: dict[str, Any] = {"dut": dut.name, "model": model}
             try:
-                cal = calib.fit(ds, model, robust=plan.fit.robust, software_version=__version__)
+                cal = fitter.calibrate(prepared, model, robust=plan.fit.robust, software_version=__version__)
+                path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:
                 entry["error"] = str(exc)
                 session.log_event(Kind.FIT_FAILED, f"{dut.name} {model}: {exc}", code=Reason.FIT_FAILED,
                                   level="WARNING", device=dut.name, model=model)
                 out.append(entry)
                 continue
-            if lag is not None:
-                from rig.analysis.lagfit import annotate
-
-                annotate(cal, lag)
-            if model == "t24":  # the model check the plan's interior temperatures are for
-                check_linearity(cal, ds)
-            if ambient is not None:
-                cal.stats["ambient"] = ambient
-            state_uncertainty(inputs, dut.name, ds, cal)
-            try:
-                path = calibration_file(session.path, dut.name, model)
-            except ERRORS as exc:
-                entry["error"] = str(exc)
-                out.append(entry)
-                continue
             calfile.save(cal, path)
             rms = cal.stats.get("rms_after_nt")
             session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)
-            entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
+            entry.update(path=path, rms_nt=rms, calibration=cal, n=len(prepared.ds))
             out.append(entry)
     return out
 
 
-def run_inputs(session_path):
-    """What the session says of its reference chain (rig/reference/budget.py), read once for its DUTs; None
-    when its
-    recorded plan or station can no longer be read (a session of an older format, a foreign one)."""
-    from rig.core.errors import ConfigError
-    from rig.reference.budget import RunInputs
-    from rig.session.reader import SessionReader
-
-    with SessionReader(session_path) as reader:
-        try:
-            return RunInputs.of_session(reader)
-        except ConfigError:
-            return None
-
-
-def refined(inputs, ds):
-    """(ds, ambient info): the references made with the run's best ambient, where the session allows."""
-    return (ds, None) if inputs is None else inputs.refined(ds)
-
-
-def state_uncertainty(inputs, dut: str, ds, cal) -> None:
-    """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
-    budget that cannot be made is a warning in its stats, never a lost calibration."""
-    from calib.uncertainty import statistical_only
-
+def _dataset(reader, dut: str):
+    """One DUT's dataset, or the project error that stopped reading it."""
     try:
-        if inputs is None:
-            cal.uncertainty = statistical_only(ds, cal)
-            cal.uncertainty["notes"] = ["the session's recorded plan or station cannot be read: the "
-                                        "reference's own uncertainty is not in this budget"]
-        else:
-            cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
-    except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
-        cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
-
-
-def check_linearity(cal, ds) -> None:
-    """T24's linearity in temperature (calib/linearity.py) in the calibration's stats; a warning when it
-    does not hold."""
-    from calib.linearity import linearity
-
-    check = linearity(ds.h_nt, ds.temp_c, ds.ref_nt)
-    cal.stats["linearity"] = check
-    if check["holds"] is False:
-        cal.stats["warnings"] = [*cal.stats.get("warnings", []), check["message"]]
+        return reader.dataset(dut)
+    except ERRORS as exc:
+        return exc

@@ -73,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     except ERRORS as err:
         if debug:
             raise
-        click.echo(f"error: {err}", err=True)
+        for line in str(err).splitlines() or [""]:  # a file with several problems: one line each
+            click.echo(f"error: {line}", err=True)
         return 2
     except click.BadParameter as err:  # e.g. a folder where a file belongs: the value is the news
         click.echo(f"error: {' '.join(err.format_message().split())}", err=True)

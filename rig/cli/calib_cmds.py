@@ -64,8 +64,11 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
 
 @click.command("refit")
 @click.argument("data", type=click.Path(dir_okay=False))
-@click.option("--model", type=MODEL_CHOICE, default="t24", show_default=True, help="Calibration model.")
-@click.option("--robust", is_flag=True, help="Huber reweighting; outliers are flagged and counted.")
+@click.option("--model", type=MODEL_CHOICE,
+              help="Calibration model (default: a session's judged model, the plan's; a CSV's t24).")
+@click.option("--robust/--no-robust", default=None,
+              help="Huber reweighting; outliers are flagged and counted (default: a session's plan's "
+              "fit.robust; a CSV's off).")
 @click.option("--dut", metavar="NAME", help="DUT to fit, when DATA is a session file.")
 @_unit_options
 @click.option("--field-norm-nt", type=float, help="Scalar model: the known constant |B| in nT.")
@@ -75,7 +78,9 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
     help="Scalar model: weight samples so over-visited orientations do not dominate "
     "(default: chosen by cross-validation inside the data when the coverage is uneven).",
 )
-@click.option("--temp-ref-c", type=float, help="Reference temperature of the temperature terms (degC).")
+@click.option("--temp-ref-c", type=float,
+              help="Where the solve centres the temperature (degC): t24's solve_centre_c, internal (the "
+              "field does not change); a scalar fit's tau_0_c, which its equation subtracts.")
 @click.option("--lag/--no-lag", default=True, show_default=True,
               help="Ramp session: estimate each DUT's thermal lag and fit its element temperature.")
 @click.option(
@@ -99,7 +104,9 @@ def refit(
     lag,
     output,
 ):
-    """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT."""
+    """Fit a calibration to DATA (a CSV file or a session file) and write it to OUTPUT. A session is
+    fitted exactly as its run fitted it (rig/analysis/sessionfit.py): references with the run's best
+    ambient, a moving schedule's lag corrected, its plan's options unless given here."""
     import calib
     from calib import calfile
 
@@ -111,46 +118,31 @@ def refit(
         column_map=column_map,
         extra_columns=False,
     )
+    session = ds.source.get("kind") == "session"
+    fitter = None
+    if session:
+        from rig.analysis.sessionfit import SessionFitter
+        from rig.session.reader import SessionReader
+
+        with SessionReader(data) as reader:
+            fitter = SessionFitter.of(reader)
+    model = model or (fitter.plan.judged_model if fitter is not None and fitter.plan is not None else "t24")
     given = {"field_norm_nt": field_norm_nt, "balance_orientations": balance_orientations}
     unused = [n for n, value in given.items() if value is not None and n not in REGISTRY[model].options]
     if unused:
         takers = [m for m, spec in REGISTRY.items() if set(unused) <= spec.options]
         raise click.UsageError(f"{', '.join('--' + n.replace('_', '-') for n in unused)} apply to "
                                f"--model {' or '.join(takers)} only")
-    session = ds.source.get("kind") == "session"
-    inputs, ambient = None, None
-    if session:  # every reference with the run's best ambient, as the run's own fits
-        from rig.analysis import postrun
-
-        inputs = postrun.run_inputs(data)
-        ds, ambient = postrun.refined(inputs, ds)
-    lag_info = None
-    if lag and session:  # a CSV has no ramp: rig.analysis.lagfit is not imported for it
-        from rig.analysis.lagfit import lag_corrected, session_is_ramp
-
-        if session_is_ramp(data):
-            ds, lag_info = lag_corrected(ds)
-    cal = calib.fit(
-        ds,
-        model,
-        robust=robust,
-        temp_ref_c=temp_ref_c,
-        field_norm_nt=field_norm_nt,
-        balance_orientations=balance_orientations,
-        software_version=__version__,
-    )
-    if lag_info is not None:
-        from rig.analysis.lagfit import annotate
-
-        annotate(cal, lag_info)
-        click.echo(lag_info["message"])
-    if session:
-        if ambient is not None:
-            cal.stats["ambient"] = ambient
-        postrun.state_uncertainty(inputs, ds.source["dut"], ds, cal)
+    options = {"temp_ref_c": temp_ref_c, **given}
+    if fitter is not None:
+        prepared = fitter.prepare(ds, lag=lag)
+        cal = fitter.calibrate(prepared, model, robust=robust, software_version=__version__, **options)
+        if prepared.lag is not None:
+            click.echo(prepared.lag["message"])
     else:
         from calib.uncertainty import statistical_only
 
+        cal = calib.fit(ds, model, robust=bool(robust), software_version=__version__, **options)
         cal.uncertainty = statistical_only(ds, cal)
     calfile.save(cal, output)
     print_summary(cal)
@@ -189,7 +181,18 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
     for i, name in enumerate(csvio.REF_COLUMNS):
         out[name] = field[:, i]
     csvio.write_csv(output, out)
-    click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration})")
+    click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration}); "
+               + equation_line(cal))
+
+
+def equation_line(cal) -> str:
+    """The equation the calibration applies and what tau is, as its file states them."""
+    keys = cal.equation_keys()
+    if keys["tau"] == "not_used":
+        return f"equation: {keys['equation']} (no temperature)"
+    tau_0 = f"; tau_0_c = {keys['tau_0_c']:g} degC" if "tau_0_c" in keys else ""
+    return (f"equation: {keys['equation']}; tau = the temp column in degC as it is "
+            f"(tau: {keys['tau']}){tau_0}")
 
 
 def _fmt_with_error(value: float, err: float) -> str:
@@ -203,9 +206,9 @@ def print_summary(cal) -> None:
 
     console = Console(highlight=False)
     st = cal.stats
-    ref = "" if cal.temp_ref_c is None else f", temperature terms centred at {cal.temp_ref_c:g} degC"
-    console.print(f"[bold]{cal.model}[/bold] fit of {st.get('n_used')} of {st.get('n')} samples{ref}")
-    title = "parameters ± std errors" + (" (absolute temperature)" if cal.temp_ref_c is not None else "")
+    console.print(f"[bold]{cal.model}[/bold] fit of {st.get('n_used')} of {st.get('n')} samples")
+    console.print(equation_line(cal), markup=False)
+    title = "parameters ± std errors"
     params = Table("parameter", "1 / x", "2 / y", "3 / z", title=title)
     for name, value in cal.params.items():
         value = np.atleast_2d(value)

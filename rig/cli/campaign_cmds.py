@@ -36,26 +36,31 @@ def _terminate(signum, frame):
 
 
 def _print_summary(outcome) -> None:
+    from rig.run.summary import (
+        CALIBRATION_COLUMNS,
+        calibration_files,
+        calibration_notes,
+        calibration_rows,
+        next_steps,
+        outcome_lines,
+    )
+
     console = Console()
-    r = outcome.result
-    console.print(f"session {outcome.session_path}: {r.status} ({r.reason}); "
-                  f"{r.points_done} points; wall time {outcome.wall_s:.1f} s", soft_wrap=True)
+    for line in outcome_lines(outcome):
+        console.print(line, soft_wrap=True, highlight=False, markup=False)
     if outcome.stale_lock_pid is not None:
         console.print(f"note: took over the lock of dead run pid {outcome.stale_lock_pid} after making "
                       "the hardware safe")
     if not outcome.fits:
         return
     table = Table(title="calibrations")
-    for col in ("DUT", "model", "samples", "rms after (nT)", "uncertainty (nT, k=2)", "file / error"):
-        table.add_column(col, overflow="fold")  # paths are copied by operators: never truncate
-    for f in outcome.fits:
-        rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
-        budget = getattr(f.get("calibration"), "uncertainty", None) or {}
-        big_u = budget.get("expanded_vector_error_nt")
-        shown_u = "-" if big_u is None else f"{big_u:.1f}"
-        table.add_row(f["dut"], f["model"], str(f.get("n", "-")), rms, shown_u,
-                      str(f.get("path") or f.get("error")))
+    for col in CALIBRATION_COLUMNS:
+        table.add_column(col, overflow="fold")
+    for row in calibration_rows(outcome):
+        table.add_row(*row)
     console.print(table)
+    for line in [*calibration_files(outcome), *calibration_notes(outcome)]:  # paths whole: they are copied
+        console.print(line, soft_wrap=True, highlight=False, markup=False)
     if outcome.verdicts:
         from rig.analysis.acceptance import summary_csv_path
 
@@ -67,6 +72,28 @@ def _print_summary(outcome) -> None:
             table.add_row(v.dut, v.model, v.verdict, "-" if held is None else f"{held:.1f}",
                           "; ".join(v.failed + v.notes) or "-")
         console.print(table)
+    for line in next_steps(outcome):
+        console.print(line, soft_wrap=True, highlight=False, markup=False)
+
+
+def _station_path_text(campaign, resume_path: Path | None) -> str:
+    """The station file a run's header names: the plan's (or --station), or the one a session recorded."""
+    if campaign is not None:
+        return str(campaign.station_path)
+    from rig.session.reader import SessionReader
+
+    with SessionReader(resume_path) as reader:
+        recorded = reader.info()["station_path"]
+    return f"{recorded or 'its file'} as the session recorded it"
+
+
+def _print_header(station, station_path: str) -> None:
+    """The station, whether it is simulated, and what will dominate the uncertainty: printed once every
+    limit is checked and the rig is connected, before the first point."""
+    from rig.run.summary import header_lines
+
+    for line in header_lines(station, station_path):
+        click.echo(line)
 
 
 def register(group: click.Group) -> None:
@@ -83,7 +110,10 @@ def register(group: click.Group) -> None:
     @click.option("--resume", "resume_path", type=click.Path(dir_okay=False),
                   help="Continue this session at its first incomplete point (plan and station from it).")
     @click.option("--no-live", is_flag=True, help="Plain log lines instead of the live display.")
-    def run(plan, station, session_path, out_dir, resume_path, no_live):
+    @click.option("--progress-every", "progress_every_s", type=click.FloatRange(min=0), metavar="SECONDS",
+                  help="Plain log (piped, or --no-live): at most one progress line this often "
+                  "(default 5; 0: one line per point).")
+    def run(plan, station, session_path, out_dir, resume_path, no_live, progress_every_s):
         """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
         from rig.core.paths import session_file
         from rig.engine.commands import COMPLETED
@@ -106,13 +136,16 @@ def register(group: click.Group) -> None:
             campaign = load_campaign(plan, station)
             path = Path(session_path) if session_path else session_file(
                 out_dir or campaign.plan.outputs.dir, campaign.plan.name)
+        station_path = _station_path_text(campaign, path if resume_path else None)
         interactive = sys.stdin.isatty()
         set_terminate_handler(_terminate)  # outside the engine's own handling: clean exit too
         with located_errors(campaign):  # a plan refused while compiling names its file, key and line
             outcome = run_campaign(
                 campaign=campaign, session_path=path, resume=bool(resume_path),
                 prompt=prompt_from_tty if interactive else None,
-                display_factory=lambda status, runner: make_display(status, runner, live=not no_live),
+                display_factory=lambda status, runner: make_display(status, runner, live=not no_live,
+                                                                    progress_every_s=progress_every_s),
+                on_rig=lambda rig: _print_header(rig.station, station_path),
             )
         _print_summary(outcome)
         if outcome.result.status != COMPLETED:

@@ -61,8 +61,7 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     checked = load_campaign(output, campaign.station_path)
     with located_errors(checked):
         report = check_campaign(checked)
-    click.echo(f"rig check of {output}: OK, estimated duration "
-               f"{report.summary_lines()[1].removeprefix('estimated duration ')}")
+    click.echo(f"rig check of {output}: OK, estimated duration {report.duration_text()}")
 
 
 def register(group: click.Group) -> None:

@@ -71,14 +71,18 @@ def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path |
     click.echo(f"wrote {output} ({fmt}, model {cal.model})")
 
 
+DEFAULT_SESSIONS_DIR = Path("sessions")  # where `rig run` writes (a plan's default outputs.dir)
+
+
 @click.command("sessions")
-@click.argument("directory", default=".", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("directory", required=False, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--db", "db_url", metavar="URL", help="List the fleet database's sessions instead (all rigs).")
 @fleet_filters
-def sessions_cmd(directory: Path, db_url: str | None, **filters) -> None:
-    """One line per session file in DIRECTORY: date, station, DUTs, points done of planned, exit status,
-    last fit residual. Files that are not sessions, or are damaged, get a one-line note. With --db, the
-    sessions pushed to the fleet database, across rigs, filtered by station, DUT, date and verdict."""
+def sessions_cmd(directory: Path | None, db_url: str | None, **filters) -> None:
+    """One line per session file in DIRECTORY (default: sessions/, where `rig run` writes): date, station,
+    DUTs, points done of planned, exit status, verdict, and the residual of the calibration the plan judges.
+    Files that are not sessions, or are damaged, get a one-line note. With --db, the sessions pushed to
+    the fleet database, across rigs, filtered by station, DUT, date and verdict."""
     from rig.report.sessions import HEADER, session_files, session_line, skipped_line
 
     if db_url:
@@ -88,6 +92,11 @@ def sessions_cmd(directory: Path, db_url: str | None, **filters) -> None:
     if given:
         raise click.UsageError(f"{', '.join(given)}: filters of the fleet database listing; add --db URL")
 
+    if directory is None:
+        directory = DEFAULT_SESSIONS_DIR
+        if not directory.is_dir():
+            raise SessionError(f"{directory}/: no such folder here (`rig run` writes its sessions into the "
+                               "plan's outputs.dir, default sessions/); give the folder: rig sessions DIR")
     if not directory.is_dir():
         raise SessionError(f"{directory}: no such folder")
     files = session_files(directory, SESSION_SUFFIXES)

@@ -28,16 +28,10 @@ def check_cmd(plan_path: Path, station_path: Path | None, figure_path: Path | No
     if figure_path is not None and report.prediction is None:
         raise ConfigError(f"--figure {figure_path}: plan {campaign.plan.name} predicts no standard errors to "
                           "draw (a designed or sequential plan with stop_when does)")
-    simulated = campaign.station.simulated_devices()
-    if all(simulated.values()):
-        sim_note = "all devices simulated"
-    elif any(simulated.values()):
-        sim_note = "simulated: " + ", ".join(name for name, sim in simulated.items() if sim)
-    else:
-        sim_note = "no simulated devices"
-    click.echo(f"plan {campaign.plan.name} ({plan_path}) on station {campaign.station.name} "
-               f"({campaign.station_path}; {sim_note}): OK")
-    for line in report.summary_lines():
+    from rig.run.summary import header_lines
+
+    click.echo(f"plan {campaign.plan.name} ({plan_path}): OK")
+    for line in [*header_lines(campaign.station, campaign.station_path), *report.summary_lines()]:
         click.echo(line)
     if figure_path is not None:
         from rig.report.designfig import write_schedule_figure

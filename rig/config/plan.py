@@ -115,6 +115,13 @@ class Plan(Strict):
         return self.temperatures.moving
 
     @property
+    def judged_model(self) -> str:
+        """The calibration the plan judges and every listing names: acceptance.model, else the first of
+        fit.models."""
+        return (self.acceptance.model if self.acceptance is not None and self.acceptance.model
+                else self.fit.models[0])
+
+    @property
     def ramp(self) -> RampTemperatures | None:
         """The ramp settings of a continuous-ramp plan, None for temperature steps."""
         return self.temperatures if isinstance(self.temperatures, RampTemperatures) else None

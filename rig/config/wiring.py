@@ -5,8 +5,11 @@
                            ids or two baud rates on one serial line
 
 A segment is (simulated?, bus, switch address, channel), or (simulated?, bus, None, None) for the devices
-wired to the bus itself. Unmuxed simulated chips each get a bus of their own (rig/devices/bench.py), so they
-never clash. Real serial devices share a line when they name the same port; simulated ones by `line:`.
+wired to the bus itself. A simulated chip follows the rules of a real one: with an explicit `address` it
+sits on simulated bus `bus` (rig/devices/bench.py), where two chips at one address without a switch clash
+as they would on `kind: i2c`; only a simulated chip with neither `address` nor `mux` gets a bus of its own
+(nothing was said about its wiring). Real serial devices share a line when they name the same port;
+simulated ones by `line:`.
 """
 
 from __future__ import annotations
@@ -42,8 +45,8 @@ def i2c_problems(devices: list[tuple[tuple, Any]]) -> Iterator[Problem]:
             yield (*path, "transport"), f"{dev.device_type} is not an I2C device: no address or mux"
             continue
         sim = dev.simulated
-        if t.kind == "sim" and mux is None:
-            continue  # a simulated chip without a switch has a bus of its own
+        if t.kind == "sim" and mux is None and t.address is None:
+            continue  # no wiring stated: the simulated chip gets a bus of its own
         segment = (sim, t.bus, None if mux is None else mux.address, None if mux is None else mux.channel)
         if mux is not None:
             switches.setdefault((sim, t.bus), set()).add(mux.address)

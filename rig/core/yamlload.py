@@ -3,6 +3,9 @@
     load_model(Plan, "plan.yaml")  ->  Plan
     ConfigError("plan.yaml: temperatures.steps[2].stability.band_c: must be > 0 (line 14)")
 
+Every problem of a file is listed, one line each, in the order of the file; an unknown key close to a
+known one adds "did you mean 'samples_per_point'?".
+
 The line numbers come from the nodes `yaml.compose` builds (their start marks); the values come from
 the same composed nodes. Unknown keys are rejected by the models (extra="forbid").
 
@@ -15,7 +18,10 @@ names stay distinct after transformation (file names, C symbols).
 
 from __future__ import annotations
 
+import difflib
 import math
+import types
+import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -203,26 +209,81 @@ def _message(err: dict) -> str:
 
 
 def error_from_validation(exc: pydantic.ValidationError, data: object, lines: dict[KeyPath, int],
-                          source: str) -> ConfigError:
-    """One-line ConfigError for the first problem, saying how many more there are. Unknown keys come
-    first: a misspelt key also makes the real one "missing", and the misspelling is the news."""
-    errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
-    first = errors[0]
-    loc = tuple(first["loc"])
-    cause = first.get("ctx", {}).get("error")
+                          source: str, model: type[pydantic.BaseModel] | None = None) -> ConfigError:
+    """A ConfigError listing every problem, one line each (`FILE: key.path: what (line N)`), in the order
+    of the file; an unknown key near a known one says "did you mean". A misspelt key also makes the real
+    one "missing": that echo is left out, the misspelling is the news."""
+    found: dict[tuple[KeyPath, str], int] = {}  # (path, message) -> line, in order of discovery
+    suggested: set[KeyPath] = set()
+    for err in sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden"):
+        path, message, line = _problem(err, data, lines)
+        if err["type"] == "extra_forbidden" and model is not None:
+            near = did_you_mean(str(path[-1]), allowed_keys(model, tuple(err["loc"][:-1])))
+            if near is not None:
+                message += f"; did you mean {near!r}?"
+                suggested.add((*path[:-1], near))
+        if err["type"] == "missing" and path in suggested:
+            continue
+        found.setdefault((path, message), line or 0)
+    problems = sorted(found.items(), key=lambda item: item[1])
+    text = "\n".join(f"{source}: {format_path(path)}: {message}" + (f" (line {line})" if line else "")
+                     for (path, message), line in problems)
+    return ConfigError(text)
+
+
+def _problem(err: dict, data: object, lines: dict[KeyPath, int]) -> tuple[KeyPath, str, int | None]:
+    """(key path in the document, message, line) of one pydantic error."""
+    loc = tuple(err["loc"])
+    cause = err.get("ctx", {}).get("error")
     if isinstance(cause, KeyPathError):
-        loc, first = loc + cause.path, {"type": "blame", "msg": cause.message}
-    elif first["type"] == "union_tag_invalid":
-        loc += (first["ctx"]["discriminator"].strip("'"),)  # blame the `kind:` line itself
+        loc, err = loc + cause.path, {"type": "blame", "msg": cause.message}
+    elif err["type"] == "union_tag_invalid":
+        loc += (err["ctx"]["discriminator"].strip("'"),)  # blame the `kind:` line itself
     path, exists = _data_path(data, loc)
     line_path = path if exists else path[:-1]
     line = lines.get(line_path)
     while line is None and line_path:
         line_path = line_path[:-1]
         line = lines.get(line_path)
-    where = f" (line {line})" if line else ""
-    more = f" [and {len(errors) - 1} more problem(s)]" if len(errors) > 1 else ""
-    return ConfigError(f"{source}: {format_path(path)}: {_message(first)}{where}{more}")
+    return path, _message(err), line
+
+
+def did_you_mean(key: str, known: set[str]) -> str | None:
+    """The known key a misspelt one most likely meant, or None."""
+    close = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.75)
+    return close[0] if close else None
+
+
+def _members(t: Any) -> list[Any]:
+    """A type with Annotated, Optional and unions unwrapped into its alternatives."""
+    origin = typing.get_origin(t)
+    if origin is typing.Annotated:
+        return _members(typing.get_args(t)[0])
+    if origin in (typing.Union, types.UnionType):
+        return [m for a in typing.get_args(t) for m in _members(a)]
+    return [t]
+
+
+def allowed_keys(model: type[pydantic.BaseModel], loc: tuple) -> set[str]:
+    """The keys the mapping at `loc` (a pydantic error location) may hold: the fields (and aliases) of
+    the model(s) there. Parts of `loc` that are no key (a union's tag) are passed over."""
+    here: list[Any] = [model]
+    for part in loc:
+        step = []
+        for t in (m for h in here for m in _members(h)):
+            args = typing.get_args(t)
+            if isinstance(t, type) and issubclass(t, pydantic.BaseModel) and part in t.model_fields:
+                step.append(t.model_fields[part].annotation)
+            elif typing.get_origin(t) is dict and isinstance(part, str) and len(args) == 2:
+                step.append(args[1])
+            elif typing.get_origin(t) in (list, tuple) and isinstance(part, int) and args:
+                step.append(args[0])
+        here = step or here
+    out: set[str] = set()
+    for t in (m for h in here for m in _members(h)):
+        if isinstance(t, type) and issubclass(t, pydantic.BaseModel):
+            out |= {f.alias or name for name, f in t.model_fields.items()}
+    return out
 
 
 def line_of(lines: dict[KeyPath, int], path: KeyPath) -> int | None:
@@ -293,7 +354,7 @@ def load_model(model: type[M], path: str | Path, text: str | None = None) -> M:
     try:
         result = model.model_validate(data)
     except pydantic.ValidationError as exc:
-        raise error_from_validation(exc, data, lines, source) from None
+        raise error_from_validation(exc, data, lines, source, model) from None
     except (ArithmeticError, ValueError, TypeError) as exc:  # a model check that met numbers it cannot use
         raise ConfigError(located(source, lines, (), f"cannot use these values: {exc}")) from None
     return result

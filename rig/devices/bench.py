@@ -14,8 +14,9 @@ simulated probe beside a real DUT reads a mount that follows the simulated air.
 
 A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
 (drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.
-Muxed simulated chips (`{kind: sim, bus: 0, address: 0x30, mux: {address: 0x70, channel: 3}}`) share ONE
-simulated bus per bus number, with a TCA9548A model per switch, so the channel switching is exercised;
+Simulated chips wired explicitly (`{kind: sim, bus: 0, address: 0x30}`, or behind a switch with
+`mux: {address: 0x70, channel: 3}`) share ONE simulated bus per bus number, with a TCA9548A model per
+switch, so the channel switching is exercised (a chip without `address` or `mux` keeps a bus of its own);
 simulated serial devices naming the same `line:` share one pty (SerialMagLine), each by its device id.
 A chip behind a simulated USB-to-I2C bridge (`{kind: mcp2221 | cp2112 | ft232h, sim: true, ...}`) sits on
 that bridge's own simulated bus (its switches too); the bridge's simulator (drivers/sim/mcp2221.py,
@@ -191,7 +192,10 @@ class SimBench:
                     bus = self._world_bus(t.bus)
                     bus.chips[t.mux.address].attach(t.mux.channel, address, chip)
                     return I2cLink(muxed(bus, t.bus, t.mux, simulated=True), address)
-                bus = FakeSMBus()  # one bus per simulated chip: no address clashes between identical chips
+                if t.address is not None:  # wired explicitly: on simulated bus `bus`, as a real chip would be
+                    bus = self._world_bus(t.bus)
+                else:  # no wiring stated: a bus of its own, so identical chips never clash
+                    bus = FakeSMBus()
                 bus.attach(address, chip)
                 if faults is not None:
                     chip.faults = faults

@@ -176,7 +176,7 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
                 entry.expected[(*key_switch, link.address)] = dev.name
             elif "i2c" in kinds and dev.simulated:
                 link = bench.link(dev)
-                if mux is not None:
+                if mux is not None or t.address is not None:  # wired explicitly: its simulated bus
                     bus = bench.i2c_bus(t.bus)
                     entry = sim_buses.setdefault(bus, BusReport(f"i2c-{t.bus} (simulated)"))
                 else:

@@ -182,6 +182,11 @@ class FieldSourceConfig(DeviceConfig):
         """`rig check`'s lines on the reference chain; LimitError where the plan's accuracy target fails."""
         return []
 
+    def uncertainty_caveat(self) -> str | None:
+        """One line on what will dominate the calibrations' uncertainty before the run starts (e.g. an
+        uncommissioned source's declared tolerance), or None: `rig run` and `rig check` print it first."""
+        return None
+
     def budget_chain(self, run, dut: str, ds):
         """The budget's sources of the reference field for one DUT's data: an object whose
         `sources(notes)` lists calib.uncertainty Sources (rig/reference/budget.py RunInputs is `run`)."""

@@ -87,5 +87,20 @@ def session_rows(conn: psycopg.Connection, uid: str) -> tuple[dict, list[dict], 
     return meta, points, samples
 
 
+def session_tables(conn: psycopg.Connection, uid: str, names: tuple[str, ...]) -> dict[str, list[dict]]:
+    """{table: rows} of one pushed session's copies of these session tables (a table the database has
+    no copy of is left out), each without the `session_uid` column the fleet adds."""
+    out = {}
+    with conn.cursor(row_factory=dict_row) as cur:
+        for name in names:
+            found = cur.execute("SELECT to_regclass(%s) AS t", (f"{SCHEMA}.{name}",)).fetchone()
+            if found["t"] is None:
+                continue
+            rows = cur.execute(sql.SQL("SELECT * FROM {} WHERE session_uid = %s").format(
+                sql.Identifier(SCHEMA, name)), (uid,)).fetchall()
+            out[name] = [{k: v for k, v in r.items() if k != "session_uid"} for r in rows]
+    return out
+
+
 def session_uids(conn: psycopg.Connection, filters: Filters = Filters()) -> list[str]:
     return [row["uid"] for row in list_sessions(conn, filters)]

@@ -3,7 +3,10 @@ Dataset per DUT, each DUT is fitted, and every DUT gives one results row, failed
 
 The rows become a Dataset exactly as rig.session.reader.read_dataset makes one (done points in collection
 order, flagged samples left out, the DUT's temperature or else the reference sensor's, a group per temperature
-step), so a batch re-fit gives the parameters `rig refit` gives; the tests hold them to it.
+step), and each DUT is fitted through rig/analysis/sessionfit.py, as `rig refit` and the run's own fit do
+(the run's best ambient, a moving schedule's lag, the plan's robust option), from the session's other
+tables (`SessionTables`); so a batch re-fit gives the parameters `rig refit` gives; the tests hold them to
+it. The uncertainty budget (a Monte Carlo per DUT) is left out: the results table has no place for it.
 """
 
 from __future__ import annotations
@@ -30,6 +33,42 @@ def failed_row(*, session_uid: str, source: str, station: str | None, dut: str, 
     return row
 
 
+class SessionTables:
+    """A session's tables as rows (a file's snapshot, or the fleet database's copies), read as the fit
+    reads a session (rig/analysis/sessionfit.py: the SessionReader methods it uses)."""
+
+    def __init__(self, path: str, tables: dict[str, list[dict]]):
+        self.path = Path(path)
+        self.tables = tables
+
+    def info(self) -> dict:
+        out = dict(self.tables["session"][0])
+        for missing in ("plan_sha256", "station_sha256", "exit_code"):
+            out.setdefault(missing, None)
+        out["simulated"] = json.loads(out.get("simulated_json") or "{}")
+        return out
+
+    def points(self) -> list[dict]:
+        return sorted(self.tables.get("points", []), key=lambda p: p["idx"])
+
+    def events(self) -> list:
+        from rig.session.events import event_from_row
+
+        return [event_from_row(r) for r in sorted(self.tables.get("events", []), key=lambda r: r["id"])]
+
+    def snapshot(self, device: str) -> dict | None:
+        rows = [r for r in self.tables.get("snapshots", []) if r["device"] == device]
+        return json.loads(max(rows, key=lambda r: r["id"])["describe_json"]) if rows else None
+
+    def point_references(self) -> dict[str, dict]:
+        out = {}
+        for p in self.points():
+            stats = json.loads(p.get("settle_json") or "{}") if p["state"] == "done" else {}
+            if "reference" in stats:
+                out[p["id"]] = stats["reference"]
+        return out
+
+
 def refit_file(path: str, model: str, software_version: str) -> list[dict]:
     """Worker task: every DUT of the session file at `path`. A file that cannot be read is one failed
     row (dut "") naming the problem."""
@@ -37,8 +76,8 @@ def refit_file(path: str, model: str, software_version: str) -> list[dict]:
     try:
         snap = session_snapshot(path)
         uid, station = snap.uid, snap.session.get("station_name")
-        return fit_session(uid, path, station, snap.tables["points"].dicts(), snap.tables["samples"].dicts(),
-                           model, software_version)
+        tables = {name: table.dicts() for name, table in snap.tables.items()}
+        return fit_session(uid, path, station, SessionTables(path, tables), model, software_version)
     except Exception as exc:  # noqa: BLE001 - a bad session is a results row, never a lost batch
         return [failed_row(session_uid=uid, source=path, station=station, dut="", model=model,
                            software_version=software_version, reason=_reason(exc))]
@@ -49,7 +88,7 @@ _CONNECTIONS: dict[str, object] = {}  # per worker process: one connection per d
 
 def refit_db(url: str, uid: str, model: str, software_version: str) -> list[dict]:
     """Worker task: every DUT of one session in the fleet database."""
-    from rig.fleet.query import session_rows
+    from rig.fleet.query import session_rows, session_tables
     from rig.fleet.schema import connect
 
     try:
@@ -58,19 +97,24 @@ def refit_db(url: str, uid: str, model: str, software_version: str) -> list[dict
             conn = _CONNECTIONS[url] = connect(url, create=False)
         try:
             meta, points, samples = session_rows(conn, uid)
+            tables = {"points": points, "samples": samples,
+                      **session_tables(conn, uid, ("session", "events", "snapshots"))}
         except Exception:
             _CONNECTIONS.pop(url, None).close()  # a broken connection is not reused
             raise
-        return fit_session(uid, meta["source_path"], meta["station_name"], points, samples, model,
-                           software_version)
+        return fit_session(uid, meta["source_path"], meta["station_name"],
+                           SessionTables(meta["source_path"], tables), model, software_version)
     except Exception as exc:  # noqa: BLE001 - as in refit_file
         return [failed_row(session_uid=uid, source=url, station=None, dut="", model=model,
                            software_version=software_version, reason=_reason(exc))]
 
 
-def fit_session(uid: str, source: str, station: str | None, points: list[dict], samples: list[dict],
-                model: str, software_version: str) -> list[dict]:
-    datasets = dut_datasets(points, samples, source)
+def fit_session(uid: str, source: str, station: str | None, tables: SessionTables, model: str,
+                software_version: str) -> list[dict]:
+    from rig.analysis.sessionfit import SessionFitter
+
+    datasets = dut_datasets(tables.tables["points"], tables.tables["samples"], source)
+    fitter = SessionFitter.of(tables) if "session" in tables.tables else SessionFitter(None)
     if not datasets:
         return [failed_row(session_uid=uid, source=source, station=station, dut="", model=model,
                            software_version=software_version, reason=f"{source}: no samples yet")]
@@ -81,7 +125,7 @@ def fit_session(uid: str, source: str, station: str | None, points: list[dict], 
         try:
             if isinstance(ds, Exception):
                 raise ds
-            cal = calib.fit(ds, model, software_version=software_version)
+            cal = fitter.calibrate(fitter.prepare(ds), model, software_version=software_version, budget=False)
         except Exception as exc:  # noqa: BLE001 - one DUT's failure does not stop the others
             rows.append(failed_row(**base, reason=_reason(exc)))
             continue

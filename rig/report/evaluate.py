@@ -1,5 +1,7 @@
-"""One DUT judged: every model the data allows fitted (robust), the calibration to show chosen, its
-outliers found, the models compared on held-out points, and the data-quality warnings collected."""
+"""One DUT judged: the calibration to show (the one the run wrote, or the given file's; else one fitted
+here), its outliers found, the models re-fitted here and compared on held-out points (a session's: the
+plan's models with the plan's options; a calibration file's: every model the data allows, robust), and the
+data-quality warnings collected."""
 
 from __future__ import annotations
 
@@ -28,12 +30,15 @@ class DutResult:
     outliers: np.ndarray  # rows left out of the residuals shown (see heldout.outlier_rows)
     uncertainty: dict | None = None  # the budget to show (DutInput.uncertainty)
     uncertainty_of: str = ""
+    origin: str = ""  # DutInput.origin
+    others: list = dataclasses.field(default_factory=list)  # DutInput.others
+    robust: bool = True  # the comparison's re-fits
 
 
-def fit_model(ds, model: str):
+def fit_model(ds, model: str, robust: bool = True):
     import calib
 
-    return calib.fit(ds, model, robust=True)
+    return calib.fit(ds, model, robust=robust)
 
 
 def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
@@ -44,12 +49,18 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
     if heldout.reference_norm_nt(ds) is None:
         ds = _with_constant_norm(ds, d, warnings)
     fits, failures = {}, {}
-    for model in heldout.models_for(ds):
+    allowed = heldout.models_for(ds)
+    compared = [m for m in d.compare_models if m in allowed] if d.compare_models is not None else allowed
+
+    def refit(part, model):
+        return fit_model(part, model, d.compare_robust)
+
+    for model in compared:
         try:
-            fits[model] = fit_model(ds, model)
+            fits[model] = refit(ds, model)
         except (FitError, DataError) as exc:
             failures[model] = str(exc)
-    main = d.calibration or fits.get("t24") or next(iter(fits.values()), None)
+    main = d.calibration or next(iter(fits.values()), None)  # the first compared: the judged model
     if main is None:
         detail = "; ".join(f"{m}: {msg}" for m, msg in failures.items()) or "no reference in the data"
         raise FitError(f"{ds.source.get('path', d.name)}: DUT {d.name}: no model can be fitted ({detail})")
@@ -59,7 +70,7 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
     outliers = heldout.outlier_rows(main, err)
     # a model that cannot be fitted to all the data is not cross-validated: its row says why
     scores = [
-        heldout.cross_validate(ds, m, fit_model, folds, fits[m], outliers)
+        heldout.cross_validate(ds, m, refit, folds, fits[m], outliers)
         if m in fits
         else heldout.ModelScore(m, note=f"cannot fit: {failures[m]}")
         for m in MODELS
@@ -83,6 +94,9 @@ def analyse_dut(d: DutInput, steps_info: dict[int, StepInfo]) -> DutResult:
         outliers=outliers,
         uncertainty=d.uncertainty,
         uncertainty_of=d.uncertainty_of,
+        origin=d.origin,
+        others=d.others,
+        robust=d.compare_robust,
     )
 
 

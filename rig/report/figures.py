@@ -11,6 +11,7 @@ import io
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from rig.analysis.heldout import nearest_sample_deg
 
@@ -18,11 +19,20 @@ BEFORE_COLOUR = "tab:orange"
 AFTER_COLOUR = "tab:blue"
 OUTLIER_COLOUR = "tab:red"
 MAX_SCATTER_POINTS = 20000  # more points only slow the render; a seeded subsample looks the same
+# titles at a fixed height above their axes (no axis has ticks on top): placing them automatically
+# measured every tick label of every axis, a fifth of the report's time
+TITLE_Y = 1.0
 
 
-def new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), dpi=100, layout="constrained")
+def new_figure(width_in: float, height_in: float, *, left_in: float = 0.85, right_in: float = 0.25,
+               bottom_in: float = 0.6, top_in: float = 0.75, wspace: float = 0.25, hspace: float = 0.25
+               ) -> Figure:
+    """A figure with fixed margins in inches (room for labels, titles and a suptitle). A layout engine
+    would measure every text first and draw twice: it took half the report's time."""
+    fig = Figure(figsize=(width_in, height_in), dpi=100)
     FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=left_in / width_in, right=1 - right_in / width_in, bottom=bottom_in / height_in,
+                        top=1 - top_in / height_in, wspace=wspace, hspace=hspace)
     return fig
 
 
@@ -32,6 +42,16 @@ def png_bytes(fig: Figure, dpi: int = 100) -> bytes:
     fig.savefig(buf, format="png", dpi=dpi)
     fig.clear()
     return buf.getvalue()
+
+
+def _log_scale(axis, set_scale) -> None:
+    """A log axis ticked at 1, 2 and 5 of each decade, labelled as plain numbers (20, 50, 100), without
+    minor ticks: each tick is an artist of its own, and a log axis's default minor ticks and typeset
+    labels cost more to draw than the rest of its figure."""
+    set_scale("log")
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    axis.set_minor_locator(NullLocator())
 
 
 def _thin(n: int, limit: int = MAX_SCATTER_POINTS) -> np.ndarray:
@@ -66,7 +86,7 @@ def residuals_vs_temperature(
     x_label = "sample index" if temp_c is None else "DUT temperature (°C)"
     rows = _thin(n)
     mask = np.zeros(n, bool) if outliers is None else np.asarray(outliers, bool)
-    fig = new_figure(10, 2.3 * k + 0.6)
+    fig = new_figure(10, 2.3 * k + 1.4, hspace=0.12, wspace=0.22)
     axes = fig.subplots(k, 2, sharex=True, squeeze=False)
     for i, label in enumerate(labels):
         for j, (err, colour, when) in enumerate(
@@ -103,8 +123,8 @@ def residuals_vs_temperature(
             ax.set_ylabel(f"{label} error (nT)")
             ax.legend(loc="upper right", fontsize=8, markerscale=3)
             ax.grid(alpha=0.3)
-    axes[0, 0].set_title("before calibration (raw − reference)")
-    axes[0, 1].set_title("after calibration (calibrated − reference)")
+    axes[0, 0].set_title("before calibration (raw − reference)", y=TITLE_Y)
+    axes[0, 1].set_title("after calibration (calibrated − reference)", y=TITLE_Y)
     for ax in axes[-1]:
         ax.set_xlabel(x_label)
     if title:
@@ -126,7 +146,7 @@ def norm_error_histogram(before_nt: np.ndarray, after_nt: np.ndarray, title: str
 
     Two panels because the two spreads differ by orders of magnitude.
     """
-    fig = new_figure(10, 3.4)
+    fig = new_figure(10, 3.4, wspace=0.22)
     axes = fig.subplots(1, 2)
     for ax, err, colour, when in (
         (axes[0], before_nt, BEFORE_COLOUR, "before calibration"),
@@ -141,13 +161,14 @@ def norm_error_histogram(before_nt: np.ndarray, after_nt: np.ndarray, title: str
             err,
             bins=60,
             range=(lo, hi),
+            histtype="stepfilled",  # one outline, not 60 bars: the same picture for a tenth of the artists
             color=colour,
             alpha=0.85,
             label=f"mean {np.mean(err):.1f} nT\nRMS {_rms(err):.1f} nT\nN = {err.size}{note}",
         )
         ax.set_xlabel("|B| error (nT)")
         ax.set_ylabel("samples")
-        ax.set_title(when)
+        ax.set_title(when, y=TITLE_Y)
         ax.legend(loc="upper right", fontsize=8, handlelength=0)
         ax.grid(alpha=0.3)
     if title:
@@ -178,7 +199,7 @@ def direction_map(
     """
     az, el = azimuth_elevation_deg(direction_nt)
     resid = np.asarray(residual_nt, dtype=float)
-    fig = new_figure(11, 4.0)
+    fig = new_figure(11, 4.0, right_in=0.1, wspace=0.12)
     ax_cov, ax_res = fig.subplots(1, 2, sharey=True)
 
     grid_az, grid_el = np.meshgrid(np.linspace(-180, 180, 145), np.linspace(-90, 90, 73))
@@ -200,7 +221,8 @@ def direction_map(
     ax_cov.scatter(az, el, s=6 if len(az) < 500 else 1, color="black", label="sample directions")
     fig.colorbar(mesh, ax=ax_cov, label="angle to the nearest sample (deg)")
     gap_share = float(np.mean(dist > gap_deg))
-    ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample")
+    ax_cov.set_title(f"coverage: {100 * gap_share:.0f} % of the map > {gap_deg:g}° from any sample",
+                     y=TITLE_Y)
 
     rows = _thin(len(resid))
     finite = rows[np.isfinite(resid[rows])]
@@ -210,7 +232,7 @@ def direction_map(
         az[order], el[order], c=resid[order], s=14, cmap="viridis", vmin=0, vmax=vmax, rasterized=True
     )
     fig.colorbar(sc, ax=ax_res, extend="max", label=residual_label)
-    ax_res.set_title("error after calibration, by field direction")
+    ax_res.set_title("error after calibration, by field direction", y=TITLE_Y)
     for ax in (ax_cov, ax_res):
         ax.set_xlim(-180, 180)
         ax.set_ylim(-90, 90)
@@ -232,7 +254,7 @@ def model_comparison(
 ) -> Figure:
     """One panel per metric ("vector", "|B|"): bars per model, RMS on fitted and on held-out points (log)."""
     metrics = list(fit_rms_nt)
-    fig = new_figure(max(6.5, 5.0 * len(metrics) + 0.5), 4.0)
+    fig = new_figure(max(6.5, 5.0 * len(metrics) + 0.5), 4.0, top_in=0.9, wspace=0.3)
     axes = np.atleast_1d(fig.subplots(1, len(metrics), squeeze=False)[0])
     x = np.arange(len(models))
     width = 0.38
@@ -247,7 +269,7 @@ def model_comparison(
             drawn.append((bars, vals))
         finite = np.concatenate([vals[np.isfinite(vals)] for _, vals in drawn])
         floor = float(finite.min()) / 2 if finite.size else 0.1
-        ax.set_yscale("log")
+        _log_scale(ax.yaxis, ax.set_yscale)
         ax.set_ylim(floor, float(finite.max()) * 3 if finite.size else 10.0)
         for bars, vals in drawn:
             for bar, v in zip(bars, vals, strict=True):
@@ -262,7 +284,7 @@ def model_comparison(
         ax.set_xticks(x, [m.upper() for m in models])
         ax.set_xlim(-0.75, len(models) - 0.25)
         ax.set_ylabel(f"{metric} error RMS (nT)")
-        ax.set_title(f"{metric} error")
+        ax.set_title(f"{metric} error", y=TITLE_Y)
         ax.legend(fontsize=8, loc="upper left")
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(title or "model comparison")
@@ -273,16 +295,16 @@ def step_rms(
     temp_c: list[float], rms_before_nt: list[float], rms_after_nt: list[float], title: str = ""
 ) -> Figure:
     """Residual RMS per temperature step, before and after calibration (log scale)."""
-    fig = new_figure(6.5, 3.4)
+    fig = new_figure(6.5, 3.4, top_in=0.45)
     ax = fig.subplots()
     ax.plot(temp_c, rms_before_nt, "o-", color=BEFORE_COLOUR, label="before calibration")
     ax.plot(temp_c, rms_after_nt, "s-", color=AFTER_COLOUR, label="after calibration")
-    ax.set_yscale("log")
+    _log_scale(ax.yaxis, ax.set_yscale)
     ax.set_xlabel("temperature step (°C)")
     ax.set_ylabel("vector error RMS (nT)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    ax.set_title(title or "residual per temperature step")
+    ax.set_title(title or "residual per temperature step", y=TITLE_Y)
     return fig
 
 
@@ -292,7 +314,7 @@ def uncertainty_budget(sources: list[str], contributions_nt: list[float], combin
     combined standard uncertainty and the expanded (95 %) vector error, nT (log scale)."""
     labels = [*sources, "combined (standard)", "expanded (95 %)"]
     values = [*contributions_nt, combined_nt, expanded_nt]
-    fig = new_figure(6.5, 0.35 * len(labels) + 1.2)
+    fig = new_figure(6.5, 0.35 * len(labels) + 1.2, left_in=1.6, right_in=0.45, top_in=0.45, bottom_in=0.5)
     ax = fig.subplots()
     y = np.arange(len(labels))[::-1]
     colours = [BEFORE_COLOUR] * len(sources) + [AFTER_COLOUR, AFTER_COLOUR]
@@ -300,8 +322,8 @@ def uncertainty_budget(sources: list[str], contributions_nt: list[float], combin
     for yi, v in zip(y, values, strict=True):
         ax.text(max(v, 1e-3) * 1.1, yi, f"{v:.3g}", va="center", fontsize=8)
     ax.set_yticks(y, labels, fontsize=8)
-    ax.set_xscale("log")
+    _log_scale(ax.xaxis, ax.set_xscale)
     ax.set_xlabel("nT")
     ax.grid(alpha=0.3, axis="x")
-    ax.set_title(title or "uncertainty budget")
+    ax.set_title(title or "uncertainty budget", y=TITLE_Y)
     return fig

@@ -5,28 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 from rig.analysis import heldout
+from rig.analysis.judged import quality_of
 from rig.core.names import file_stem
-from rig.report import figures
+from rig.report import calsection, figures
+from rig.report.calsection import budget_rows, fmt
+from rig.report.calsection import number as _number
 from rig.report.evaluate import DutResult
 from rig.report.html import Image, Section, Table
 from rig.report.sources import StepInfo
 
-PARAM_UNITS = {
-    "S": "-",
-    "K": "1/°C",
-    "b_nt": "nT",
-    "kb_nt_per_c": "nT/°C",
-    "k": "-",
-    "angles_deg": "deg",
-    "A": "-",
-    "c_nt": "nT",
-    "KA_per_c": "1/°C",
-    "kc_nt_per_c": "nT/°C",
-}
-
 
 def _fmt(x: float, digits: int = 4) -> str:
-    return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}g}"
+    return fmt(x, digits)
 
 
 def summary_table(results: list[DutResult]) -> Table:
@@ -36,19 +26,24 @@ def summary_table(results: list[DutResult]) -> Table:
         kept = ~r.outliers
         before = r.errors.vector_before if vec else r.errors.norm_before
         after = r.errors.vector_after if vec else r.errors.norm_after
+        q = quality_of(r.main)
         rows.append(
             [
                 r.name,
-                r.main.model.upper(),
+                r.main.model.upper() + (" (the run's)" if _written_by_run(r) else ""),
                 str(len(r.ds)),
                 "vector" if vec else "|B|",
                 _fmt(heldout.rms(before[kept])),
                 _fmt(heldout.rms(after[kept])),
+                q.uncertainty_text(),
+                "-" if q.expanded_nt is None else ("RMS > U" if q.exceeds else "ok"),
+                q.dominant or "-",
                 str(int((~kept).sum())),
             ]
         )
     return Table(
-        ["DUT", "model shown", "samples", "error", "RMS before (nT)", "RMS after (nT)", "outliers"], rows
+        ["DUT", "calibration shown", "samples", "error", "RMS before (nT)", "RMS after (nT)",
+         "uncertainty (nT, k=2)", "check", "largest uncertainty contribution", "outliers"], rows
     )
 
 
@@ -132,7 +127,7 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
             f"{r.name}: error RMS of each model on its fitted points and on held-out points",
             f"{tag}_model_comparison.png",
         )
-    budget = _budget_rows(r.uncertainty)
+    budget = budget_rows(r.uncertainty)
     if budget:
         out["budget"] = _image(
             figures.uncertainty_budget([b[0] for b in budget], [b[1] for b in budget],
@@ -159,63 +154,42 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
 
 def dut_sections(r: DutResult, steps_info: dict[int, StepInfo]) -> list[Section]:
     img = dut_figures(r)
-    intro = f"{len(r.ds)} samples; residuals shown for the {r.main.model.upper()} calibration " + (
-        "given in the calibration file." if r.given else "fitted here (robust)."
-    )
+    robust = str(r.robust).lower()
     cv_text = (
-        f"Each model is fitted without one fold of the points and scored on that fold ({r.fold_text}); "
-        "the outliers of the calibration shown above are left out of every score. The scalar model "
-        "knows the field only up to a rotation, so it is scored on |B| only."
+        f"A comparison, not the calibration shown: each model re-fitted here (robust: {robust}) without one "
+        f"fold of the points and scored on that fold ({r.fold_text}); the outliers of the calibration shown "
+        "are left out of every score. The scalar model knows the field only up to a rotation, so it is "
+        "scored on |B| only."
     )
     optional = [img[k] for k in ("models",) if k in img]
-    return [
-        Section(f"DUT {r.name}", [intro, img["residuals"], img["histogram"], img["directions"]]),
-        Section(
-            "Models compared on held-out points", [cv_text, _comparison_table(r.scores), *optional], level=3
-        ),
+    sections = [
+        Section(f"DUT {r.name}", [*calsection.intro_blocks(r), img["residuals"], img["histogram"],
+                                  img["directions"]]),
+        Section("Parameters", [calsection.params_table(_shown_title(r), r.main)], level=3),
+        Section("Uncertainty",
+                [*calsection.uncertainty_blocks(r), *[img[k] for k in ("budget",) if k in img]], level=3),
+        Section("Model checks", calsection.check_blocks(r.main), level=3),
         Section(
             "Per temperature step",
             [step_table(r.steps, steps_info), *[img[k] for k in ("steps",) if k in img]],
             level=3,
         ),
-        Section("Uncertainty", [*_uncertainty_blocks(r), *[img[k] for k in ("budget",) if k in img]],
-                level=3),
-        Section("Parameters", [_params_table(name, cal) for name, cal in _param_sets(r)], level=3),
     ]
+    if r.others:
+        sections.append(Section("The run's other calibrations", [calsection.others_table(r.others)], level=3))
+    sections.append(Section(f"Comparison: models re-fitted here (robust: {robust}) on held-out points",
+                            [cv_text, _comparison_table(r.scores), *optional], level=3))
+    return sections
 
 
-def _number(x: object) -> float:
-    try:
-        value = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return float("nan")
-    return value if np.isfinite(value) else float("nan")
+def _written_by_run(r: DutResult) -> bool:
+    return r.origin.startswith("the run's")
 
 
-def _budget_rows(uncertainty: dict | None) -> list[tuple[str, float, str]]:
-    """[(source, contribution nT, note)] of a budget; [] without one."""
-    if not uncertainty:
-        return []
-    return [(str(b.get("source", "?")), _number(b.get("contribution_nt")), str(b.get("note", "")))
-            for b in uncertainty.get("budget") or [] if isinstance(b, dict)]
-
-
-def _uncertainty_blocks(r: DutResult) -> list:
-    """The budget table (and its notes), or why there is none."""
-    rows = _budget_rows(r.uncertainty)
-    if not rows:
-        return ["No uncertainty budget: the calibration states none (calibrations from a campaign carry "
-                "one; see rig/reference/budget.py)."]
-    u = r.uncertainty
-    k = _number(u.get("coverage_factor"))
-    table = Table(["input", "standard uncertainty of the field (nT)", "how it was drawn"],
-                  [[name, _fmt(value, 3), note] for name, value, note in rows]
-                  + [["combined", _fmt(_number(u.get("combined_standard_nt")), 3), str(u.get("method", ""))],
-                     [f"expanded (k = {_fmt(k, 2)})", _fmt(_number(u.get("expanded_vector_error_nt")), 3),
-                      "95 % of the calibrated field's error lengths, plan's fields and temperatures"]],
-                  f"Uncertainty budget of {r.uncertainty_of}")
-    notes = [f"Note: {n}" for n in u.get("notes") or []]
-    return [table, *notes]
+def _shown_title(r: DutResult) -> str:
+    if _written_by_run(r):
+        return "the calibration the run wrote"
+    return "the given calibration" if r.given else f"fitted here (robust: {str(r.robust).lower()})"
 
 
 def _comparison_table(scores: list[heldout.ModelScore]) -> Table:
@@ -298,29 +272,3 @@ def step_table(steps: list[heldout.StepRow], info: dict[int, StepInfo]) -> Table
             ]
         )
     return Table(STEP_HEADERS, rows)
-
-
-def _param_sets(r: DutResult) -> list[tuple[str, object]]:
-    sets = [("given calibration", r.main)] if r.given else []
-    return sets + [(f"fitted here ({m.upper()}, robust)", cal) for m, cal in r.fits.items()]
-
-
-def _params_table(title: str, cal) -> Table:
-    rows = []
-    expanded = (getattr(cal, "uncertainty", None) or {}).get("expanded") or {}
-    for key, value in cal.params.items():
-        values = np.asarray(value, dtype=float)
-        errors = np.asarray(cal.std_errors.get(key, np.full(values.shape, np.nan)), dtype=float)
-        big_u = np.asarray(expanded.get(key, np.full(values.shape, np.nan)), dtype=float)
-        unit = PARAM_UNITS.get(key, "")
-        for index in np.ndindex(values.shape):
-            label = key + "".join(f"[{i + 1}]" for i in index)
-            se = errors[index] if errors.shape == values.shape else np.nan
-            u = big_u[index] if big_u.shape == values.shape else np.nan
-            rows.append([label, f"{values[index]:.8g}", _fmt(se, 3), _fmt(u, 3), unit])
-    stats = cal.stats if isinstance(cal.stats, dict) else {}
-    tref = "" if cal.temp_ref_c is None else f", internal reference temperature {cal.temp_ref_c:.4g} °C"
-    caption = (
-        f"{cal.model.upper()}: {title}; RMS after {_fmt(stats.get('rms_after_nt', float('nan')))} nT{tref}"
-    )
-    return Table(["parameter", "value", "std error", "expanded uncertainty (k = 2)", "unit"], rows, caption)

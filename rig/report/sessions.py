@@ -9,7 +9,7 @@ from pathlib import Path
 from rig.report.sources import utc
 from rig.session.events import Reason
 
-WIDTHS = (28, 17, 16, 16, 18, 12, 14)  # file, started, station, DUTs, points, exit, acceptance; last fit
+WIDTHS = (28, 17, 16, 16, 18, 12, 14)  # file, started, station, DUTs, points, exit, acceptance; judged fit
 
 
 def _row(*cells: str) -> str:
@@ -18,7 +18,7 @@ def _row(*cells: str) -> str:
 
 
 COLUMNS = ("file", "started (UTC)", "station", "DUTs", "points done", "exit", "acceptance",
-           "last fit residual")
+           "judged calibration (the plan's model)")
 HEADER = _row(*COLUMNS)
 
 
@@ -34,25 +34,22 @@ def session_line(path: Path) -> str:
 def session_cells(path: Path) -> list[str]:
     """The COLUMNS of one session (`rig sessions` and the cockpit's list); SessionError as above."""
     from rig.analysis.acceptance import verdict_text
+    from rig.analysis.judged import judged_cell, judged_fits
     from rig.session.reader import SessionReader
 
     with SessionReader(path) as reader:
         s = reader.summary()
         accepted = verdict_text(reader.acceptance())
+        judged = judged_cell(*judged_fits(reader))
     points = f"{s['points_done']}/{s['points_planned']}"
     if s["points_failed"]:
         points += f" ({s['points_failed']} failed)"
-    fit = s["last_fit"]
-    if fit is None:
-        last = "no fit"
-    else:
-        rms = fit.get("residual_rms_nt")
-        last = f"{fit['dut']} {fit['model']} " + ("(no residual)" if rms is None else f"{rms:.4g} nT RMS")
     started = utc(s.get("wall_started") or s["started"]).removesuffix(" UTC")[:16]
     exit_status = s["exit_status"] or "not finished"
     if s["exit_code"] and s["exit_code"] != Reason.COMPLETED:  # why it stopped, as a code
         exit_status += f" ({s['exit_code']})"
-    return [path.name, started, s["station"], ",".join(s["duts"]) or "-", points, exit_status, accepted, last]
+    duts = ",".join(s["duts"]) or "-"
+    return [path.name, started, s["station"], duts, points, exit_status, accepted, judged]
 
 
 def skipped_line(path: Path, reason: str) -> str:

@@ -48,6 +48,10 @@ class DutInput:
     # that of the session's own calibration of this DUT
     uncertainty: dict | None = None
     uncertainty_of: str = ""
+    origin: str = ""  # where the calibration shown comes from (its file, its sha256), in words
+    others: list = field(default_factory=list)  # the run's other calibrations (rig/report/recorded.py)
+    compare_models: tuple[str, ...] | None = None  # the models re-fitted for the comparison (None: all)
+    compare_robust: bool = True  # the comparison's fits: robust or not
 
 
 @dataclass
@@ -83,7 +87,9 @@ def listed(items: list[str]) -> str:
 
 def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     """Everything the report needs from one session file (read-only)."""
-    from rig.session.reader import SessionReader
+    from rig.analysis.sessionfit import SessionFitter
+    from rig.report.recorded import recorded_calibrations
+    from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
 
     path = Path(path)
     with SessionReader(path) as reader:
@@ -93,34 +99,28 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
             raise SessionError(f"{path}: the session holds no samples yet; nothing to report")
         info, points, events, snapshots = reader.info(), reader.points(), reader.events(), reader.snapshots()
         acceptance = [r for r in reader.acceptance() if r["dut"] in names]
-        budgets = _recorded_budgets(reader.fits())
-        duts = []
-        for name in names:
-            ds = reader.dataset(name)
-            _, rows = reader.sample_rows(name)
-            flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
-            model, budget = budgets.get(name, (None, None))
-            duts.append(DutInput(name, ds, None, flagged, flagged_rows, budget,
-                                 f"the session's {model.upper()} calibration" if model else ""))
+        fitter = SessionFitter.of(reader)  # the data as the run's fits saw it (run's ambient, lag)
+        recorded = {name: recorded_calibrations(reader, name) for name in names}
+        duts = [_session_dut(reader, name, fitter, recorded[name]) for name in names]
     steps = _steps(points, events)
     warnings = _session_warnings(summary, points, events, steps)
+    warnings += [f"{name}: {r.warning}" for name in names for r in recorded[name].values() if r.warning]
     started = utc(info.get("wall_started") or info["started"])
+    sim_clock = runs_on_simulated_clock(info["simulated"])
     provenance = [
-        ("session", f"{path.name} (started {started})"),
+        ("station", f"{info['station_name']} ({info['station_path'] or 'path not recorded'}): "
+                    + simulated_text(info["simulated"]) + ("; on a simulated clock" if sim_clock else "")),
+        ("session", f"{path.name} (started {started}, wall clock)"),
         ("session file sha256", duts[0].dataset.source.get("sha256") or sha256_of(path)),
-        ("station", f"{info['station_name']} ({info['station_path'] or 'path not recorded'})"),
         ("station text sha256", sha256_text(info["station_text"])),
         ("plan", f"{info['plan_name']} ({info['plan_path'] or 'path not recorded'})"),
         ("plan text sha256", sha256_text(info["plan_text"])),
         ("operator", info["operator"] or "-"),
         (
-            "simulated devices",
-            ", ".join(k for k, v in info["simulated"].items() if v) or "none",
-        ),
-        (
             "run",
             f"{started} to {utc(info.get('wall_ended') or info['ended'])} (wall clock); "
-            f"{_duration(info['started'], info['ended'])} on the rig's clock; "
+            f"{_duration(info['started'], info['ended'])} on the "
+            f"{'simulated clock' if sim_clock else 'run clock'}; "
             f"exit {info['exit_status'] or 'not recorded'}"
             + (f" ({info['exit_reason']})" if info["exit_reason"] else ""),
         ),
@@ -137,17 +137,25 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     return ReportInputs(title, duts, steps, warnings, provenance, acceptance)
 
 
-def _recorded_budgets(fits: list[dict]) -> dict[str, tuple[str, dict]]:
-    """{DUT: (model, uncertainty)} of the session's own latest calibrations, T24 preferred."""
-    out: dict[str, tuple[str, dict]] = {}
-    for fit in fits:
-        try:
-            uncertainty = json.loads(fit["calibration_json"]).get("uncertainty")
-        except (ValueError, AttributeError):
-            continue
-        if uncertainty and (fit["dut"] not in out or fit["model"] == "t24" or out[fit["dut"]][0] != "t24"):
-            out[fit["dut"]] = (fit["model"], uncertainty)
-    return out
+def _session_dut(reader, name: str, fitter, recorded: dict) -> DutInput:
+    """One DUT of a session: its data as the run's fits saw it, and the calibration of the plan's judged
+    model the run wrote (else, before the run's fits, none: the report fits one itself)."""
+    plan = fitter.plan
+    ds = fitter.prepare(reader.dataset(name)).ds
+    _, rows = reader.sample_rows(name)
+    flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
+    judged = plan.judged_model if plan is not None else next(iter(recorded), None)
+    shown = recorded.get(judged)
+    compare = tuple(plan.fit.models) if plan is not None else None
+    robust = plan.fit.robust if plan is not None else True
+    d = DutInput(name, ds, None if shown is None else shown.calibration, flagged, flagged_rows,
+                 compare_models=compare, compare_robust=robust)
+    if shown is not None:
+        what = f"the run's {judged.upper()} calibration"
+        d.origin = f"{what} (the model the plan judges): {shown.file_text()}"
+        d.uncertainty, d.uncertainty_of = shown.calibration.uncertainty, what
+        d.others = [r for m, r in recorded.items() if m != judged]
+    return d
 
 
 def _devices(snapshots: list[dict]) -> list[tuple[str, str]]:
@@ -287,8 +295,10 @@ def from_calibration(
         ("report made with", f"magrig {__version__}"),
     ]
     title = f"Calibration report: {name} ({cal_path.name} on {data_path.name})"
+    origin = (f"the {cal.model.upper()} calibration given in the calibration file {cal_path.name} "
+              f"(sha256 {sha256_of(cal_path)})")
     return ReportInputs(title, [DutInput(name, ds, cal, flagged, flagged_rows, cal.uncertainty,
-                                         "the calibration file's")], {}, warnings, provenance)
+                                         "the calibration file's", origin)], {}, warnings, provenance)
 
 
 def _drop_flagged(ds):

@@ -39,6 +39,7 @@ from rig.schedules.sequential import decided_points
 from rig.session.events import Kind, Reason
 from rig.session.inbox import Inbox
 from rig.session.lock import SessionLock
+from rig.session.reader import simulated_text
 
 log = logging.getLogger("magrig.campaign")
 
@@ -51,6 +52,7 @@ class RunOutcome:
     stale_lock_pid: int | None = None
     wall_s: float = 0.0
     verdicts: list = field(default_factory=list)  # rig.analysis.acceptance.Verdict per DUT
+    judged_model: str | None = None  # the calibration the plan judges (Plan.judged_model)
 
 
 def load_from_session(path: str | Path, info: dict | None = None) -> tuple[cfg.Plan, cfg.Station]:
@@ -185,8 +187,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
         session.log_event(Kind.STALE_LOCK, f"previous run (pid {lock.stale_pid}) died without finishing; "
                           "hardware made safe, lock taken over", code=Reason.STALE_LOCK, level="WARNING",
                           pid=lock.stale_pid)
-    session.log_event(Kind.START, ("resumed" if resume else "started") + f" with every device made safe; "
-                      f"simulated: {rig.simulated}", code=Reason.RESUMED if resume else Reason.STARTED,
+    session.log_event(Kind.START, ("resumed" if resume else "started") + " with every device made safe; "
+                      + simulated_text(rig.simulated), code=Reason.RESUMED if resume else Reason.STARTED,
                       simulated=rig.simulated)
     for dev in rig.devices():
         session.record_snapshot(dev.name, dev.describe())
@@ -212,7 +214,7 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     if runner.site is not None and result.status == COMPLETED:  # the field source is at its safe setting
         runner.site.check_at_end(session.log_event)
     record_final_state(rig, session)
-    outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid)
+    outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid, judged_model=plan.judged_model)
     if result.status == COMPLETED:
         outcome.fits = postrun.fit_session(session, plan, rig.station)
         if plan.acceptance is not None:

@@ -2,7 +2,9 @@
 
 LiveDisplay: a rich Live panel refreshed a few times a second: current point and step, chamber and DUT
 temperatures, what the temperatures are doing, recent events, ETA, and the streaming T24 fit of each DUT.
-PlainLog: one line per recorded point (stdout is not a terminal, or --no-live).
+PlainLog: progress lines (stdout is not a terminal, or --no-live): the first recorded point, then at most
+one line every `every_s` seconds of wall time (a log or a pipe is read by people and programs, not
+watched point by point); `every_s = 0` writes one line per point (`rig run --progress-every 0`).
 Both are context managers built by `make_display(status, runner, live=...)`; the runner calls their
 `point_done(point_id)` after each stored point.
 """
@@ -22,6 +24,7 @@ from rig.engine.executor import RunStatus
 # DUT rows the live panel shows; with more DUTs it shows those with the largest live residual and a count
 # (a 64-DUT table fills no screen, and redrawing it four times a second cost a third of a core)
 MAX_DUT_ROWS = 8
+PLAIN_PROGRESS_EVERY_S = 5.0  # piped output: at most one progress line this often (wall clock)
 
 
 def temperatures_text(temps_c: dict[str, float]) -> str:
@@ -111,13 +114,22 @@ class LiveDisplay:
 
 
 class PlainLog:
-    def __init__(self, status: RunStatus, runner, stream=None):
+    def __init__(self, status: RunStatus, runner, stream=None, every_s: float = PLAIN_PROGRESS_EVERY_S,
+                 monotonic=time.monotonic):
         self.status = status
         self.runner = runner
         self.progress = _Progress(status)
         self.stream = stream or sys.stdout
+        self.every_s = every_s
+        self.monotonic = monotonic  # the display's own pace, injectable (tests): not the run's clock
+        self._last_line: float | None = None
 
     def point_done(self, point_id: str) -> None:
+        now = self.monotonic()
+        last = self.status.points_done + 1 >= self.status.points_total
+        if self._last_line is not None and now - self._last_line < self.every_s and not last:
+            return
+        self._last_line = now
         s = self.status
         temps = (temperatures_text(s.dut_temps_c) if len(s.dut_temps_c) > MAX_DUT_ROWS
                  else " ".join(f"{k}={v:.2f}C" for k, v in s.dut_temps_c.items()))
@@ -134,8 +146,10 @@ class PlainLog:
         return None
 
 
-def make_display(status: RunStatus, runner, *, live: bool):
-    """The live panel when asked for and stdout is a terminal; plain per-point lines otherwise."""
+def make_display(status: RunStatus, runner, *, live: bool, progress_every_s: float | None = None):
+    """The live panel when asked for and stdout is a terminal; plain progress lines otherwise, at most one
+    every `progress_every_s` seconds (default PLAIN_PROGRESS_EVERY_S; 0: one per point)."""
     if live and sys.stdout.isatty():
         return LiveDisplay(status, runner)
-    return PlainLog(status, runner)
+    every = PLAIN_PROGRESS_EVERY_S if progress_every_s is None else progress_every_s
+    return PlainLog(status, runner, every_s=every)

@@ -78,14 +78,18 @@ class PlanCheck:
     prediction: Any = None  # a designed schedule's predicted errors (calib.planner.Schedule), for figures
     size_line: str | None = None  # the schedule's own first line, when points x fields does not say it
 
+    def duration_text(self) -> str:
+        """`1h29m (to and at the ends 49m48s, ...)`: the estimate and its parts."""
+        return (f"{format_duration(self.duration_s)} ("
+                + ", ".join(f"{k} {format_duration(v)}" for k, v in self.breakdown_s.items()) + ")")
+
     def summary_lines(self) -> list[str]:
         lines = [
             self.size_line or
             f"{len(self.points)} points = {self.n_temperatures} {self.temperatures_word} x {self.n_fields} "
             "fields; "
             f"{self.samples_per_dut} samples per DUT, {self.n_duts} DUT(s)",
-            f"estimated duration {format_duration(self.duration_s)} ("
-            + ", ".join(f"{k} {format_duration(v)}" for k, v in self.breakdown_s.items()) + ")",
+            f"estimated duration {self.duration_text()}",
         ]
         lines += self.source_lines
         lines += [f"warning: {w}" for w in self.warnings]

@@ -349,19 +349,23 @@ def predicted_lines(plan: Plan, station: Station, targets_nt: list[tuple[float, 
     return schedule, schedule_lines(schedule, inputs)
 
 
+# the units of the T24 parameter groups a design aims at (S is a ratio: no unit)
+TARGET_UNITS = {"S": "", "K": " /degC", "b": " nT", "kb": " nT/degC"}
+
+
 def schedule_lines(schedule: Schedule, inputs: DesignInputs) -> list[str]:
     """Largest predicted standard error over the DUTs per group at the end of every leg, and which DUT."""
     groups = schedule.groups
     targets = inputs.targets
     lines = ["predicted standard errors (largest over the DUTs) against chamber time; targets "
-             + ", ".join(f"{g} {targets[g]:g}" for g in groups) + ":"]
+             + ", ".join(f"{g} {targets[g]:g}{TARGET_UNITS.get(g, '')}" for g in groups) + ":"]
     ends = np.cumsum([leg.sweeps for leg in schedule.legs]) - 1
     for j, end in enumerate(ends):
         worst = {g: max(schedule.ratios[d][end][i] for d in schedule.ratios) for i, g in enumerate(groups)}
         leg = schedule.legs[j]
         what = f"leg {j + 1} ({leg.to_c:g} degC{', check' if leg.kind == CHECK else ''})"
         lines.append(f"  {format_duration(schedule.sweep_end_s[end]):>7} after {what}: "
-                     + ", ".join(f"{g} {worst[g] * targets[g]:.3g}" for g in groups))
+                     + ", ".join(f"{g} {worst[g] * targets[g]:.3g}{TARGET_UNITS.get(g, '')}" for g in groups))
     lines.append(f"  {schedule.message}")
     for d in inputs.duts:
         lines.append(f"  {d.name}: noise {d.sigma_nt:.3g} nT, lag {d.lag_s:.0f} s ({inputs.origins[d.name]})")

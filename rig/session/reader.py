@@ -285,6 +285,23 @@ class SessionReader:
         }
 
 
+def runs_on_simulated_clock(simulated: dict[str, bool]) -> bool:
+    """A station whose every device is simulated runs on a simulated clock (rig/devices/build.py
+    station_clock): its run-clock times are not wall-clock times."""
+    return bool(simulated) and all(simulated.values())
+
+
+def simulated_text(simulated: dict[str, bool]) -> str:
+    """`every device simulated (a, b)`, `simulated: a; real: b`, or `every device real (a, b)`."""
+    sim = [name for name, v in simulated.items() if v]
+    real = [name for name, v in simulated.items() if not v]
+    if not real:
+        return f"every device simulated ({', '.join(sim)})" if sim else "no devices recorded"
+    if not sim:
+        return f"every device real ({', '.join(real)})"
+    return f"simulated: {', '.join(sim)}; real: {', '.join(real)}"
+
+
 def read_dataset(path: str | Path, dut: str | None = None):
     """One DUT's samples of a session file as a calib Dataset (opens and closes the reader)."""
     with SessionReader(path) as reader:

@@ -124,7 +124,8 @@ def sessions_page(app) -> str:
 # --- one session -------------------------------------------------------------------------------------------
 def session_page(app, ref: SessionRef) -> str:
     from rig.analysis.acceptance import verdict_text
-    from rig.session.reader import SessionReader
+    from rig.analysis.judged import judged_cell, judged_fits, quality
+    from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
     from rig.web.downloads import CALIBRATION_KINDS, SAMPLES_KIND, recorded_fits
 
     with SessionReader(ref.path) as reader:
@@ -133,11 +134,21 @@ def session_page(app, ref: SessionRef) -> str:
         accepted = reader.acceptance()
         fits = recorded_fits(reader)
         events = reader.events()
+        judged_model, judged = judged_fits(reader)
+    sim_clock = runs_on_simulated_clock(s["simulated"])
     running = running_pid(ref.path) is not None
     state = "running" if running else (s["exit_status"] or "not finished")
+
+    def on_clocks(wall: float | None, run: float | None) -> str:
+        """The wall-clock time, and the simulated clock's beside it when the run had one."""
+        if wall is None:
+            return "-"
+        return _utc(wall) + (f" (simulated clock {_utc(run)})" if sim_clock and run is not None else "")
+
     summary = [
-        ["plan", esc(s["plan"])], ["station", esc(s["station"])], ["started", esc(_utc(s["wall_started"]))],
-        ["ended", esc(_utc(s["wall_ended"]) if s["wall_ended"] else "-")],
+        ["plan", esc(s["plan"])], ["station", esc(s["station"])],
+        ["started", esc(on_clocks(s["wall_started"], s["started"]))],
+        ["ended", esc(on_clocks(s["wall_ended"], s["ended"]))],
         ["state", _live_text("s-state", state + (f" ({s['exit_code']})" if s["exit_code"] not in (None, state)
                                                  and not running else ""))],
         ["exit reason", _live_text("s-reason", s["exit_reason"] or "-")],
@@ -145,7 +156,10 @@ def session_page(app, ref: SessionRef) -> str:
                                    (f" ({s['points_failed']} failed)" if s["points_failed"] else ""))],
         ["DUTs", esc(", ".join(s["duts"]) or "-")], ["acceptance", esc(verdict_text(accepted))],
         ["operator", esc(s["operator"] or "-")], ["software", esc(info["software_version"])],
-        ["simulated devices", esc(", ".join(k for k, v in s["simulated"].items() if v) or "none")],
+        ["station file", esc(info["station_path"] or "not recorded")],
+        ["devices", esc(simulated_text(s["simulated"]) + (
+            "; on a simulated clock (event and fit times are that clock's)" if sim_clock else ""))],
+        ["judged calibration", esc(judged_cell(judged_model, judged))],
     ]
     badge = ' <span id="run-state" class="badge state-running">running</span>' if running else ""
     parts = [
@@ -167,16 +181,25 @@ def session_page(app, ref: SessionRef) -> str:
     cal_rows = []
     for (dut, model), fit in sorted(fits.items()):
         try:
-            stats = json.loads(fit["calibration_json"]).get("stats", {})
+            recorded = json.loads(fit["calibration_json"])
         except ValueError:
-            stats = {}
+            recorded = {}
+        stats = recorded.get("stats", {})
+        q = quality(stats, recorded.get("uncertainty"))
         links = " ".join(
             f'<a href="{esc(_download_url(ref, kind, dut, model))}" download>{esc(label)}</a>'
             for kind, (label, _, _) in CALIBRATION_KINDS.items())
-        cal_rows.append([esc(dut), esc(model), esc(stats.get("n_used", "-")),
-                         esc(_fmt(fit["residual_rms_nt"])), esc(_utc(fit["t"])), links])
-    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "fitted", "downloads"], cal_rows,
-                          raw_cells=True) if cal_rows else '<p class="muted">no calibration recorded yet</p>')
+        check = ("-" if q.expanded_nt is None else
+                 f'<span class="bad">RMS &gt; U: {esc(q.exceeds_text())}</span>' if q.exceeds else "ok")
+        fitted = str(recorded.get("created_utc") or "-") + (
+            f" (simulated clock {_utc(fit['t'])})" if sim_clock else "")
+        cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_model else "")),
+                         esc(stats.get("n_used", "-")), esc(_fmt(fit["residual_rms_nt"])),
+                         esc(q.uncertainty_text()), check, esc(q.dominant or "-"), esc(fitted), links])
+    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, k=2)",
+                           "check", "largest uncertainty contribution", "fitted (wall clock, UTC)",
+                           "downloads"], cal_rows, raw_cells=True)
+                    if cal_rows else '<p class="muted">no calibration recorded yet</p>')
     parts.append(f"<section><h2>Calibrations</h2>{calibrations}</section>")
     sample_links = " ".join(f'<a href="{esc(_download_url(ref, SAMPLES_KIND, dut))}" download>{esc(dut)}</a>'
                             for dut in s["duts"])
@@ -187,7 +210,8 @@ def session_page(app, ref: SessionRef) -> str:
             for e in reversed(shown)]
     note = (f'<p class="muted">the newest {len(shown)} of {len(events)} events</p>'
             if len(events) > len(shown) else "")
-    header = ["time (run clock, UTC)", "kind", "code", "point", "device", "message"]
+    header = ["time (simulated clock)" if sim_clock else "time (UTC)", "kind", "code", "point", "device",
+              "message"]
     listing = table(header, rows, cls="events").replace('<table class="events">',
                                                         '<table class="events" id="event-table">', 1)
     parts.append(f"<section><h2>Events</h2>{note}{listing}</section>")

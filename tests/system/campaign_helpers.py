@@ -71,6 +71,15 @@ def killed_at(session, plan, station, at: str) -> list[str]:
     return [line.split()[1] for line in out.splitlines() if line.startswith("point ")]
 
 
+def first_point_line(proc: subprocess.Popen) -> str:
+    """The progress line of the first recorded point (`rig run` names its station first), or "" when the
+    run ended before one."""
+    for line in iter(proc.stdout.readline, ""):
+        if " done (" in line:
+            return line
+    return ""
+
+
 def popen_rig(*args: str) -> subprocess.Popen:
     return subprocess.Popen(rig_cmd(*args), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             stdin=subprocess.DEVNULL, text=True)

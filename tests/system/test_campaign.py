@@ -21,6 +21,7 @@ from tests.system.campaign_helpers import (
     SIM_STATION,
     events,
     final_snapshots,
+    first_point_line,
     popen_rig,
     run_rig,
     session_counts,
@@ -85,7 +86,7 @@ def test_interrupt_ends_with_coils_off_and_chamber_at_safe_setpoint(tmp_path, si
     session = tmp_path / "run.session"
     plan = small_plan(tmp_path, samples=20)
     proc = popen_rig("run", str(plan), "--station", str(station), "--session", str(session), "--no-live")
-    first = proc.stdout.readline()  # the first point is recorded: the run is in full swing
+    first = first_point_line(proc)  # the first point is recorded: the run is in full swing
     assert "done" in first, proc.stderr.read()
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)

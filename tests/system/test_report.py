@@ -120,10 +120,17 @@ def test_report_of_a_simulated_campaign(tmp_path, capsys):
     steps = re.findall(r" (\d) (-?\d+) -?\d+\.\d\d 130 26/26 (\d+\.\d) yes ", text)
     assert [(s, t) for s, t, _ in steps[:4]] == [("1", "-20"), ("2", "0"), ("3", "25"), ("4", "60")]
     assert all(float(minutes) > 1 for _, _, minutes in steps)
-    assert "station sim (configs/stations/sim.yaml)" in text and "simulated devices chamber, coils" in text
+    assert "station sim (configs/stations/sim.yaml): every device simulated (chamber, coils" in text
     assert "device mmc0 MMC5983MA" in text  # the device snapshots the campaign recorded
     summary = re.search(
-        r"<td>mmc0</td><td>T24</td><td>520</td><td>vector</td><td>[\d.]+</td><td>([\d.]+)</td>", html
+        r"<td>mmc0</td><td>T24 \(the run&#x27;s\)</td><td>520</td><td>vector</td><td>[\d.]+</td>"
+        r"<td>([\d.]+)</td>", html
     )
     assert float(summary.group(1)) < 60  # the simulated noise is 40 nT per axis
+    # the demo's fields let every model of its plan be fitted and checked on held-out points
+    assert "could not be fitted" not in text and "cannot be fitted" not in text
+    comparison = text[text.index("Comparison: models re-fitted here (robust: false)"):]
+    assert re.search(r" T24 [\d.]+ [\d.]+ [\d.]+ [\d.]+ 5 ", comparison)
+    assert re.search(r" P12 [\d.]+ [\d.]+ [\d.]+ [\d.]+ 5 ", comparison)
+    assert "linearity in temperature holds" in text
     capsys.readouterr()

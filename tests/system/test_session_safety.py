@@ -12,7 +12,7 @@ import pytest
 
 from rig.session.events import Kind
 from rig.session.reader import SessionReader
-from tests.system.campaign_helpers import REPO, SIM_STATION, rig_cmd, run_rig, small_plan
+from tests.system.campaign_helpers import REPO, SIM_STATION, first_point_line, rig_cmd, run_rig, small_plan
 
 pytestmark = pytest.mark.system
 
@@ -42,7 +42,7 @@ def test_a_completed_session_is_not_resumed_and_an_edited_plan_is_refused(tmp_pa
     argv = rig_cmd("run", str(plan), "--station", str(SIM_STATION), "--session", str(stopped), "--no-live")
     proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             stdin=subprocess.DEVNULL, text=True)
-    proc.stdout.readline()
+    first_point_line(proc)
     proc.send_signal(signal.SIGTERM)
     proc.communicate(timeout=60)
     plan.write_text(plan.read_text().replace("samples_per_point: 3", "samples_per_point: 9")

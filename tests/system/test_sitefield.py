@@ -23,6 +23,7 @@ from tests.helpers.statistics import assert_within_std_errors
 from tests.system.campaign_helpers import (
     DEMO_PLAN,
     REPO,
+    first_point_line,
     popen_rig,
     query,
     run_rig,
@@ -161,7 +162,7 @@ def test_a_resumed_run_measures_again_with_the_calibration_beside_the_recorded_s
     session = tmp_path / "resume.session"
     proc = popen_rig("run", str(small_plan(tmp_path, samples=5)), "--station", str(STATION),
                      "--session", str(session), "--no-live")
-    first = proc.stdout.readline()
+    first = first_point_line(proc)
     assert "done" in first, proc.stderr.read()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)

@@ -212,18 +212,24 @@ class Coils(FieldSourceConfig, CoilOptions):
                                       for name, m in self.matrices_at(positions_mm).items()}}
 
     def reference_check_lines(self, station, plan, warnings: list[str]) -> list[str]:
-        """The declared matrix's assumed uncertainty, and the coil field's non-uniformity over the DUT
-        positions: LimitError (blamed on the station's position_mm) above plan.accuracy_ppm."""
-        lines = []
-        if self.commissioned is None:
-            lines.append(f"coil matrix as declared (not commissioned): the uncertainty budget takes "
-                         f"{self.constants_uncertainty_ppm:g} ppm per element; `rig commission` measures it")
+        """The coil field's non-uniformity over the DUT positions: LimitError (blamed on the station's
+        position_mm) above plan.accuracy_ppm. (An uncommissioned matrix's declared uncertainty is the
+        `uncertainty_caveat` line, printed first.)"""
+        lines: list[str] = []
         if self.geometry is None:
             if any(d.position_mm is not None for d in station.duts):
                 warnings.append("DUT positions are stated but field_source has no geometry: the coil field "
                                 "is taken as uniform")
             return lines
         return lines + nonuniformity_lines(self.geometry, station, plan)
+
+    def uncertainty_caveat(self) -> str | None:
+        if self.commissioned is not None:
+            return None
+        ppm = self.constants_uncertainty_ppm
+        return (f"the coils are not commissioned: each coil constant is taken as uncertain by its declared "
+                f"{ppm:g} ppm ({ppm / 1e4:g} %), which will dominate every calibration's uncertainty; "
+                "`rig commission` measures the coils (configs/stations/sim-commissioned.yaml shows how)")
 
     def budget_chain(self, run, dut: str, ds):
         from rig.fieldsources.coils.budget import CoilChain

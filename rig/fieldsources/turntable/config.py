@@ -185,6 +185,12 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     def commissioning_lines(self, section) -> list[str]:
         return commissioning.summary_lines(section)
 
+    def uncertainty_caveat(self) -> str | None:
+        if self.commissioned is not None:
+            return None
+        return ("the turntable is not commissioned: its axes are taken as drawn, so the calibrations' "
+                "uncertainty leaves out their tilts and zero offsets; `rig commission` measures them")
+
     def budget_chain(self, run, dut: str, ds):
         from rig.fieldsources.turntable.budget import TableChain
 

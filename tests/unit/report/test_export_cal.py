@@ -75,7 +75,11 @@ def test_json_export_round_trips_the_parameters(tmp_path, capsys):
     for key, value in cal.params.items():
         np.testing.assert_array_equal(np.array(doc["params"][key]), value)
     assert doc["flight_form"]["equation"] == "B = M(tau) (h - o(tau))"
-    assert doc["flight_form"]["temp_ref_c"] == cal.temp_ref_c
+    if "KA_per_c" in cal.params:  # the equation subtracts tau_0_c: the export says so
+        assert doc["flight_form"]["tau"] == "temp_c - tau_0_c"
+        assert doc["flight_form"]["tau_0_c"] == doc["tau_0_c"] == cal.temp_ref_c
+    else:
+        assert doc["flight_form"]["tau"] == "not used" and "tau_0_c" not in doc["flight_form"]
     capsys.readouterr()
 
 

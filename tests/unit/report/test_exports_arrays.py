@@ -59,7 +59,7 @@ def test_scalar_header_with_temperature_terms(tmp_path):
     rng = np.random.default_rng(6)
     A0, A1 = np.eye(3) + rng.normal(0, 0.02, (3, 3)), rng.normal(0, 1e-4, (3, 3))
     c0, c1 = rng.normal(0, 300, 3), rng.normal(0, 3, 3)
-    form = inverse_form("scalar", A0, c0, A1, c1, temp_ref_c=20.0)
+    form = inverse_form("scalar", A0, c0, A1, c1, tau_0_c=20.0)
     h, t = _samples(rng)
     want = np.array([(A0 + (ti - 20) * A1) @ (hi - c0 - (ti - 20) * c1) for hi, ti in zip(h, t, strict=True)])
     np.testing.assert_allclose(form.apply(h, t), want, rtol=1e-12)

@@ -101,13 +101,13 @@ def test_unknown_key_is_rejected_with_its_line(tmp_path):
     text = PLAN.replace("BAND", "0.3").replace("samples_per_point", "sample_per_point")
     path = write(tmp_path, "plan.yaml", text)
     msg = error_of(load_plan, path)
-    assert msg.startswith(f"{path}: sample_per_point: unknown key (line 12)")
+    assert msg == f"{path}: sample_per_point: unknown key; did you mean 'samples_per_point'? (line 12)"
 
 
 def test_unknown_key_deep_in_a_union_member(tmp_path):
     text = STATION.replace("bus: 1, address: 0x30", "bus: 1, adress: 0x30")
     msg = error_of(load_station, write(tmp_path, "station.yaml", text))
-    assert "duts[0].transport.adress: unknown key (line 15)" in msg
+    assert "duts[0].transport.adress: unknown key; did you mean 'address'? (line 15)" in msg
 
 
 def test_missing_key_names_the_key_and_its_parent_line(tmp_path):

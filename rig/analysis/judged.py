@@ -1,0 +1,137 @@
+"""The calibration a session's plan judges, and what a calibration's numbers mean, in the words every
+display uses: `rig run`'s summary, `rig sessions`, the cockpit, the report and the C header read them
+here, so they give one answer.
+
+    model, fits = judged_fits(reader)      # the plan's judged model, each DUT's last recorded fit of it
+    q = quality(cal.stats, cal.uncertainty)
+    q.rms_nt, q.expanded_nt, q.exceeds, q.dominant   # residual, stated uncertainty, flag, what dominates
+
+The phrase for what dominates an uncertainty comes from the calibration's own budget lines (their
+source and note), never from the station or its simulator.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+from rig.core.errors import ERRORS
+
+MAX_NAMED_DUTS = 3  # a listing's cell names each DUT's residual up to this many, else the largest
+
+# what to do about the largest budget line: (source, words its note must contain, advice)
+ADVICE = (
+    ("coil matrix", "not commissioned", "run `rig commission`"),
+    ("table axes", "not commissioned", "run `rig commission`"),
+    ("fit (statistical)", "", "more samples per point, or a quieter sensor"),
+)
+
+
+def _number(x: object) -> float | None:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        return None
+    return float(x)
+
+
+@dataclass(frozen=True)
+class Quality:
+    """A calibration's residual beside the uncertainty it states."""
+
+    rms_nt: float | None
+    expanded_nt: float | None  # the stated expanded (k = 2) vector error over the plan's fields
+    dominant: str | None  # what dominates that uncertainty, in one phrase
+    coverage_factor: float | None = None
+
+    @property
+    def exceeds(self) -> bool:
+        """The fit's residual is larger than the error it claims: the model does not describe the sensor
+        to its stated uncertainty, or the sensor's noise alone is larger than it."""
+        return self.rms_nt is not None and self.expanded_nt is not None and self.rms_nt > self.expanded_nt
+
+    def exceeds_text(self) -> str:
+        """One sentence for a flagged fit ("" when it is not flagged)."""
+        if not self.exceeds:
+            return ""
+        k = f"k = {self.coverage_factor:g}" if self.coverage_factor else "expanded"
+        return (f"residual RMS {self.rms_nt:.1f} nT is above its stated uncertainty "
+                f"{self.expanded_nt:.1f} nT ({k}): the fit leaves more than the budget states (a model "
+                "error, or noise above the stated uncertainty)")
+
+    def uncertainty_text(self) -> str:
+        return "-" if self.expanded_nt is None else f"{self.expanded_nt:.1f}"
+
+
+def quality(stats: dict | None, uncertainty: dict | None) -> Quality:
+    stats = stats if isinstance(stats, dict) else {}
+    u = uncertainty if isinstance(uncertainty, dict) else {}
+    return Quality(_number(stats.get("rms_after_nt")), _number(u.get("expanded_vector_error_nt")),
+                   dominant_phrase(u), _number(u.get("coverage_factor")))
+
+
+def quality_of(cal) -> Quality:
+    """Of a calib Calibration, or of its dict (a calibration file's or a session's record)."""
+    if isinstance(cal, dict):
+        return quality(cal.get("stats"), cal.get("uncertainty"))
+    return quality(cal.stats, cal.uncertainty)
+
+
+def dominant_phrase(uncertainty: dict | None) -> str | None:
+    """The largest line of the budget in one phrase, e.g. "coil matrix 1227 nT (declared, 10000 ppm per
+    element: not commissioned): run `rig commission`"; None without a budget."""
+    lines = [b for b in (uncertainty or {}).get("budget") or []
+             if isinstance(b, dict) and _number(b.get("contribution_nt")) is not None]
+    if not lines:
+        return None
+    top = max(lines, key=lambda b: b["contribution_nt"])
+    source, note = str(top.get("source", "?")), str(top.get("note") or "")
+    text = f"{source} {top['contribution_nt']:.4g} nT" + (f" ({note})" if note else "")
+    advice = next((a for s, words, a in ADVICE if s == source and words in note), None)
+    return text + (f": {advice}" if advice else "")
+
+
+# --- a session's judged calibration ------------------------------------------------------------------
+def judged_model(info: dict, models_recorded: list[str]) -> str | None:
+    """The model the session's recorded plan judges (rig.config.Plan.judged_model); for a plan that can no
+    longer be read, the first model recorded."""
+    from rig.config import Plan
+    from rig.core.yamlload import load_model
+
+    try:
+        return load_model(Plan, "recorded plan", info["plan_text"]).judged_model
+    except (*ERRORS, KeyError):
+        return models_recorded[0] if models_recorded else None
+
+
+def judged_fits(reader) -> tuple[str | None, dict[str, dict]]:
+    """(judged model, {DUT: its last recorded fit of that model, `calibration` parsed}) of a session."""
+    fits = reader.fits()
+    model = judged_model(reader.info(), list(dict.fromkeys(f["model"] for f in fits)))
+    out: dict[str, dict] = {}
+    for fit in fits:
+        if fit["model"] != model:
+            continue
+        try:
+            calibration = json.loads(fit["calibration_json"])
+        except (ValueError, TypeError):
+            calibration = {}
+        out[fit["dut"]] = {**fit, "calibration": calibration if isinstance(calibration, dict) else {}}
+    return model, out
+
+
+def judged_cell(model: str | None, fits: dict[str, dict]) -> str:
+    """The judged calibration's residual in one cell: `t24 RMS: mmc0 29.0, serial0 17.4 nT`, or the largest
+    of many DUTs; flagged DUTs named after `RMS > U:`."""
+    if model is None or not fits:
+        return "no fit" if model is None else f"no {model} fit"
+    rms = {dut: fit.get("residual_rms_nt") for dut, fit in fits.items()}
+    known = {d: r for d, r in rms.items() if r is not None}
+    if not known:
+        text = f"{model} (no residual)"
+    elif len(known) <= MAX_NAMED_DUTS:
+        text = f"{model} RMS: " + ", ".join(f"{d} {r:.1f}" for d, r in known.items()) + " nT"
+    else:
+        worst = max(known, key=known.get)
+        text = f"{model} RMS: largest {known[worst]:.1f} nT ({worst}) of {len(known)} DUTs"
+    flagged = [d for d, fit in fits.items() if quality_of(fit["calibration"]).exceeds]
+    return text + (f" [RMS > U: {', '.join(flagged)}]" if flagged else "")

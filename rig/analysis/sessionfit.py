@@ -1,0 +1,117 @@
+"""The one way a session's DUT is calibrated: the post-run fit (rig/analysis/postrun.py), `rig refit
+SESSION`, `rig refit-all` (rig/fleet/refit.py) and the report's data all go through here, so they give
+the same calibration from the same session.
+
+    fitter = SessionFitter.of(reader)                # what the session says of its reference chain and plan
+    prepared = fitter.prepare(ds)                    # references with the run's best ambient; lag-corrected
+    cal = fitter.calibrate(prepared, "t24", robust=None, software_version=__version__)
+
+`reader` is a rig.session.reader.SessionReader, or anything with its `path`, `info()`, `points()`,
+`events()`, `snapshot(name)` and `point_references()` (the fleet's copies of a session's tables:
+rig/fleet/refit.py). Options left as None are the session's recorded plan's (robust).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rig.core.errors import ERRORS, ConfigError
+
+
+@dataclass
+class Prepared:
+    """One DUT's data as every fit of the session sees it, and what was done to it."""
+
+    ds: Any  # calib.dataset.Dataset
+    ambient: dict | None = None  # the run's ambient model the references were remade with
+    lag: dict | None = None  # the thermal lag estimate (a schedule that samples while the temperature moves)
+
+
+@dataclass
+class SessionFitter:
+    inputs: Any  # rig.reference.budget.RunInputs, or None when the recorded plan or station cannot be read
+
+    @classmethod
+    def of(cls, reader) -> SessionFitter:
+        from rig.reference.budget import RunInputs
+
+        try:
+            return cls(RunInputs.of_session(reader))
+        except ConfigError:
+            return cls(None)
+
+    @property
+    def plan(self):
+        return None if self.inputs is None else self.inputs.plan
+
+    @property
+    def moving(self) -> bool:
+        """The plan sampled while the temperature moved: each DUT's thermal lag is estimated and applied."""
+        return self.plan is not None and self.plan.moving
+
+    def prepare(self, ds, *, lag: bool = True) -> Prepared:
+        """The references made with the run's best ambient (rig/reference/ambient.py) where the session
+        allows, and on a moving schedule the element's temperature (rig/analysis/lagfit.py)."""
+        ambient = None
+        if self.inputs is not None:
+            ds, ambient = self.inputs.refined(ds)
+        info = None
+        if lag and self.moving:
+            from rig.analysis.lagfit import lag_corrected
+
+            ds, info = lag_corrected(ds)
+        return Prepared(ds, ambient, info)
+
+    def robust(self, robust: bool | None) -> bool:
+        return robust if robust is not None else bool(self.plan is not None and self.plan.fit.robust)
+
+    def calibrate(self, prepared: Prepared, model: str, *, robust: bool | None = None,
+                  software_version: str = "unknown", budget: bool = True, **fit_options):
+        """calib.fit with the session's options, then what every session calibration carries: the lag
+        estimate, T24's linearity check, the ambient used and (with `budget`) the uncertainty budget."""
+        import calib
+
+        ds = prepared.ds
+        cal = calib.fit(ds, model, robust=self.robust(robust), software_version=software_version,
+                        **fit_options)
+        if prepared.lag is not None:
+            from rig.analysis.lagfit import annotate
+
+            annotate(cal, prepared.lag)
+        if model == "t24":  # the model check the plan's interior temperatures are for
+            check_linearity(cal, ds)
+        if prepared.ambient is not None:
+            cal.stats["ambient"] = prepared.ambient
+        if budget:
+            state_uncertainty(self.inputs, ds.source.get("dut", ""), ds, cal)
+        return cal
+
+
+def state_uncertainty(inputs, dut: str, ds, cal) -> None:
+    """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
+    budget that cannot be made is a warning in its stats, never a lost calibration."""
+    from calib.uncertainty import statistical_only
+
+    try:
+        if inputs is None:
+            cal.uncertainty = statistical_only(ds, cal)
+            cal.uncertainty["notes"] = ["the session's recorded plan or station cannot be read: the "
+                                        "reference's own uncertainty is not in this budget"]
+        else:
+            cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
+    except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
+        cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
+
+
+def check_linearity(cal, ds) -> None:
+    """T24's linearity in temperature (calib/linearity.py) in the calibration's stats; a warning when it
+    does not hold."""
+    from calib.linearity import linearity
+
+    check = linearity(ds.h_nt, ds.temp_c, ds.ref_nt)
+    cal.stats["linearity"] = check
+    if check["holds"] is False:
+        cal.stats["warnings"] = [*cal.stats.get("warnings", []), check["message"]]

@@ -1,0 +1,107 @@
+"""What `rig run` says before and after a campaign, as lines and table rows (the CLI prints them):
+which station (its file), whether it is simulated (and which devices), what will dominate the
+uncertainty, and after the run each calibration's residual beside its stated uncertainty, flagged where
+the residual is the larger, with what dominates that uncertainty in one phrase.
+
+    header_lines(station, station_path)        # before the first point
+    outcome_lines(outcome), calibration_rows(outcome), calibration_files(outcome),
+    calibration_notes(outcome)                                                        # after the run
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rig.analysis.judged import quality_of
+from rig.core.errors import ERRORS
+from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
+
+CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, k=2)", "check")
+LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models); "
+          "uncertainty: the calibrated field's expanded error (95 %); check: RMS > U where the residual "
+          "exceeds it")
+
+
+def station_line(name: str, path: str | Path | None, simulated: dict[str, bool]) -> str:
+    clock = ("; on a simulated clock: hours of chamber time pass in seconds of wall time"
+             if runs_on_simulated_clock(simulated) else "")
+    return f"station {name} ({path or 'path not recorded'}): {simulated_text(simulated)}{clock}"
+
+
+def header_lines(station, station_path: str | Path | None) -> list[str]:
+    """The first lines of a run: the station and, when there is one, why the uncertainties will be large."""
+    lines = [station_line(station.name, station_path, station.simulated_devices())]
+    caveat = station.field_source.uncertainty_caveat()
+    return lines + ([f"note: {caveat}"] if caveat else [])
+
+
+def outcome_lines(outcome) -> list[str]:
+    """The session, its status, and its times: the wall clock, and a simulated clock beside it."""
+    r = outcome.result
+    clock = ""
+    try:
+        with SessionReader(outcome.session_path) as reader:
+            info = reader.info()
+    except ERRORS:
+        info = None
+    if info is not None and runs_on_simulated_clock(info["simulated"]) and info["ended"] is not None:
+        clock = f" ({(info['ended'] - info['started']) / 3600:.2f} h on the simulated clock)"
+    lines = [f"session {outcome.session_path}: {r.status} ({r.reason}); {r.points_done} points; "
+             f"wall time {outcome.wall_s:.1f} s{clock}"]
+    if info is not None:
+        lines.append(station_line(info["station_name"], info["station_path"], info["simulated"]))
+    return lines
+
+
+def judged_model(outcome) -> str | None:
+    return getattr(outcome, "judged_model", None)
+
+
+def calibration_rows(outcome) -> list[list[str]]:
+    """One row per fit: the judged model marked (the one the plan judges: acceptance.model, else the first
+    of fit.models), the residual beside the stated uncertainty, and the check (`RMS > U` where the
+    residual is the larger)."""
+    rows = []
+    judged = judged_model(outcome)
+    for f in outcome.fits:
+        cal = f.get("calibration")
+        q = quality_of(cal) if cal is not None else None
+        rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
+        check = ("not fitted" if q is None else "-" if q.expanded_nt is None
+                 else "RMS > U" if q.exceeds else "ok")
+        model = f["model"] + (" (judged)" if f["model"] == judged else "")
+        rows.append([f["dut"], model, str(f.get("n", "-")), rms, "-" if q is None else q.uncertainty_text(),
+                     check])
+    return rows
+
+
+def calibration_files(outcome) -> list[str]:
+    """Each file written, on a line of its own (operators copy them), or why a fit has none."""
+    return [f"wrote {f['path']}" if f.get("path") else
+            f"{f['dut']} {f['model']}: not fitted: {f.get('error')}" for f in outcome.fits]
+
+
+def calibration_notes(outcome) -> list[str]:
+    """Under the table: what dominates each judged calibration's uncertainty, and every flagged fit."""
+    judged = judged_model(outcome)
+    lines, dominant = [], {}
+    for f in outcome.fits:
+        cal = f.get("calibration")
+        if cal is None:
+            continue
+        q = quality_of(cal)
+        if f["model"] == judged and q.dominant:
+            dominant.setdefault(q.dominant, []).append(f["dut"])
+        if q.exceeds:
+            lines.append(f"{f['dut']} {f['model']}: {q.exceeds_text()}")
+    shared = [f"uncertainty of {', '.join(duts)} {judged}: largest contribution {phrase}"
+              for phrase, duts in dominant.items()]
+    return [LEGEND, *shared, *lines]
+
+
+def next_steps(outcome) -> list[str]:
+    """What a user does next with a completed session."""
+    if not outcome.fits:
+        return []
+    return [f"next: rig report {outcome.session_path} -o report/   (the report: figures, budgets, checks); "
+            f"rig sessions {Path(outcome.session_path).parent}   (every session there)"]
