@@ -108,11 +108,18 @@ def c_header(
     description = c_comment_text(description) if description else ""
     has_t_m = form.matrix_per_c is not None
     has_t_o = form.offset_nt_per_c is not None
+    has_t2_m = getattr(form, "matrix_per_c2", None) is not None
+    has_t2_o = getattr(form, "offset_nt_per_c2", None) is not None
     has_tau = has_t_m or has_t_o
     equation = "B = M(tau) (h - o(tau))" if form.offset_first else "B = M(tau) h + o(tau)"
     if not has_tau:
         tau_lines = [f" * {equation.replace('(tau)', '')}; this model has no temperature terms: temp_c is "
                      "ignored."]
+    elif has_t2_m or has_t2_o:
+        tau_lines = [f" * {equation}, with M(tau) = M + tau*M_PER_C + tau^2*M_PER_C2,",
+                     " * o(tau) = O + tau*O_PER_C + tau^2*O_PER_C2,",
+                     " * tau = temp_c, the DUT temperature in degC as measured (absolute: nothing is",
+                     " * subtracted from it);"]
     elif form.tau_0_c is None:
         tau_lines = [f" * {equation}, with M(tau) = M + tau*M_PER_C, o(tau) = O + tau*O_PER_C,",
                      " * tau = temp_c, the DUT temperature in degC as measured (absolute: nothing is",
@@ -152,8 +159,16 @@ def c_header(
         lines.append(_c_array(f"{macro}_M_PER_C", form.matrix_per_c))
     if has_t_o:
         lines.append(_c_array(f"{macro}_O_PER_C", form.offset_nt_per_c))
+    if has_t2_m:
+        lines.append(_c_array(f"{macro}_M_PER_C2", form.matrix_per_c2))
+    if has_t2_o:
+        lines.append(_c_array(f"{macro}_O_PER_C2", form.offset_nt_per_c2))
     m_term = f"{macro}_M[i][j] + tau * {macro}_M_PER_C[i][j]" if has_t_m else f"{macro}_M[i][j]"
     o_term = f"{macro}_O[i] + tau * {macro}_O_PER_C[i]" if has_t_o else f"{macro}_O[i]"
+    if has_t2_m:
+        m_term += f" + tau * tau * {macro}_M_PER_C2[i][j]"
+    if has_t2_o:
+        o_term += f" + tau * tau * {macro}_O_PER_C2[i]"
     v_term = f"h_nt[i] - ({o_term})" if form.offset_first else "h_nt[i]"
     if not has_tau:
         tau_decl = "    (void)temp_c;"

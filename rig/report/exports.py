@@ -5,9 +5,9 @@ Every model is brought to one "flight form" a small computer evaluates with a fe
 
     tau = temp_c             (T24: the DUT temperature in degC as measured, the file's `tau: absolute_c`)
     tau = temp_c - tau_0_c   (a model whose equation subtracts a constant: the scalar model's tau_0_c)
-    M   = matrix + tau * matrix_per_c            (3x3)
-    o   = offset_nt + tau * offset_nt_per_c      (3)
-    B   = M h + o          (T24: S, K, b, kb)
+    M   = matrix + tau * matrix_per_c (+ tau^2 * matrix_per_c2)           (3x3)
+    o   = offset_nt + tau * offset_nt_per_c (+ tau^2 * offset_nt_per_c2)  (3)
+    B   = M h + o          (T24: S, K, b, kb; T36: also K2, kb2)
     B   = M (h - o)        (P12: M = (Q P)^-1, o = b; scalar: its matrix and centre)
 
 Temperature terms are omitted when the model has none. Text from the calibration file is hostile until
@@ -57,6 +57,8 @@ class FlightForm:
     matrix_per_c: np.ndarray | None = None
     offset_nt_per_c: np.ndarray | None = None
     tau_0_c: float | None = None  # None: tau is temp_c as measured
+    matrix_per_c2: np.ndarray | None = None  # T36's quadratic terms
+    offset_nt_per_c2: np.ndarray | None = None
 
     def apply(self, h_nt: np.ndarray, temp_c: np.ndarray | float | None) -> np.ndarray:
         """The same arithmetic as the C function, in numpy: rows of h_nt (N, 3) to field (N, 3)."""
@@ -67,6 +69,10 @@ class FlightForm:
         o = self.offset_nt[None] + tau[:, None] * (
             0 if self.offset_nt_per_c is None else self.offset_nt_per_c
         )
+        if self.matrix_per_c2 is not None:
+            m = m + (tau**2)[:, None, None] * self.matrix_per_c2
+        if self.offset_nt_per_c2 is not None:
+            o = o + (tau**2)[:, None] * self.offset_nt_per_c2
         v = h - o if self.offset_first else h
         out = np.einsum("nij,nj->ni", m, v)
         return out if self.offset_first else out + o
@@ -75,6 +81,12 @@ class FlightForm:
 def t24_form(S: np.ndarray, K: np.ndarray, b_nt: np.ndarray, kb_nt_per_c: np.ndarray) -> FlightForm:
     """T24 in the absolute-tau convention: B = (S + tau K) h + b + tau kb."""
     return FlightForm("t24", _mat(S), _vec(b_nt), False, _mat(K), _vec(kb_nt_per_c), None)
+
+
+def t36_form(S, K, K2, b_nt, kb_nt_per_c, kb2_nt_per_c2) -> FlightForm:
+    """T36 in the absolute-tau convention: B = (S + tau K + tau^2 K2) h + b + tau kb + tau^2 kb2."""
+    return FlightForm("t36", _mat(S), _vec(b_nt), False, _mat(K), _vec(kb_nt_per_c), None,
+                      _mat(K2), _vec(kb2_nt_per_c2))
 
 
 def inverse_form(
@@ -136,6 +148,10 @@ def form_dict(form: FlightForm) -> dict:
         d["matrix_per_c"] = form.matrix_per_c.tolist()
     if form.offset_nt_per_c is not None:
         d["offset_nt_per_c"] = form.offset_nt_per_c.tolist()
+    if form.matrix_per_c2 is not None:
+        d["matrix_per_c2"] = form.matrix_per_c2.tolist()
+    if form.offset_nt_per_c2 is not None:
+        d["offset_nt_per_c2"] = form.offset_nt_per_c2.tolist()
     return d
 
 
@@ -194,12 +210,14 @@ def flight_form(cal) -> FlightForm:
     p = cal.params
     if cal.model == "t24":
         return t24_form(p["S"], p["K"], p["b_nt"], p["kb_nt_per_c"])
+    if cal.model == "t36":
+        return t36_form(p["S"], p["K"], p["K2"], p["b_nt"], p["kb_nt_per_c"], p["kb2_nt_per_c2"])
     if cal.model == "p12":
         return inverse_form("p12", np.linalg.inv(models.p12_matrix(p["k"], p["angles_deg"])), p["b_nt"])
     if cal.model == "scalar":
         return inverse_form("scalar", p["A"], p["c_nt"], p.get("KA_per_c"), p.get("kc_nt_per_c"),
                             cal.equation_keys().get("tau_0_c"))
-    raise DataError(f"cannot export model {cal.model!r} (known: t24, p12, scalar)")
+    raise DataError(f"cannot export model {cal.model!r} (known: t24, t36, p12, scalar)")
 
 
 def header_notes(cal) -> list[str]:

@@ -15,7 +15,7 @@ from tests.unit.report.ccheck import max_relative_error, run_header
 
 
 def _fitted(model: str, rng):
-    if model == "t24":
+    if model in ("t24", "t36"):  # t36 fitted to T24 data: its tau^2 terms small, not zero
         ds, _ = synthetic.t24_dataset(rng, samples_per_point=2)
     elif model == "p12":
         ds, _ = synthetic.p12_dataset(rng, samples_per_point=2)
@@ -28,9 +28,9 @@ def _samples(rng, n=50):
     return rng.normal(0, 40_000, (n, 3)), rng.uniform(-30, 70, n)
 
 
-@pytest.mark.parametrize("model", ["t24", "p12", "scalar"])
+@pytest.mark.parametrize("model", ["t24", "t36", "p12", "scalar"])
 def test_header_matches_rig_apply(model, tmp_path, capsys):
-    rng = np.random.default_rng({"t24": 1, "p12": 2, "scalar": 3}[model])
+    rng = np.random.default_rng({"t24": 1, "t36": 6, "p12": 2, "scalar": 3}[model])
     cal_path = tmp_path / "cal.yaml"
     calfile.save(_fitted(model, rng), cal_path)
     h, t = _samples(rng)
@@ -48,6 +48,7 @@ def test_header_matches_rig_apply(model, tmp_path, capsys):
     assert max_relative_error(from_c, applied) < 1e-6
     text = header.read_text()
     assert f"model: {model}" in text and "#ifndef MAGRIG_MAG_CAL_H" in text
+    assert ("MAG_CAL_M_PER_C2" in text) == (model == "t36")
     assert "static inline void mag_cal_apply(" in text
     capsys.readouterr()
 
