@@ -25,13 +25,18 @@ from rig.core.yamlload import KeyPathError
 
 
 class Stability(Strict):
-    """When a temperature step counts as stable, judged on each DUT's own temperature: within band_c of
-    the setpoint, changing slower than rate_c_per_min, both for dwell_s; give up after max_wait_s."""
+    """When a temperature step counts as stable, judged on each DUT's own temperature against where it
+    settles (rig/engine/stability.py): changing slower than rate_c_per_min and holding within band_c of its
+    own level, both for dwell_s, that level within max_offset_c of the set point (a DUT's place may be
+    warmer or colder than the air); give up after max_wait_s."""
 
     band_c: bounded(gt=0, hi=100.0) = 0.5
     rate_c_per_min: RAMP_C_PER_MIN = 0.1
     dwell_s: SECONDS = 300.0
     max_wait_s: bounded(gt=0, hi=7 * DAY_S) = 3 * 3600.0
+    max_offset_c: bounded(gt=0, hi=100.0) = Field(
+        2.0, description="a DUT settling further than this from the set point is a fault (hardware-notes "
+        "§9.5: places in a chamber differ from its air by up to 2 degC)")
 
 
 def _number_to_step(value: Any) -> Any:

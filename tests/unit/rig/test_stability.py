@@ -1,4 +1,5 @@
-"""The thermal stability detector: band, rate, dwell and the hard maximum wait."""
+"""The thermal stability detector: rate, dwell and band around each DUT's own level, the bound on how far
+from the set point a DUT may settle, and the hard maximum wait."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import pytest
 
 from rig.engine.stability import (
     APPROACHING,
+    OFFSET,
     STABLE,
     TIMEOUT,
     StabilityCriteria,
@@ -28,24 +30,54 @@ def test_slope_of_a_line_and_degenerate_inputs():
     assert slope_per_s([(5.0, 1.0), (5.0, 2.0)]) == 0.0
 
 
-def test_first_order_approach_becomes_stable_only_after_dwell_in_band():
+def approach(target: float, start: float, tau_s: float, n: int, dt_s: float = 10.0) -> list[float]:
+    return [target + (start - target) * math.exp(-i * dt_s / tau_s) for i in range(n)]
+
+
+def test_first_order_approach_becomes_stable_once_slow_and_still_for_a_dwell():
     target = 40.0
     det = StabilityDetector(target, CRIT)
-    # DUT lagging the air with a 600 s time constant from 22 degC
-    temps = [target + (22.0 - target) * math.exp(-i * 10.0 / 600.0) for i in range(600)]
+    temps = approach(target, 22.0, 600.0, 600)  # a DUT lagging the air by 600 s, from 22 degC
     states = feed(det, temps)
     first_stable = states.index(STABLE)
-    entered_band = next(i for i, x in enumerate(temps) if abs(x - target) <= 0.5)
-    assert first_stable * 10.0 >= entered_band * 10.0 + CRIT.dwell_s
+    # its rate (18/600 degC/s x exp(-t/600)) falls below 0.1 degC/min at 600 ln(18) s
+    slow_s = 600.0 * math.log(18.0 / 600.0 * 60.0 / CRIT.max_rate_c_per_min)
+    assert first_stable * 10.0 >= slow_s
     assert all(s == APPROACHING for s in states[:first_stable])
     assert abs(det.rate_c_per_min) <= CRIT.max_rate_c_per_min
+    assert det.level_c == pytest.approx(target, abs=1.0) and det.offset_c == pytest.approx(0.0, abs=1.0)
+
+
+def test_a_dut_whose_place_is_off_the_air_is_stable_where_it_settles():
+    det = StabilityDetector(40.0, CRIT)
+    states = feed(det, approach(41.5, 22.0, 600.0, 700))  # its place 1.5 degC warmer than the air
+    assert STABLE in states and OFFSET not in states
+    assert det.level_c == pytest.approx(41.5, abs=0.05) and det.offset_c == pytest.approx(1.5, abs=0.05)
+
+
+def test_a_dut_settled_beyond_max_offset_is_a_fault_not_a_wait():
+    det = StabilityDetector(40.0, CRIT)
+    states = feed(det, approach(43.0, 22.0, 300.0, 700))  # 3 degC off, more than max_offset_c 2
+    assert STABLE not in states
+    first = states.index(OFFSET)
+    # slow (4.2 exp(-t/300) degC/min <= 0.1) from 300 ln(42) = 1121 s, held four dwells more: a fault then,
+    # long before max_wait_s
+    slow_s = 300.0 * math.log(42.0)
+    assert slow_s + 4 * CRIT.dwell_s <= first * 10.0 <= slow_s + 6 * CRIT.dwell_s < CRIT.max_wait_s
+
+
+def test_a_slow_approach_is_not_taken_for_an_offset():
+    det = StabilityDetector(40.0, CRIT)
+    states = feed(det, approach(40.0, 22.0, 1800.0, 1500))  # 1800 s lag: slow while still 3 degC away
+    assert OFFSET not in states and STABLE in states
+    assert abs(det.offset_c) <= CRIT.max_offset_c
 
 
 def test_leaving_the_band_restarts_the_dwell():
     det = StabilityDetector(25.0, CRIT)
     feed(det, [25.0] * 20)  # 190 s in band
     assert det.state == APPROACHING
-    det.add(200.0, 26.0)  # a bump out of band
+    det.add(200.0, 27.0)  # a bump: 2 degC does not fit within +-0.5 of any level
     assert det.in_band_s == 0.0
     states = feed(det, [25.0] * 31, t0=210.0)
     assert states[-1] == STABLE
