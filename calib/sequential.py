@@ -105,6 +105,10 @@ def next_leg(state: State, legs_done: Sequence[Leg], duts: Sequence[DutModel], c
                                   budget, chamber=chamber)
     if all_checks_done and stay_n is not None and both_ends_covered(chamber, covered_c):
         options.append((stay_n, budget + 1))  # staying until done: never cross
+    if not options and not both_ends_covered(chamber, covered_c):  # staying cannot cover the other end
+        nxt = checks[0] if checks else Leg(other, 1, current.rate_c_per_min)
+        return Decision(False, replace(nxt, sweeps=1), True, f"crossing to {other:g} degC: a DUT's data does "
+                        "not reach that end yet")
     if not options:
         return Decision(False, replace(current, sweeps=1), False,
                         f"targets out of reach within the time left ({worst} at {ratios_now[worst]:.2f}); "

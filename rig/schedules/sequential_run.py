@@ -130,6 +130,7 @@ class SequentialMode(RampMode):
             d.name: Estimate(d.lag_s, None, d.offset_c, d.sigma_nt, self.schedule.inputs.duts[d.name].origin)
             for d in self.schedule.priors or []}
         self.air = AirLog()
+        self.reached: dict[str, tuple[float, float]] = {}  # each DUT's lowest and highest element so far
         self.rows = {dut: _Rows() for dut in runner.rig.duts}
         self.pending: list[RampPoint] = []
         self.stop_message: tuple[str, Reason] | None = None
@@ -146,9 +147,13 @@ class SequentialMode(RampMode):
             self.started_s = reader.info()["started"]
             for row in reader.temperatures():
                 self.air.add(row["t"], row["air_c"])
-            recorded = [d["estimates"] for d in reader.decisions() if d.get("estimates")]
+            decisions = reader.decisions()
+            recorded = [d["estimates"] for d in decisions if d.get("estimates")]
             if recorded:  # the estimates the run was planning with when it stopped
                 self.in_use = {dut: Estimate.from_dict(e) for dut, e in recorded[-1].items()}
+            reached = [d["reached_c"] for d in decisions if d.get("reached_c")]
+            if reached:
+                self.reached = {dut: (float(lo), float(hi)) for dut, (lo, hi) in reached[-1].items()}
             for dut, rows in self.rows.items():
                 try:
                     ds = reader.dataset(dut)
@@ -191,10 +196,15 @@ class SequentialMode(RampMode):
         ratios = {dut: m.ratio for dut, m in measured.items()}
         noise = {dut: self._noise(dut, m) for dut, m in measured.items()}
         replanned = self._estimate(noise)
+        for dut, m in measured.items():  # an end once reached stays reached (lag estimates move the data)
+            if m.covered_c is not None:
+                low, high = self.reached.get(dut, m.covered_c)
+                self.reached[dut] = (min(low, m.covered_c[0]), max(high, m.covered_c[1]))
         info = {"ratios": {d: _num(r) for d, r in ratios.items()},
                 "sigma_nt": {d: _num(n) for d, n in noise.items()},
                 "lag_s": {d: _num(m.lag_s) for d, m in measured.items()},
-                "estimates": {d: e.as_dict() for d, e in self.in_use.items()}}
+                "estimates": {d: e.as_dict() for d, e in self.in_use.items()},
+                "reached_c": {d: list(r) for d, r in self.reached.items()}}
         if replanned:
             info["replanned"] = replanned
         elapsed = self._elapsed_s()
@@ -218,10 +228,9 @@ class SequentialMode(RampMode):
         legs = self._legs_done()
         rate = self._rate()
         pace = self._pace()
-        covered = {d: m.covered_c for d, m in measured.items() if m.covered_c is not None}
         decision = next_leg(state, legs, duts, self.schedule.chamber(rate), pace, self.targets,
                             max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios,
-                            covered_c=covered if len(covered) == len(measured) else None)
+                            covered_c=self.reached if len(self.reached) == len(measured) else None)
         if decision.stop:
             return {"stop": True, "code": Reason.TARGETS_MET.value, "reason": decision.reason, **info}, []
         leg = decision.leg

@@ -106,7 +106,7 @@ def test_only_the_station_builder_imports_the_simulators():
 
 
 def _names_a_station(node: ast.AST) -> bool:
-    """An expression that names a station: `station`, `self.station`, `campaign.station`, `load_station(p)`."""
+    """An expression naming a station: `station`, `self.station`, `campaign.station`, `load_station(p)`."""
     if isinstance(node, ast.Call):
         node = node.func
     name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""

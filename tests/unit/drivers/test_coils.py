@@ -148,7 +148,8 @@ def test_slow_source_times_out_on_the_clock(world, clock):
         coils = controller(sim.port, clock)
         coils.set([0.5, 0.0, 0.0])
         start = clock.now()
-        with pytest.raises(DeviceTimeout, match=r"coils: wait settled: readback .* not within \(0.001, 0.001, 0.001\) A"):
+        expected = r"coils: wait settled: readback .* not within \(0.001, 0.001, 0.001\) A"
+        with pytest.raises(DeviceTimeout, match=expected):
             coils.wait_settled(timeout_s=0.5, tol_a=1e-3)
         assert clock.now() - start == pytest.approx(0.5, abs=0.02)
         coils.close()
