@@ -76,8 +76,12 @@ class SequentialSchedule:
 
     def rate(self) -> float:
         """The plan's rate, or the chamber's fastest if slower (measured, else the stated limit; rig check
-        refuses one above the limit); decisions may ramp slower."""
-        return min(self.temps.rate_c_per_min or math.inf, self.inputs.rate_c_per_min)
+        refuses one above the limit); without a rate of its own the plan ramps no faster than keeps one
+        sweep within MAX_SWEEP_SPAN_FRACTION of the range. Decisions may ramp slower."""
+        if self.temps.rate_c_per_min is not None:
+            return min(self.temps.rate_c_per_min, self.inputs.rate_c_per_min)
+        span = abs(self.temps.range_c[1] - self.temps.range_c[0])
+        return min(self.inputs.rate_c_per_min, MAX_SWEEP_SPAN_FRACTION * span / self.sweep_s * 60.0)
 
     def start_c(self) -> float:
         return self.inputs.chamber.start_c
@@ -193,7 +197,7 @@ class SequentialSchedule:
         check_range_limits(plan, self.station, temps.range_c, temps.rate_c_per_min, RATE_PATH)
         span = abs(temps.range_c[1] - temps.range_c[0])
         swept_c = self.rate() * self.sweep_s / 60.0
-        if swept_c > MAX_SWEEP_SPAN_FRACTION * span:
+        if swept_c > MAX_SWEEP_SPAN_FRACTION * span * (1 + 1e-9):
             raise plan_error(LimitError, plan, RATE_PATH,
                              f"one sweep of {self.n_pick} fields takes {format_duration(self.sweep_s)} and "
                              "spans "
