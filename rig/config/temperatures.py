@@ -27,8 +27,9 @@ from rig.core.yamlload import KeyPathError
 class Stability(Strict):
     """When a temperature step counts as stable, judged on each DUT's own temperature against where it
     settles (rig/engine/stability.py): changing slower than rate_c_per_min and holding within band_c of its
-    own level, both for dwell_s, that level within max_offset_c of the set point (a DUT's place may be
-    warmer or colder than the air); give up after max_wait_s."""
+    own level, both for dwell_s, what is left of its approach within band_c and its level within
+    max_offset_c of the set point (a DUT's place may be warmer or colder than the air); give up after
+    max_wait_s."""
 
     band_c: bounded(gt=0, hi=100.0) = 0.5
     rate_c_per_min: RAMP_C_PER_MIN = 0.1
