@@ -17,7 +17,8 @@ no excursion), the samples spanning at least `dwell_s`. It is stable when it is 
 - before that (a DUT found settled at once, a retake): every sample of the dwell lies within `band_c` of
   the set point.
 A slow DUT still on its way is therefore not taken for a settled one, however slowly it moves. One settled
-further than `max_offset_c` from the set point, for another dwell, is a fault ("offset": its place or its
+further than `max_offset_c` from the set point, for another dwell (and the stuck-sensor watch's ten
+minutes), is a fault ("offset": its place or its
 sensor is not where the plan needs it). A hard `max_wait_s` from the first sample ends the wait as
 "timeout" (the engine turns both into a hold). `level_c` is where the DUT settles (the asymptote once three
 dwells show it, else the last dwell's mean).
@@ -28,12 +29,16 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from rig.engine.frozen import MIN_FROZEN_S
+
 APPROACHING = "approaching"
 STABLE = "stable"
 TIMEOUT = "timeout"
 OFFSET = "offset"  # settled, but too far from the set point
 
-OFFSET_DWELLS = 1  # a level beyond max_offset_c held this many dwells more is a fault
+# a level beyond max_offset_c held this many dwells more, and no shorter than the stuck-sensor watch needs
+# (rig/engine/frozen.py: a reading that never moves is a stuck sensor, not a place), is a fault
+OFFSET_DWELLS = 1
 NOISE_SHARE = 0.02  # dwell means closer than this share of band_c are one level (noise, quantisation)
 
 
@@ -158,7 +163,7 @@ class StabilityDetector:
         at_target = known is None and all(abs(y - self.target_c) <= c.band_c for _, y in window)
         if still and (at_target or (settled and near)):
             self.state = STABLE
-        elif far and t - self._offset_since >= OFFSET_DWELLS * c.dwell_s:
+        elif far and t - self._offset_since >= max(OFFSET_DWELLS * c.dwell_s, MIN_FROZEN_S):
             self.state = OFFSET
         elif self.elapsed_s >= c.max_wait_s:
             self.state = TIMEOUT

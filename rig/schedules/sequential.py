@@ -22,8 +22,6 @@ predicted without measured lags.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from calib.design import exchange

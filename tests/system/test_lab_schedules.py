@@ -20,14 +20,14 @@ from tests.system.campaign_helpers import query
 pytestmark = pytest.mark.system
 
 LAB = CONFIGS_DIR / "stations" / "sim-lab.yaml"
-DIAGONALS = [[1, 1, 1], [1, 1, -1], [1, -1, 1], [1, -1, -1], [-1, 1, 1], [-1, 1, -1], [-1, -1, 1], [-1, -1, -1]]
+DIAGONALS = [[x, y, z] for x in (1, -1) for y in (1, -1) for z in (1, -1)]
 LOOSE = {"S": 3e-4, "K": 2e-5, "b": 15.0, "kb": 1.0}
 
 
 def write(tmp_path, name: str, temperatures: dict, **extra) -> str:
-    plan = {"name": name, "temperatures": temperatures, "fields": {"kind": "directions", "magnitude_nt": 50000,
-                                                                  "directions": DIAGONALS},
-            "samples_per_point": 2, "settle_s": 0.5, "fit": {"models": ["t24"]}, **extra}
+    fields = {"kind": "directions", "magnitude_nt": 50000, "directions": DIAGONALS}
+    plan = {"name": name, "temperatures": temperatures, "fields": fields, "samples_per_point": 2,
+            "settle_s": 0.5, "fit": {"models": ["t24"]}, **extra}
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(plan, sort_keys=False))
     return str(path)
