@@ -43,7 +43,14 @@ from calib.planner import (
 )
 from rig.config import DesignedTemperatures, Plan, Station, VectorFields
 from rig.core.errors import ConfigError
-from rig.schedules.check import MAX_DURATION_S, Timing, field_targets, format_duration
+from rig.schedules.check import (
+    MAX_DURATION_S,
+    MAX_POINTS,
+    MAX_SAMPLES_PER_DUT,
+    Timing,
+    field_targets,
+    format_duration,
+)
 from rig.schedules.inputs import PlanningInputs, dut_models, planning_inputs, require_duts
 
 MAX_SAMPLES = 100  # per point; beyond this a sweep gains little and spans more temperature
@@ -177,8 +184,10 @@ def design_plan(plan: Plan, station: Station, inputs: DesignInputs, *, criterion
     lim = station.chamber.limits
     chamber = ChamberModel((lo, hi), rate, checks, check_sweeps, END_TOLERANCE_SHARE * inputs.band_c,
                            (lim.min_setpoint_c, lim.max_setpoint_c))
+    most_sweeps = min(MAX_POINTS // len(fields), MAX_SAMPLES_PER_DUT // (len(fields) * samples))
+    longest_s = min(DESIGN_HORIZON_S, MAX_DURATION_S, most_sweeps * pace.sweep_s)  # a plan rig check takes
     schedule = design_schedule(inputs.duts, chamber, pace, inputs.targets, start_c=inputs.start_c,
-                               max_duration_s=min(DESIGN_HORIZON_S, MAX_DURATION_S))
+                               max_duration_s=longest_s)
     return Designed(fields, samples, rate, schedule, inputs, criterion, pace.sweep_s)
 
 
