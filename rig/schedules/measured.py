@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rig.core.errors import DataError
+from rig.core.errors import ERRORS, DataError
 from rig.schedules.check import ChamberInput, DutInput, Timing
 
 DESIGN_HORIZON_S = 7 * 86_400.0  # a lag beyond this is no lag a campaign could plan with
@@ -60,7 +60,10 @@ def measure_session(session: Path, dut_names: list[str]) -> SessionMeasure:
     air = _air_log(temperatures)
     moving = _moving(info["plan_text"])
     for name, ds in datasets.items():
-        duts[name], note = _dut(name, ds, air, _temps_of(name, ds, temperatures), moving, where)
+        try:
+            duts[name], note = _dut(name, ds, air, _temps_of(name, ds, temperatures), moving, where)
+        except ERRORS as exc:
+            raise DataError(f"--from {session}: {name}: {exc}") from None
         if note:
             notes.append(note)
     return SessionMeasure(Path(session).name, duts, _chamber(temperatures, where),
