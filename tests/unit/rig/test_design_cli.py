@@ -224,3 +224,16 @@ def test_bad_designed_and_sequential_plans_are_refused_in_one_located_line(tmp_p
 def test_figure_needs_a_plan_that_predicts(tmp_path, capsys):
     code, _, err = run(capsys, "check", CONFIGS / "plans" / "demo.yaml", "--figure", tmp_path / "f.png")
     assert code == 2 and "predicts no standard errors" in err and err.count("\n") == 1
+
+
+def test_a_session_that_cannot_show_the_noise_is_named_in_one_line(tmp_path, capsys):
+    from rig.run.campaign import run_campaign
+
+    one = write_plan(tmp_path, "one", temperatures={"steps": [25], "stability": {"dwell_s": 30}},
+                     samples_per_point=2, fit={"models": ["p12"]}, stop_when=None)
+    session = tmp_path / "one.session"
+    assert run_campaign(campaign=load_campaign(one, SIM), session_path=session).result.status == "completed"
+    code, out, err = run(capsys, "design", write_plan(tmp_path), "--station", SIM, "--from", session,
+                         "-o", tmp_path / "x.yaml")
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert err.startswith(f"error: --from {session}: mmc0: T24: ") and "not identifiable" in err
