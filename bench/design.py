@@ -3,10 +3,13 @@ simulated station (default configs/stations/sim-4.yaml: four DUTs lagging the ai
 lagging the DUTs, random truths with non-zero K and kb).
 
 Plans: configs/plans/full-campaign.yaml (steps), configs/plans/ramp-campaign.yaml (continuous ramp), the
-plan `rig design` makes of configs/plans/sequential-campaign.yaml for this station (designed), and
-configs/plans/sequential-campaign.yaml itself (decided during the run). The designed and sequential plans
-aim at the standard errors the step plan is predicted to reach on this station (calib/design.py), so the
-comparison is at equal precision; --targets plan keeps the plan's own stop_when instead.
+plan `rig design --from` the step session makes of configs/plans/sequential-campaign.yaml for this station
+(designed: planned on what the step session measured, never on the station's `sim:`), and
+configs/plans/sequential-campaign.yaml itself (decided during the run, measuring its DUTs itself). The
+designed and sequential plans aim at the standard errors the step plan is predicted to reach on this
+station with the noise its session measured (calib/design.py), so the comparison is at equal precision;
+--targets plan keeps the plan's own stop_when instead. Each plan's `rig check` estimate is printed beside
+the chamber time its run took.
 
 For each plan: the simulated chamber time (session start to end), each DUT's held-out vector error on a
 separate validation campaign (other directions, temperatures between the steps) against the simulator's
@@ -32,11 +35,12 @@ import yaml
 
 from calib.calibration import Calibration
 from calib.design import information, std_errors
-from rig.devices.bench import dut_truths
+from rig.devices.bench import dut_truths  # the truth the held-out errors are judged against, nothing else
 from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
-from rig.schedules.compile import compile_plan
+from rig.schedules.compile import check_campaign, compile_plan
 from rig.schedules.design import design_inputs, design_plan, designed_plan_text
+from rig.schedules.inputs import planning_inputs
 from rig.session.reader import SessionReader, read_dataset
 
 REPO = Path(__file__).resolve().parents[1]
@@ -65,20 +69,18 @@ def run(plan_path: Path, station: Path, out: Path, name: str) -> Path:
     return session
 
 
-def step_targets(station: Path, margin: float) -> dict[str, float]:
+def step_targets(station: Path, margin: float, step_session: Path) -> dict[str, float]:
     """`margin` x the largest standard errors the step plan is predicted to reach on this station (every
-    DUT at each setpoint, its noise as the station states it). The held-out error of one campaign scatters
-    by some 20 % around its expectation, so matching the step plan's precision exactly would fail the
-    1.1 x goal on one DUT or another about half the time: the designed plans aim a margin below it."""
-    from rig.schedules.design import station_duts
-
+    DUT at each setpoint, its noise as the step session measured it). The held-out error of one campaign
+    scatters by some 20 % around its expectation, so matching the step plan's precision exactly would fail
+    the 1.1 x goal on one DUT or another about half the time: the designed plans aim a margin below it."""
     campaign = load_campaign(PLANS / "full-campaign.yaml", station)
     points = compile_plan(campaign.plan, campaign.station)
     fields = np.array([campaign.station.field_source.nominal_field_nt(p.command) for p in points])
     temps = np.array([p.setpoint_c for p in points])
     gram = information(fields, temps, campaign.plan.samples_per_point, temp_ref_c=20.0)
-    duts, _ = station_duts(campaign.plan, campaign.station)
-    se = std_errors(gram, max(d.sigma_nt for d in duts), 20.0)
+    measured = planning_inputs(campaign.plan, campaign.station, step_session)
+    se = std_errors(gram, max(d.noise_nt for d in measured.duts.values()), 20.0)
     return {g: float(f"{margin * np.max(se[k]):.2g}") for g, k in GROUPS.items()}
 
 
@@ -95,11 +97,12 @@ def with_targets(plan_path: Path, targets: dict[str, float] | None, out: Path, n
     return path
 
 
-def designed(sequential: Path, station: Path, out: Path) -> tuple[Path, int]:
-    """`rig design` of the sequential plan for this station: the designed plan, and its samples per point
-    (the sequential plan then takes as many: the station's pace decides it, not the shipped file)."""
+def designed(sequential: Path, station: Path, out: Path, session: Path) -> tuple[Path, int]:
+    """`rig design --from SESSION` of the sequential plan for this station: the designed plan, and its
+    samples per point (the sequential plan then takes as many: the station's pace decides it, not the
+    shipped file)."""
     campaign = load_campaign(sequential, station)
-    inputs = design_inputs(campaign.plan, campaign.station)
+    inputs = design_inputs(campaign.plan, campaign.station, session)
     result = design_plan(campaign.plan, campaign.station, inputs)
     path = out / "designed.yaml"
     path.write_text(designed_plan_text(campaign.plan_text, result, campaign.station, name="designed",
@@ -168,12 +171,13 @@ def main() -> None:
         out = args.out or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
         station = args.station.resolve()
-        targets = step_targets(station, args.margin) if args.targets == "step" else None
+        step_session = run(PLANS / "full-campaign.yaml", station, out, "step")  # it measures the station too
+        targets = step_targets(station, args.margin, step_session) if args.targets == "step" else None
         aim = (", ".join(f"{k} {v:g}" for k, v in targets.items()) + f" ({args.margin:g} x the step plan's "
                "predicted)") if targets else "the plan's stop_when"
         print(f"station {station.name}; targets: {aim}")
         sequential = with_targets(PLANS / "sequential-campaign.yaml", targets, out, "sequential")
-        designed_path, samples = designed(sequential, station, out)
+        designed_path, samples = designed(sequential, station, out, step_session)
         sequential = with_targets(sequential, None, out, "sequential", samples)
         plans = {"step": PLANS / "full-campaign.yaml", "ramp": PLANS / "ramp-campaign.yaml",
                  "designed": designed_path, "sequential": sequential}
@@ -187,14 +191,16 @@ def main() -> None:
         pairs = {d.name: checked.plan.set_reset == "pair" and bool(getattr(d.options, "set_reset", False))
                  for d in checked.station.duts}
         hours = {name: chamber_hours(s) for name, s in sessions.items() if name != "validation"}
+        estimate_h = {name: check_campaign(load_campaign(plans[name], station)).duration_s / 3600.0
+                      for name in hours}
         errors = {name: {dut: held_out_nt(t24_of(s, dut), sessions["validation"], dut, truths[dut],
                                           pairs[dut])
                          for dut in truths} for name, s in sessions.items() if name != "validation"}
         expected = {name: {dut: expected_held_out_nt(s, sessions["validation"], dut) for dut in truths}
                     for name, s in sessions.items() if name != "validation"}
-        print("\n| plan | chamber time | / step | held-out error vs truth, nT (per DUT) | worst / step "
-              "| expected, nT | worst / step |")
-        print("|---|---|---|---|---|---|---|")
+        print("\n| plan | chamber time | rig check | / step | held-out error vs truth, nT (per DUT) "
+              "| worst / step | expected, nT | worst / step |")
+        print("|---|---|---|---|---|---|---|---|")
         step_err, step_exp = errors.get("step"), expected.get("step")
         for name in hours:
             per_dut = " ".join(f"{errors[name][d][0]:.2f}" for d in truths)
@@ -202,8 +208,8 @@ def main() -> None:
             exp = " ".join(f"{expected[name][d]:.2f}" for d in truths)
             exp_ratio = (max(expected[name][d] / step_exp[d] for d in truths) if step_exp else float("nan"))
             rel = hours[name] / hours["step"] if "step" in hours else float("nan")
-            print(f"| {name} | {hours[name]:.2f} h | {rel:.2f} | {per_dut} | {ratio:.2f} | {exp} "
-                  f"| {exp_ratio:.2f} |")
+            print(f"| {name} | {hours[name]:.2f} h | {estimate_h[name]:.2f} h | {rel:.2f} | {per_dut} "
+                  f"| {ratio:.2f} | {exp} | {exp_ratio:.2f} |")
         print("\nheld-out error against the validation reference (noise included), nT: "
               + "; ".join(f"{n} " + " ".join(f"{errors[n][d][1]:.1f}" for d in truths) for n in hours))
         print("\nlargest standard errors as fitted (S, K per degC, b nT, kb nT/degC):")

@@ -9,9 +9,14 @@ on one bus, 4 serial magnetometers on two shared lines, a TMP117 beside each; al
    transaction, the live fits, everything else), the live view's render, the post-run fits (T24, P12 per
    DUT), simulated seconds per point, and the process's peak memory (max RSS); then the 64/4 ratios.
 3. Chamber minutes per DUT on sim-64 for the demo plan, the ramp plan and the plan `rig design` makes for
-   sim-64 from sequential-campaign.yaml (`rig check`'s estimate / 64).
+   sim-64 from sequential-campaign.yaml `--from` a short measuring session on sim-64 (`rig check`'s
+   estimate / 64).
+4. `rig check`'s duration against the run's, on sim-4 and on sim-64: a short step session measures the
+   station (its pace, its chamber, its DUTs), `rig design --from` it makes a small designed plan (its
+   stop_when left out, so that it runs whole), `rig check` predicts it and it runs; the measuring session
+   itself, checked at the drivers' stated pace and without measured lags, for contrast.
 
-    .venv/bin/python bench/many_duts.py [--skip-campaign]
+    .venv/bin/python bench/many_duts.py [--skip-campaign] [--skip-timing]
 """
 
 from __future__ import annotations
@@ -211,19 +216,76 @@ def campaign_table() -> None:
           f"{big['fits_s'] / small['fits_s']:.1f}x, peak memory {big['peak_mb'] / small['peak_mb']:.2f}x")
 
 
-def designed_for_sim64(tmp: Path) -> Path:
-    """The plan `rig design` makes for sim-64 (its sweep of 64 DUTs sets the ramp rate)."""
-    out = tmp / "designed-64.yaml"
-    source = REPO / "configs" / "plans" / "sequential-campaign.yaml"
-    command = ["design", str(source), "--station", str(STATION), "-o", str(out)]
+MEASURE = {"name": "measure", "fields": {"kind": "cube24", "magnitudes_nt": [50000]}, "samples_per_point": 4,
+           "settle_s": 0.5, "fit": {"models": ["t24"]},
+           "temperatures": {"steps": [30, 15], "ramp_c_per_min": 5.0,
+                            "stability": {"band_c": 0.5, "rate_c_per_min": 0.2, "dwell_s": 60}}}
+SMALL = {"name": "small", "samples_per_point": 4, "settle_s": 1.0, "fit": {"models": ["t24"]},
+         "fields": {"kind": "directions", "magnitude_nt": 50000,
+                    "directions": [[1, 1, 1], [1, 1, -1], [1, -1, 1], [1, -1, -1], [-1, 1, 1], [-1, 1, -1],
+                                   [-1, -1, 1], [-1, -1, -1]]},
+         "temperatures": {"mode": "sequential", "range_c": [15, 25], "checks_c": [20], "max_duration_h": 6},
+         "stop_when": {"S": 1e-4, "K": 5e-6, "b": 5.0, "kb": 0.3}}
+
+
+def run_for(plan: Path, station: Path, session: Path) -> tuple[float, float]:
+    """(the run's chamber seconds, wall seconds)."""
+    from rig.run.campaign import run_campaign
+    from rig.session.reader import SessionReader
+
+    t0 = time.perf_counter()
+    outcome = run_campaign(campaign=load_campaign(plan, station), session_path=session)
+    assert outcome.result.status == "completed", outcome.result.reason
+    with SessionReader(session) as reader:
+        info = reader.info()
+    return info["ended"] - info["started"], time.perf_counter() - t0
+
+
+def measuring_session(station: Path, tmp: Path) -> tuple[Path, float, float]:
+    """A short step session that measures the station: (session, rig check's estimate, its run's time)."""
+    plan = tmp / "measure.yaml"
+    plan.write_text(yaml.safe_dump(MEASURE, sort_keys=False))
+    predicted = check_campaign(load_campaign(plan, station)).duration_s
+    session = tmp / "measure.session"
+    taken, _ = run_for(plan, station, session)
+    return session, predicted, taken
+
+
+def designed_from(source: Path, station: Path, session: Path, out: Path) -> Path:
+    """`rig design SOURCE --station STATION --from SESSION -o OUT`."""
+    command = ["design", str(source), "--station", str(station), "--from", str(session), "-o", str(out)]
     subprocess.run([sys.executable, "-m", "rig", *command], capture_output=True, text=True, check=True)
     return out
+
+
+def timing_table() -> None:
+    print("\n4. rig check's duration against the run's (simulated chamber time)")
+    print(f"{'station':>8} {'plan':>34} {'rig check':>10} {'run':>10} {'run/check':>9} {'wall':>6}")
+    for station in (REPO / "configs" / "stations" / "sim-4.yaml", STATION):
+        with tempfile.TemporaryDirectory() as tmp:
+            tmp = Path(tmp)
+            session, predicted, taken = measuring_session(station, tmp)
+            print(f"{station.stem:>8} {'measuring steps (stated pace, no lags)':>34} {predicted:>9.0f}s "
+                  f"{taken:>9.0f}s {taken / predicted:>9.3f}")
+            small = tmp / "small.yaml"
+            small.write_text(yaml.safe_dump(SMALL, sort_keys=False))
+            designed = designed_from(small, station, session, tmp / "designed.yaml")
+            data = yaml.safe_load(designed.read_text())
+            data.pop("stop_when")  # the whole plan runs: its duration is what rig check predicts
+            designed.write_text(yaml.safe_dump(data, sort_keys=False))
+            predicted = check_campaign(load_campaign(designed, station)).duration_s
+            taken, wall = run_for(designed, station, tmp / "designed.session")
+            print(f"{station.stem:>8} {'designed --from it (measured pace)':>34} {predicted:>9.0f}s "
+                  f"{taken:>9.0f}s {taken / predicted:>9.3f} {wall:>5.0f}s")
 
 
 def chamber_minutes() -> None:
     print("\n3. chamber time per DUT on sim-64 (rig check's estimate)")
     with tempfile.TemporaryDirectory() as tmp:
-        plans = {**PLANS, "designed for sim-64": designed_for_sim64(Path(tmp))}
+        session, _, _ = measuring_session(STATION, Path(tmp))
+        source = REPO / "configs" / "plans" / "sequential-campaign.yaml"
+        designed = designed_from(source, STATION, session, Path(tmp) / "designed-64.yaml")
+        plans = {**PLANS, "designed for sim-64 (--from a measuring session)": designed}
         for name, path in plans.items():
             check = check_campaign(load_campaign(path, STATION))
             total_min = check.duration_s / 60
@@ -239,6 +301,8 @@ def main() -> None:
     if "--skip-campaign" not in sys.argv:
         campaign_table()
     chamber_minutes()
+    if "--skip-timing" not in sys.argv:
+        timing_table()
 
 
 if __name__ == "__main__":

@@ -59,6 +59,8 @@ def fit(
     stats.update(
         {"n": len(ds), "n_used": int(used.sum()), "n_outliers": int(flagged.sum()), "robust": robust}
     )
+    if ds.temp_c is not None and used.any():  # the temperatures the calibration is valid between
+        stats["temperature_range_c"] = [float(ds.temp_c[used].min()), float(ds.temp_c[used].max())]
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
     cal.stats = stats

@@ -8,12 +8,13 @@
 
 ## Physics
 
-The chamber air ramps towards a leg's temperature at the leg's rate and then holds there; each DUT's
-sensing element follows the air with its own first-order lag (the simulator's model and calib/lag.py's
-`element_lags`); the field source sweeps a balanced set of fields back to back, one sweep taking
-`Pace.sweep_s`, and every sample carries its DUT's temperature (the post-run fit corrects the recorded
-temperature to the element's, calib/lag.py). So a schedule of legs predicts every sample's element
-temperature, hence each DUT's Gram (calib/design.py) and standard errors after every sweep.
+The chamber air ramps towards a leg's temperature at the leg's rate and then holds there; each DUT's sensing
+element follows its place in the chamber (the air plus the DUT's measured offset) with its own first-order lag
+(calib/thermal.py measures both; calib/lag.py's `element_lags`); the field source sweeps a balanced set of
+fields back to back, one sweep taking `Pace.sweep_s`, and every sample carries its DUT's temperature (the
+post-run fit corrects the recorded temperature to the element's, calib/lag.py). So a schedule of legs predicts
+every sample's element temperature, hence each DUT's Gram (calib/design.py) and standard errors after every
+sweep.
 
 ## The schedule
 
@@ -24,9 +25,12 @@ cross to the other end, pausing `check_sweeps` sweeps at each interior check tem
 show whether T24's linearity holds), and hold at the other end until every DUT meets its targets. The
 slowest DUT sets how long the holds are: it needs a few of its lags at each end. The free numbers are the
 sweeps spent at the first end and at the second; `design_schedule` searches them for the least total
-time (both orders of the ends). calib/sequential.py `next_leg` is the same search run during a campaign
-from the Grams measured so far (a receding horizon): after each sweep it says stay, go on to the next leg,
-or stop.
+time (both orders of the ends). The calibration must cover the range at the DUTs, not in the air: with
+`end_tolerance_c` each end is held at least until every DUT's element is within that of it (the slowest
+DUT sets how long), and the air goes to the end shifted by the DUTs' offsets (`air_end`, within
+`air_limits_c`) so that every DUT can get there. calib/sequential.py `next_leg` is the same search run
+during a campaign from the Grams measured so far (a receding horizon): after each sweep it says stay, go
+on to the next leg, or stop.
 """
 
 from __future__ import annotations
@@ -47,21 +51,52 @@ END, CHECK = "end", "check"
 
 @dataclass(frozen=True)
 class DutModel:
-    """What the design knows of a DUT: its noise (one fitted sample, per axis, nT) and thermal lag."""
+    """What the design knows of a DUT: its noise (one fitted sample, per axis, nT), its thermal lag behind
+    the air and where its place settles relative to the air (degC)."""
 
     name: str
     sigma_nt: float
     lag_s: float
+    offset_c: float = 0.0
 
 
 @dataclass(frozen=True)
 class ChamberModel:
-    """The range's two ends, the ramp rate between legs, and the interior temperatures of the model check."""
+    """The range's two ends (at the DUTs), the ramp rate between legs, the interior temperatures of the
+    model check, how close to each end every DUT must come (None: not required), and the air's limits."""
 
     range_c: tuple[float, float]
     rate_c_per_min: float
     checks_c: tuple[float, ...] = ()
     check_sweeps: int = 1
+    end_tolerance_c: float | None = None
+    air_limits_c: tuple[float, float] | None = None
+
+
+def air_end(chamber: ChamberModel, duts: Sequence[DutModel], end_c: float) -> float:
+    """Where the air goes for the DUTs to reach `end_c`: shifted by the offset of the DUT furthest back (the
+    warmest at the low end, the coldest at the high end), within the air's limits."""
+    offsets = [0.0, *(d.offset_c for d in duts)]
+    target = end_c - (max(offsets) if end_c <= 0.5 * sum(chamber.range_c) else min(offsets))
+    if chamber.air_limits_c is not None:
+        target = min(max(target, chamber.air_limits_c[0]), chamber.air_limits_c[1])
+    return round(target, 1)  # a set point to a tenth of a degree
+
+
+def covered_at(chamber: ChamberModel, element_c: Mapping[str, float], end_c: float) -> bool:
+    """Whether every DUT's element is within end_tolerance_c of the range end `end_c` (or beyond it)."""
+    tol = chamber.end_tolerance_c
+    if tol is None:
+        return True
+    low = end_c <= 0.5 * (chamber.range_c[0] + chamber.range_c[1])
+    values = list(element_c.values())
+    return max(values) <= end_c + tol if low else min(values) >= end_c - tol
+
+
+def range_end_of(chamber: ChamberModel, air_c: float) -> float:
+    """The range end a leg's air target serves."""
+    lo, hi = chamber.range_c
+    return lo if abs(air_c - lo) <= abs(air_c - hi) else hi
 
 
 @dataclass(frozen=True)
@@ -99,7 +134,9 @@ class State:
 
     @classmethod
     def start(cls, duts: Sequence[DutModel], air_c: float) -> State:
-        return cls(0.0, air_c, {d.name: air_c for d in duts}, {d.name: np.zeros((8, 8)) for d in duts})
+        """Every DUT settled where its place puts it, the air at air_c."""
+        return cls(0.0, air_c, {d.name: air_c + d.offset_c for d in duts},
+                   {d.name: np.zeros((8, 8)) for d in duts})
 
 
 @dataclass
@@ -179,7 +216,7 @@ def predict(state: State, legs: Sequence[Leg], pace: Pace, duts: Sequence[DutMod
     fields = np.tile(pace.fields_nt, (n_sweeps, 1))
     grams, elements = {}, {}
     for dut in duts:
-        temp = element_path(t_all, air_all, dut.lag_s, state.element_c[dut.name])
+        temp = element_path(t_all, air_all + dut.offset_c, dut.lag_s, state.element_c[dut.name])
         x = regressors(fields, temp[1:], temp_ref_c)
         per_point = pace.samples * np.einsum("ni,nj->nij", x, x)
         per_sweep = per_point.reshape(n_sweeps, n_f, 8, 8).sum(axis=1)
@@ -194,9 +231,13 @@ def worst_ratios(prediction: Prediction, duts: Sequence[DutModel], targets: Mapp
     return {d.name: target_ratios(prediction.grams[d.name], d.sigma_nt, temp_ref_c, targets) for d in duts}
 
 
-def _first_met(ratios: dict[str, np.ndarray], from_sweep: int) -> int | None:
-    """First sweep (0-based, >= from_sweep) after which every DUT's every ratio is <= 1."""
+def _first_met(ratios: dict[str, np.ndarray], from_sweep: int, covered: np.ndarray | None = None
+               ) -> int | None:
+    """First sweep (0-based, >= from_sweep) after which every DUT's every ratio is <= 1 (and, with
+    `covered`, the end is covered)."""
     ok = np.all([np.all(r <= 1.0, axis=1) for r in ratios.values()], axis=0)
+    if covered is not None:
+        ok &= covered
     ok[:from_sweep] = False
     hits = np.flatnonzero(ok)
     return int(hits[0]) if hits.size else None
@@ -243,11 +284,23 @@ def temp_ref_of(chamber: ChamberModel) -> float:
     return round(0.5 * (chamber.range_c[0] + chamber.range_c[1]), 1)
 
 
+def covered_sweeps(pred: Prediction, chamber: ChamberModel | None, end_c: float | None) -> np.ndarray | None:
+    """Per predicted sweep: whether every DUT's element is within the chamber's end tolerance of end_c."""
+    if chamber is None or end_c is None or chamber.end_tolerance_c is None:
+        return None
+    names = list(pred.element_c)
+    return np.array([covered_at(chamber, {n: pred.element_c[n][k] for n in names}, end_c)
+                     for k in range(len(pred.t_s))])
+
+
 def hold_until_met(state: State, legs_before: list[Leg], last: Leg, pace: Pace, duts, targets,
-                   temp_ref_c: float, max_sweeps: int) -> tuple[int | None, Prediction, dict]:
+                   temp_ref_c: float, max_sweeps: int, *, chamber: ChamberModel | None = None
+                   ) -> tuple[int | None, Prediction, dict]:
     """Run legs_before, then `last` for as long as needed, up to max_sweeps in all: the sweeps of `last`
-    that bring every DUT to its targets (None: not within max_sweeps), with the prediction and ratios.
-    The horizon doubles until the targets are met, so a short answer costs a short prediction."""
+    that bring every DUT to its targets and, with `chamber`, every DUT within its end tolerance of the end
+    `last` serves (None: not within max_sweeps), with the prediction and ratios. The horizon doubles until
+    the targets are met, so a short answer costs a short prediction."""
+    end_c = None if chamber is None or last.kind != END else range_end_of(chamber, last.to_c)
     before = sum(leg.sweeps for leg in legs_before)
     horizon = max(32, 2 * before)
     while True:
@@ -256,7 +309,7 @@ def hold_until_met(state: State, legs_before: list[Leg], last: Leg, pace: Pace, 
         ratios = worst_ratios(pred, duts, targets, temp_ref_c)
         start_air = pred.air_c[before - 1] if before else state.air_c
         reach = sweeps_to_reach(start_air, last.to_c, last.rate_c_per_min, pace.sweep_s)
-        hit = _first_met(ratios, min(before + reach, total) - 1)
+        hit = _first_met(ratios, min(before + reach, total) - 1, covered_sweeps(pred, chamber, end_c))
         if hit is not None or total >= max_sweeps:
             return (None if hit is None else hit - before + 1), pred, ratios
         horizon *= 2
@@ -270,7 +323,8 @@ def design_schedule(duts: Sequence[DutModel], chamber: ChamberModel, pace: Pace,
     temp_ref = temp_ref_of(chamber)
     max_sweeps = min(MAX_SWEEPS, max(2, int(max_duration_s // pace.sweep_s)))
     best = None
-    for first, second in (chamber.range_c, chamber.range_c[::-1]):
+    for end1, end2 in (chamber.range_c, chamber.range_c[::-1]):
+        first, second = air_end(chamber, duts, end1), air_end(chamber, duts, end2)
         reach1 = sweeps_to_reach(start_c, first, chamber.rate_c_per_min, pace.sweep_s)
         checks = crossing(chamber, first, second, pace.sweep_s)
         n_checks = sum(c.sweeps for c in checks)
@@ -278,19 +332,25 @@ def design_schedule(duts: Sequence[DutModel], chamber: ChamberModel, pace: Pace,
             continue
         start = State.start(duts, start_c)
         prefix = predict(start, [Leg(first, max_sweeps, chamber.rate_c_per_min)], pace, duts, temp_ref)
-        for n1 in range(reach1, max_sweeps - n_checks):
+        covered = covered_sweeps(prefix, chamber, end1)
+        held = reach1 if covered is None else int(np.argmax(covered)) + 1 if covered.any() else None
+        if held is None:
+            continue  # a DUT never gets within the tolerance of this end
+        for n1 in range(max(reach1, held), max_sweeps - n_checks):
             if best is not None and not best[0][0] and n1 + n_checks + 1 >= best[0][1]:
                 break  # a longer first hold cannot make the whole shorter
             budget = max_sweeps - n1
             n2, _, ratios = hold_until_met(prefix.state(n1 - 1), checks,
                                            Leg(second, 1, chamber.rate_c_per_min), pace, duts, targets,
-                                           temp_ref, budget)
+                                           temp_ref, budget, chamber=chamber)
             total = n1 + n_checks + (n2 if n2 is not None else budget)
             score = (n2 is None, total if n2 is not None else _closeness(ratios), n1)
             if best is None or score < best[0]:
                 best = (score, first, second, n1, checks, n2)
     if best is None:
-        raise DataError(f"design: not even one crossing of the range fits in {max_duration_s / 3600:.3g} h")
+        raise DataError(f"design: not even one crossing of the range fits in {max_duration_s / 3600:.3g} h"
+                        + ("" if chamber.end_tolerance_c is None else
+                           f" with every DUT within {chamber.end_tolerance_c:g} degC of each end"))
     _, first, second, n1, checks, n2 = best
     met = n2 is not None
     legs = [Leg(first, n1, chamber.rate_c_per_min), *checks,

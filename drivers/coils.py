@@ -6,8 +6,10 @@ Construct (the station YAML maps onto these keywords; `transport` is a ModbusTra
 
 connect() checks the identity registers (model must start with "MAGRIG-HC3") and that max_current_a
 does not exceed the controller's rating; set(currents_a) writes the three setpoints in one request, then
-switches the outputs on; read() -> CoilReading; wait_settled(timeout_s, tol_a) polls the readback on the
-injected clock; safe_state() sets 0 A on every axis, then switches the outputs off.
+switches the outputs on; read() -> CoilReading; wait_settled(timeout_s) polls on the injected clock until
+every axis reports settled (status bit 1) with its read-back within the supply's stated read-back accuracy
+of its setpoint (`readback_accuracy_ppm` of the setpoint + `readback_accuracy_ma`; a fixed tol_a instead
+when given); safe_state() sets 0 A on every axis, then switches the outputs off.
 
 Faults (over-temperature, compliance: the supply cannot drive the current) are reported in the reading;
 wait_settled raises DeviceFault on one, since a faulted axis will not settle.
@@ -50,6 +52,10 @@ STATUS_COMPLIANCE = 1 << 3
 FAULT_BITS = {"over_temperature": STATUS_OVER_TEMPERATURE, "compliance": STATUS_COMPLIANCE}
 
 UA_PER_A = 1_000_000
+# A bipolar supply's read-back: 0.05 % + 0.5 mA (hardware-notes §9.3, a placeholder the notes flag [A]); a
+# station states its own supply's figures (field_source.readback_accuracy_ppm, readback_accuracy_ma)
+READBACK_ACCURACY_PPM = 500.0
+READBACK_ACCURACY_MA = 0.5
 
 
 def currents_to_words(currents_a) -> list[int]:
@@ -80,6 +86,7 @@ class CoilReading:
     setpoints_a: tuple[float, float, float]
     enabled: tuple[bool, bool, bool]
     faults: frozenset[str]
+    settled: tuple[bool, bool, bool] = (True, True, True)  # status bit 1: the regulation at its target
 
 
 class CoilController(Device):
@@ -93,11 +100,15 @@ class CoilController(Device):
         clock: Clock | None = None,
         max_current_a: float,
         poll_s: float = 0.01,
+        readback_accuracy_ppm: float = READBACK_ACCURACY_PPM,
+        readback_accuracy_ma: float = READBACK_ACCURACY_MA,
     ):
         super().__init__(name, clock)
         self.transport = transport
         self.max_current_a = max_current_a
         self.poll_s = poll_s
+        self.readback_accuracy_ppm = readback_accuracy_ppm
+        self.readback_accuracy_ma = readback_accuracy_ma
         self.model = ""
         self.firmware = ""
         self.rated_current_a: float | None = None
@@ -149,11 +160,22 @@ class CoilController(Device):
             setpoints_a=words_to_currents(at(SETPOINT_UA, 6)),
             enabled=tuple(bool(w) for w in at(OUTPUT_ENABLE, 3)),
             faults=decode_faults(status),
+            settled=tuple(bool(w & STATUS_SETTLED) for w in status),
         )
 
-    def wait_settled(self, timeout_s: float = 1.0, tol_a: float = 1e-3) -> CoilReading:
-        """Poll until every readback is within tol_a of its setpoint; DeviceFault on a fault,
-        DeviceTimeout after timeout_s (on the injected clock)."""
+    def readback_tolerance_a(self, setpoint_a: float) -> float:
+        """How far a settled axis's read-back may be from its setpoint: the supply's stated read-back
+        accuracy, plus the registers' 1 uA step."""
+        return (abs(setpoint_a) * self.readback_accuracy_ppm * 1e-6 + self.readback_accuracy_ma / 1000.0
+                + 1.0 / UA_PER_A)
+
+    def wait_settled(self, timeout_s: float = 1.0, tol_a: float | None = None) -> CoilReading:
+        """Poll until every axis reports settled and its read-back is within its tolerance of its setpoint
+        (readback_tolerance_a, or tol_a when given); DeviceFault on a fault, DeviceTimeout after timeout_s
+        (on the injected clock)."""
+
+        def tolerances(reading: CoilReading) -> list[float]:
+            return [tol_a if tol_a is not None else self.readback_tolerance_a(s) for s in reading.setpoints_a]
 
         def settled(reading: CoilReading) -> bool:
             if reading.faults:
@@ -161,14 +183,18 @@ class CoilController(Device):
                     self.name, "wait settled", f"controller reports {', '.join(sorted(reading.faults))}"
                 )
             errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
-            return max(errors) <= tol_a
+            return all(reading.settled) and all(e <= t for e, t in zip(errors, tolerances(reading),
+                                                                         strict=True))
 
         def timed_out(reading: CoilReading) -> DeviceTimeout:
+            tol = ", ".join(f"{t:.4g}" for t in tolerances(reading))
+            unsettled = [a for a, ok in zip(AXES, reading.settled, strict=True) if not ok]
             return DeviceTimeout(
                 self.name,
                 "wait settled",
-                f"readback {reading.currents_a} A not within {tol_a:g} A of setpoints "
-                f"{reading.setpoints_a} A after {timeout_s:g} s",
+                f"readback {reading.currents_a} A not within ({tol}) A of setpoints "
+                f"{reading.setpoints_a} A after {timeout_s:g} s"
+                + (f"; not settled: {', '.join(unsettled)}" if unsettled else ""),
             )
 
         return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
@@ -212,10 +238,16 @@ class CoilController(Device):
 # --- registration -----------------------------------------------------------------------------------
 class CoilOptions(registry.Options):
     max_current_a: float = Field(gt=0, description="the driver refuses any larger setpoint")
+    readback_accuracy_ppm: float = Field(
+        READBACK_ACCURACY_PPM, ge=0, le=1e5, description="the supply's read-back accuracy, of the setpoint")
+    readback_accuracy_ma: float = Field(
+        READBACK_ACCURACY_MA, ge=0, le=1e4, description="the supply's read-back accuracy, offset part (mA)")
 
 
 def _build(link: ModbusTransport, options: CoilOptions, *, name: str, clock: Clock, **_) -> CoilController:
-    return CoilController(link, name=name, clock=clock, max_current_a=options.max_current_a)
+    return CoilController(link, name=name, clock=clock, max_current_a=options.max_current_a,
+                          readback_accuracy_ppm=options.readback_accuracy_ppm,
+                          readback_accuracy_ma=options.readback_accuracy_ma)
 
 
 registry.register(registry.DeviceSpec(

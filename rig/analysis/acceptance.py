@@ -14,6 +14,10 @@ Criteria (each only when the plan gives it; names as they appear in `failed`):
     bounds.<name>      every element of parameter <name> within [low, high]
     lag                thermal lag time constant (calib/lag.py); data with no lag information (step and
                        dwell) is not judged on it, and says so in `notes`
+    coverage           always: the DUT temperatures its calibration's data covers (the fit's
+                       `temperature_range_c`, at the element where the lag was corrected) reach both ends of
+                       the plan's range within the plan's stability band; a calibration that would
+                       extrapolate over part of the range fails
 A DUT whose model could not be fitted fails with criterion "fit".
 """
 
@@ -84,11 +88,30 @@ def _lag_s(ds) -> tuple[float | None, str | None]:
     return (result.tau_s, None) if result.identifiable else (None, f"lag not judged: {result.message}")
 
 
-def judge(acceptance, ds, cal, *, robust: bool = False) -> tuple[list[str], dict, list[str]]:
-    """(failed criteria, figures, notes) of one DUT's calibration `cal` fitted to `ds`."""
+def coverage_problem(cal, range_c: tuple[float, float] | None, band_c: float | None,
+                     figures: dict) -> str | None:
+    """What the calibration's data misses of the plan's range (None: it covers it within band_c)."""
+    covered = cal.stats.get("temperature_range_c")
+    if range_c is None or band_c is None or covered is None:
+        return None
+    low, high = covered
+    figures["temperature_low_c"], figures["temperature_high_c"] = low, high
+    lo, hi = range_c
+    if low <= lo + band_c and high >= hi - band_c:
+        return None
+    return (f"coverage {low:.2f} .. {high:.2f} degC at the DUT does not reach the plan's {lo:g} .. {hi:g} "
+            f"degC within {band_c:g}")
+
+
+def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, float] | None = None,
+          band_c: float | None = None) -> tuple[list[str], dict, list[str]]:
+    """(failed criteria, figures, notes) of one DUT's calibration `cal` fitted to `ds`; `range_c` and
+    `band_c`: the plan's temperature range and stability band its data must cover."""
     failed: list[str] = []
     notes: list[str] = []
     figures: dict[str, float | None] = {"fit_rms_nt": _finite(cal.stats.get("rms_after_nt"))}
+    if problem := coverage_problem(cal, range_c, band_c, figures):
+        failed.append(problem)
     figures["heldout_rms_nt"] = heldout_rms_nt(ds, cal.model, robust)
     figures["expanded_uncertainty_nt"] = _finite((cal.uncertainty or {}).get("expanded_vector_error_nt"))
     for name, limit, figure in (("heldout_rms", acceptance.max_heldout_rms_nt, "heldout_rms_nt"),
@@ -142,7 +165,9 @@ def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict
             if isinstance(ds, Exception):
                 raise ds  # handled below: the DUT could not be read
             v.samples = len(ds)
-            v.failed, v.figures, v.notes = judge(acceptance, ds, entry["calibration"], robust=plan.fit.robust)
+            v.failed, v.figures, v.notes = judge(acceptance, ds, entry["calibration"], robust=plan.fit.robust,
+                                                 range_c=plan.temperatures.covered_c(),
+                                                 band_c=plan.temperatures.band_c())
         except ERRORS as exc:
             v.failed.append("fit")
             v.notes.append(str(exc))

@@ -24,20 +24,33 @@ def register(group: click.Group) -> None:
                   help="How many times the whole set of settings is measured (drift between repeats).")
     @click.option("--current", "current_a", type=float, default=None,
                   help="Largest coil current, A (default: 0.8 x max_current_a, at most ~60 uT per coil).")
-    def commission_cmd(station_path: Path, out_dir: Path, repeats: int, current_a: float | None) -> None:
+    @click.option("--thermal", is_flag=True,
+                  help="Also measure what planning needs: the chamber's real rate and overshoot, each DUT's "
+                  "lag, offset and noise, the pace of a point (a step of the chamber's set point: hours).")
+    @click.option("--thermal-step", "thermal_step_c", type=click.FloatRange(1.0, 50.0), default=None,
+                  help="The step of the chamber's set point, degC (default 15; down when up leaves the "
+                  "limits).")
+    def commission_cmd(station_path: Path, out_dir: Path, repeats: int, current_a: float | None,
+                       thermal: bool, thermal_step_c: float | None) -> None:
         """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
         reference magnetometer and write the commissioning file a station names in
-        `field_source: {commissioning: FILE}`."""
+        `field_source: {commissioning: FILE}`; with --thermal also the chamber and each DUT position."""
         from rig.config import load_station
         from rig.reference.commissioning_file import read
         from rig.reference.procedure import commission
 
         set_terminate_handler(_terminate)  # every exit leaves the coils safe (commission's finally)
         out_dir.mkdir(parents=True, exist_ok=True)
-        path = commission(station_path, out_dir, repeats=repeats, current_a=current_a)
+        path = commission(station_path, out_dir, repeats=repeats, current_a=current_a, thermal=thermal,
+                          thermal_step_c=thermal_step_c)
         com = read(path)
         click.echo(f"wrote {path}")
         click.echo(com.summary())
         station = load_station(station_path)
         for line in station.field_source.commissioning_lines(com.section):
             click.echo(line)
+        if com.thermal is not None:
+            from rig.schedules.inputs import thermal_lines
+
+            for line in thermal_lines(com.thermal):
+                click.echo(line)

@@ -17,7 +17,8 @@ from rig.core.errors import ConfigError
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Designed plan to write (default: PLAN-designed.yaml beside the plan).")
 @click.option("--from", "session_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="An earlier session of these DUTs: their noise and lags are taken from it.")
+              help="An earlier session of these DUTs: their noise and lags, the chamber's pace and a point's "
+              "pace are taken from it.")
 @click.option("--criterion", type=click.Choice(["I", "D"]), default="I", show_default=True,
               help="Field design: I-optimal (average prediction variance over the plan's fields) or "
               "D-optimal.")
@@ -43,7 +44,8 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     output = output or plan_path.with_name(f"{plan_path.stem}-designed.yaml")
     station_ref = os.path.relpath(campaign.station_path.resolve(), output.resolve().parent)
     made_for = (f"from {plan_path.name} and the noise and lags of session {session_path.name}" if session_path
-                else f"from {plan_path.name} and the station's values")
+                else f"from {plan_path.name} and the noise and lags the station states or its commissioning "
+                "measured")
     text = designed_plan_text(campaign.plan_text, designed, campaign.station,
                               name=f"{campaign.plan.name}-designed", station_ref=station_ref,
                               made_for=made_for)
@@ -54,6 +56,8 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     click.echo(f"designed {output} for station {campaign.station.name}: {len(designed.targets_nt)} "
                f"{criterion}-optimal fields x {designed.samples} samples per sweep, "
                f"{sum(leg.sweeps for leg in s.legs)} sweeps in {len(s.legs)} legs")
+    for line in inputs.planning.lines():
+        click.echo(line)
     for note in inputs.notes:
         click.echo(f"note: {note}")
     for line in schedule_lines(s, inputs):

@@ -28,7 +28,7 @@ from rig.core import names
 from rig.core.configbase import DeviceConfig, Strict, transport_type
 from rig.core.errors import ConfigError
 from rig.core.names import SafeName
-from rig.core.numbers import MODBUS_UNIT, Count, bounded, bounded_vec3
+from rig.core.numbers import DAY_S, MODBUS_UNIT, NT_MAX, Count, bounded, bounded_vec3
 from rig.core.yamlload import KeyPathError
 from rig.fieldsources import FieldSource
 
@@ -55,6 +55,15 @@ SAME_PLACE_MM = 1.0  # two sensors closer than this would overlap: a mistake in 
 DEFAULT_GRADIENT_C_PER_C = 0.002  # a probe glued beside the DUT: 0.1 degC apart at 50 degC from 25
 
 
+class DutExpect(Strict):
+    """What the lab states of a DUT for planning while nothing has measured it (rig/schedules/inputs.py):
+    one plain reading's noise per axis (its datasheet's RMS noise) and its temperature's lag behind the
+    chamber air, first order."""
+
+    noise_nt: bounded(gt=0, hi=NT_MAX)
+    thermal_lag_s: bounded(gt=0, hi=DAY_S)
+
+
 class DutConfig(DeviceConfig):
     role: ClassVar[str] = "magnetometer"
 
@@ -69,6 +78,8 @@ class DutConfig(DeviceConfig):
     temp_gradient_c_per_c: bounded(lo=0, hi=1.0) = Field(
         DEFAULT_GRADIENT_C_PER_C, description="how far (+-) the element may differ from its temperature "
         "source, per degC away from 25 degC")
+    expect: DutExpect | None = Field(
+        None, description="its noise and lag as the lab states them, for planning until measured")
 
     @model_validator(mode="before")
     @classmethod

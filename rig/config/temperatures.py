@@ -25,13 +25,19 @@ from rig.core.yamlload import KeyPathError
 
 
 class Stability(Strict):
-    """When a temperature step counts as stable, judged on each DUT's own temperature: within band_c of
-    the setpoint, changing slower than rate_c_per_min, both for dwell_s; give up after max_wait_s."""
+    """When a temperature step counts as stable, judged on each DUT's own temperature against where it
+    settles (rig/engine/stability.py): changing slower than rate_c_per_min and holding within band_c of its
+    own level, both for dwell_s, what is left of its approach within band_c and its level within
+    max_offset_c of the set point (a DUT's place may be warmer or colder than the air); give up after
+    max_wait_s."""
 
     band_c: bounded(gt=0, hi=100.0) = 0.5
     rate_c_per_min: RAMP_C_PER_MIN = 0.1
     dwell_s: SECONDS = 300.0
     max_wait_s: bounded(gt=0, hi=7 * DAY_S) = 3 * 3600.0
+    max_offset_c: bounded(gt=0, hi=100.0) = Field(
+        2.0, description="a DUT settling further than this from the set point is a fault (hardware-notes "
+        "§9.5: places in a chamber differ from its air by up to 2 degC)")
 
 
 def _number_to_step(value: Any) -> Any:
@@ -88,6 +94,15 @@ class Temperatures(Strict):
             return self.stability
         return self.stability.model_copy(update=step.stability.model_dump(exclude_unset=True))
 
+    def covered_c(self) -> tuple[float, float]:
+        """The DUT temperatures the plan covers: its lowest and highest setpoint."""
+        setpoints = [s.setpoint_c for s in self.step_list()]
+        return min(setpoints), max(setpoints)
+
+    def band_c(self) -> float:
+        """How close to each end of the range the DUTs' data must come (the widest stability band)."""
+        return max(self.stability_for(s).band_c for s in self.step_list())
+
 
 class RampTemperatures(Strict):
     """Continuous ramp: the chamber ramps from range_c[0] to range_c[1] and back, `cycles` times, without
@@ -111,6 +126,13 @@ class RampTemperatures(Strict):
             raise KeyPathError(("range_c",), "start and end must differ")
         return self
 
+    def covered_c(self) -> tuple[float, float]:
+        """The DUT temperatures the plan covers."""
+        return min(self.range_c), max(self.range_c)
+
+    def band_c(self) -> float:
+        return self.stability.band_c
+
 
 MAX_LEG_SWEEPS = 10_000
 
@@ -125,10 +147,21 @@ class DesignedLeg(Strict):
 
 
 class AssumedDut(Strict):
-    """What a design assumed of a DUT (its noise per fitted sample and axis, its lag behind the air)."""
+    """What a design assumed of a DUT (its noise per fitted sample and axis, its lag behind the air, where
+    it settles relative to the air): what was measured when the plan was designed."""
 
     noise_nt: bounded(gt=0, hi=NT_MAX)
     lag_s: bounded(gt=0, hi=DAY_S)
+    offset_c: bounded(lo=-50.0, hi=50.0) | None = None
+
+
+class DesignedTiming(Strict):
+    """The pace a design was made with, as measured (rig/schedules/inputs.py): one sample of every DUT, a
+    point's own time beyond settle_s and its samples, and what measured them."""
+
+    sample_s: bounded(gt=0, hi=3600.0)
+    point_overhead_s: bounded(lo=0, hi=3600.0)
+    measured_by: str = Field(max_length=200)
 
 
 class DesignedTemperatures(Strict):
@@ -141,9 +174,22 @@ class DesignedTemperatures(Strict):
     rate_c_per_min: RAMP_C_PER_MIN
     legs: list[DesignedLeg] = Field(min_length=1)
     assumed: dict[str, AssumedDut] = {}
+    timing: DesignedTiming | None = Field(None, description="the measured pace `rig check` times it by")
+    range_c: tuple[TEMP_C, TEMP_C] | None = Field(
+        None, description="the DUT temperatures the design covers (default: the legs' lowest and highest)")
     stability: Stability = Stability()
 
     moving: ClassVar[bool] = True
+
+    def covered_c(self) -> tuple[float, float]:
+        """The DUT temperatures the plan covers: its `range_c`, else its end legs' lowest and highest."""
+        if self.range_c is not None:
+            return min(self.range_c), max(self.range_c)
+        ends = [leg.to_c for leg in self.legs if not leg.check] or [leg.to_c for leg in self.legs]
+        return min(ends), max(ends)
+
+    def band_c(self) -> float:
+        return self.stability.band_c
 
 
 class SequentialTemperatures(Strict):
@@ -178,6 +224,13 @@ class SequentialTemperatures(Strict):
     def checks(self) -> list[float]:
         lo, hi = sorted(self.range_c)
         return list(self.checks_c) if self.checks_c is not None else [round(0.5 * (lo + hi), 3)]
+
+    def covered_c(self) -> tuple[float, float]:
+        """The DUT temperatures the plan covers."""
+        return min(self.range_c), max(self.range_c)
+
+    def band_c(self) -> float:
+        return self.stability.band_c
 
 
 MODES = {"ramp": "ramp mode", "designed": "designed mode", "sequential": "sequential mode"}

@@ -39,7 +39,6 @@ from drivers.sim.faults import DeviceFaults, Window
 from drivers.sim.i2c_bus import FakeSMBus
 from drivers.sim.truths import (
     AIR_C,
-    CHAMBER_RAMP_C_PER_MIN,
     DUT_KEYS,
     dut_truth,
     mount_truth,
@@ -101,11 +100,6 @@ def reference_truths(station) -> dict[str, DutTruth]:
                                       spec.thermal_lag_s, **beside)
         out[ref.name].position_m = true_position_m(station, ref)
     return out
-
-
-def chamber_ramp_c_per_min() -> float:
-    """The fastest the simulated chamber's air moves, whatever ramp it is told."""
-    return CHAMBER_RAMP_C_PER_MIN
 
 
 def world_field(station) -> dict:

@@ -7,10 +7,13 @@ station's `field_source: {commissioning: FILE}` must pass before the rig trusts 
 The file (YAML, `<station>.commissioning.yaml`) states the station, the date, the reference magnetometer
 (identity, its calibration file's sha256, its position), the fitted coil matrix and ambient (or the
 table's axes) with their covariance, the residuals, linearity, hysteresis and drift, and every setting
-it was measured at. `content_sha256` seals it: a file edited after it was written is refused, as are one
-of another station, one older than the field source's `max_age_days`, one whose reference calibration
-has changed since, a singular matrix and a covariance that is not positive definite. Each refusal is one
-line naming the file, the key and its line.
+it was measured at; with `rig commission --thermal` also what planning needs (`thermal:`, optional, so an
+older file still loads): the chamber's real rate and overshoot, each DUT position's lag, offset and noise,
+and the pace of a point on the station's transports (rig/reference/thermal.py). `content_sha256` seals
+all of it: a file edited after it was written is refused, as are one of another station, one older than
+the field source's `max_age_days`, one whose reference calibration has changed since, a singular matrix
+and a covariance that is not positive definite. Each refusal is one line naming the file, the key and its
+line.
 """
 
 from __future__ import annotations
@@ -76,6 +79,35 @@ class TableRecord(Strict):
     repeats: int
 
 
+class ThermalDut(Strict):
+    """One DUT position: its temperature's first-order lag behind the air, where it settles relative to
+    the air, the fit's residual, and its noise per axis at a fixed field (one reading as `set_reset`)."""
+
+    lag_s: FiniteFloat
+    lag_se_s: FiniteFloat
+    offset_c: FiniteFloat
+    residual_c: FiniteFloat
+    temp_source: str
+    noise_nt: Vec3
+
+
+class ThermalRecord(Strict):
+    """What `rig commission --thermal` measured for planning (rig/reference/thermal.py)."""
+
+    start_air_c: FiniteFloat
+    step_c: tuple[FiniteFloat, FiniteFloat] = Field(description="the set point before and after the step")
+    commanded_rate_c_per_min: FiniteFloat
+    rate_c_per_min: FiniteFloat = Field(description="the air's real pace over the middle of the step")
+    overshoot_c: FiniteFloat
+    duration_s: FiniteFloat
+    set_reset: Literal["pair", "off"]
+    sample_s: FiniteFloat = Field(description="one sample of every DUT, the sensors and the read-back")
+    move_s: FiniteFloat = Field(description="a field-source move and its settling, beyond the stated time")
+    chamber_read_s: FiniteFloat
+    moves: int
+    duts: dict[str, ThermalDut]
+
+
 class CommissioningFile(Strict):
     format: Literal["magrig-commissioning"]
     format_version: Literal[1]
@@ -86,6 +118,7 @@ class CommissioningFile(Strict):
     reference_magnetometer: ReferenceRecord
     coils: CoilsRecord | None = None
     table: TableRecord | None = None
+    thermal: ThermalRecord | None = None
     settings: list[SettingRecord]
     content_sha256: str
 
@@ -110,6 +143,11 @@ class Commissioning:
     def section(self) -> CoilsRecord | TableRecord:
         """What was measured: the `coils:` or the `table:` section (a checked file has one of them)."""
         return self.record.coils if self.record.coils is not None else self.record.table
+
+    @property
+    def thermal(self) -> ThermalRecord | None:
+        """What `rig commission --thermal` measured for planning (None in a file without it)."""
+        return self.record.thermal
 
     @property
     def covariance(self) -> np.ndarray:

@@ -6,7 +6,12 @@ ambient with their covariance, linearity, hysteresis and drift, rig/fieldsources
 a turntable: its axes, rig/fieldsources/turntable/commissioning.py); this procedure drives the settings,
 reads the reference at each and writes the sealed file.
 
-Every device is made safe first and again at the end, whatever happens (error, Ctrl-C, SIGTERM). A
+With `thermal=True` it then measures what planning needs (rig/reference/thermal.py: the pace of a point,
+each DUT's noise, a step of the chamber's set point with the air and each DUT followed) into the file's
+`thermal:` section.
+
+Every device is made safe first and again at the end, whatever happens (error, Ctrl-C, SIGTERM): the coils
+at 0 A or the table stopped, the chamber at its safe set point. A
 faulty reference (no reply, a saturated reading), a coil that does not respond and a field that is not
 linear in its current each end it with one line naming the device and the axis; nothing is written then.
 """
@@ -33,8 +38,10 @@ SETTLE_S = 0.5
 
 def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 2,
                current_a: float | None = None, clock=None, on_rig=None,
-               now: dt.datetime | None = None) -> Path:
-    """Measure, fit and write the station's commissioning file; returns its path."""
+               now: dt.datetime | None = None, thermal: bool = False,
+               thermal_step_c: float | None = None) -> Path:
+    """Measure, fit and write the station's commissioning file (with `thermal`, its thermal section too);
+    returns its path."""
     text = read_text(station_path)
     station = load_model(Station, station_path, text)
     source = station.field_source
@@ -42,8 +49,14 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
     calibrations = load_reference_calibrations(station, station_path, text)
     target = inside(out_dir, f"{station.name}.commissioning.yaml")
     design = source.commissioning_design(current_a, repeats)
+    if thermal:
+        from rig.reference.thermal import THERMAL_STEP_C, measure_thermal
+
+        step_c = THERMAL_STEP_C if thermal_step_c is None else thermal_step_c
+    thermal_section = None
     rig = open_rig(station, clock=clock)  # every device connected and made safe first
     try:
+        start_air_c = rig.chamber.read().air_c if thermal else None  # where a campaign's air starts
         source.prepare(rig.field_source)
         if on_rig is not None:
             on_rig(rig)
@@ -59,10 +72,14 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
                 if exc.operation.startswith("commission"):
                     raise
                 raise type(exc)(exc.device, f"commission {what}: {exc.operation}", exc.detail) from None
+        if thermal:
+            thermal_section = measure_thermal(rig, station, step_c=step_c, start_air_c=start_air_c)
     finally:
         rig.close()  # safe: coils at 0 A, table stopped, chamber at its safe setpoint
     section = source.fit_commissioning(readings, ref_config.position_mm)
     fitted = {source.commissioning_section: {**section, "repeats": repeats}}
+    if thermal_section is not None:
+        fitted["thermal"] = _plain(thermal_section)
     moment = now or dt.datetime.now(dt.UTC)
     data = {
         "format": commissioning_file.FORMAT_NAME, "format_version": commissioning_file.FORMAT_VERSION,

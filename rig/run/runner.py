@@ -35,7 +35,14 @@ from rig.engine.commands import (
 )
 from rig.engine.executor import Engine, RunStatus
 from rig.engine.frozen import FrozenReadings
-from rig.engine.stability import STABLE, TIMEOUT, StabilityCriteria, StabilityDetector, criteria_of
+from rig.engine.stability import (
+    OFFSET,
+    STABLE,
+    TIMEOUT,
+    StabilityCriteria,
+    StabilityDetector,
+    criteria_of,
+)
 from rig.fieldsources.fieldmaths import reference_for
 from rig.session.events import Kind, Reason
 from rig.session.rows import SampleRow
@@ -65,6 +72,7 @@ class CampaignRunner:
         self.reference = None if self.source.needs_measurement() else reference_for(rig.station)
         self.site = None  # rig.reference.sitefield.SiteFieldMonitor when the field source needs a measurement
         self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
+        self.settled_c: dict[str, float] = {}  # where each DUT settled there (its place may be off the air)
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
         self.live_summaries = {name: "no data yet" for name in rig.duts}
@@ -151,14 +159,23 @@ class CampaignRunner:
                 f"in band {d.in_band_s:.0f} s)" for dut, d in detectors.items())
             if all(s == STABLE for s in states.values()):
                 waited = t - start
+                self.settled_c = {dut: d.level_c for dut, d in detectors.items()}
                 self.engine.event(Kind.STABLE, f"stable at {cmd.target_c:g} degC after {waited:.0f} s",
-                                  code=Reason.STABLE, temps=temps)
+                                  code=Reason.STABLE, temps=temps, settled_c=self.settled_c)
                 if self.site is not None:  # the step's first point: ambient re-checked, Hold on drift
                     self.site.recheck(self.engine.event, cmd.target_c)
                     self.reference = reference_for(self.rig.station, self.site.in_use.vector_nt)
                 return {"target_c": cmd.target_c, "waited_s": waited,
                         "duts": {dut: {"temp_c": d.last_temp_c, "rate_c_per_min": d.rate_c_per_min,
-                                       "in_band_s": d.in_band_s} for dut, d in detectors.items()}}
+                                       "in_band_s": d.in_band_s, "settled_c": d.level_c,
+                                       "offset_c": d.offset_c} for dut, d in detectors.items()}}
+            off = {dut: d for dut, d in detectors.items() if d.state == OFFSET}
+            if off:
+                where = "; ".join(f"{dut} settled at {d.level_c:.2f} degC, {d.offset_c:+.2f} degC from "
+                                  f"the set point {cmd.target_c:g}" for dut, d in off.items())
+                limit = cmd.criteria.max_offset_c
+                raise Hold(f"{where}: more than stability.max_offset_c {limit:g} (its place in the chamber "
+                           "or its sensor)", code=Reason.TEMP_OUT_OF_BAND, device=", ".join(off))
             late = [dut for dut, s in states.items() if s == TIMEOUT]
             if late:
                 raise Hold(f"{', '.join(late)} not stable at {cmd.target_c:g} degC within "
@@ -205,8 +222,9 @@ class CampaignRunner:
                 if temp_c is None:
                     raise Hold(f"{dut}: its temperature source gives no temperature",
                                code=Reason.NO_TEMPERATURE, device=dut)
-                if cmd.temp_band_c is not None and abs(temp_c - point.setpoint_c) > cmd.temp_band_c:
-                    raise Hold(f"{dut} temperature {temp_c:.2f} degC left {point.setpoint_c:g} +- "
+                settled = self.settled_c.get(dut, point.setpoint_c)  # where this DUT settled
+                if cmd.temp_band_c is not None and abs(temp_c - settled) > cmd.temp_band_c:
+                    raise Hold(f"{dut} temperature {temp_c:.2f} degC left {settled:.2f} +- "
                                f"{cmd.temp_band_c:g} degC during point {point.id}",
                                code=Reason.TEMP_OUT_OF_BAND, device=dut)
                 rows.append(SampleRow.from_field_sample(dut, sample, ref_nt[dut], temp_c=temp_c,

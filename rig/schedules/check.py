@@ -30,8 +30,42 @@ MAX_POINTS = 100_000
 MAX_SAMPLES_PER_DUT = 1_000_000  # the full campaign takes 19 200
 MAX_DURATION_S = 8 * 7 * 86_400.0  # eight weeks
 
-ASSUMED_START_C = 22.0
-ASSUMED_THERMAL_LAG_S = 600.0  # for real DUT mounts, whose lag the station does not state
+ASSUMED_START_C = 22.0  # a room: where the air is taken to start when nothing measured it
+
+
+@dataclass(frozen=True)
+class DutInput:
+    """What planning knows of a DUT (rig/schedules/inputs.py): its noise per fitted sample and axis (nT, as
+    the plan reads it), its temperature's first-order lag behind the air (s) and where it settles relative
+    to the air (degC); None where the source does not say."""
+
+    name: str
+    noise_nt: float | None
+    lag_s: float | None
+    offset_c: float | None
+    origin: str
+
+
+@dataclass(frozen=True)
+class ChamberInput:
+    """The chamber as measured: the air's fastest pace (degC/min) and overshoot (degC), where the air
+    starts (degC); rate None: not measured."""
+
+    rate_c_per_min: float | None
+    overshoot_c: float | None
+    start_c: float
+    origin: str
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The pace of a point: one sample of every DUT (with the sensors and the field source's read-back,
+    interleaved as a campaign reads them) and a point's own time beyond its settle_s and samples (moving
+    and settling the field source, reading the chamber), both s."""
+
+    sample_s: float
+    point_overhead_s: float
+    origin: str
 
 
 def plan_error(cls: type[Exception], plan: Plan, path: KeyPath, what: str) -> Exception:
@@ -142,10 +176,12 @@ def check_field_limits(plan: Plan, station: Station, points: list[Point], warnin
 
 
 # --- times ----------------------------------------------------------------------------------------------
-def sample_time_s(plan: Plan, station: Station) -> float:
-    """Time for one sample of every DUT. Reading is interleaved (rig/devices/interleave.py): the DUTs wait for
-    their conversions together, so a sample takes as long as the slowest DUT, except that DUTs sharing
-    one serial line are polled in turn. The temperature sensors are read first, together likewise."""
+def stated_sample_time_s(plan: Plan, station: Station) -> float:
+    """Time for one sample of every DUT from the drivers' stated conversion times, for a station whose pace
+    nothing has measured (rig/schedules/inputs.py). Reading is interleaved (rig/devices/interleave.py): the
+    DUTs wait for their conversions together, so a sample takes as long as the slowest DUT, except that
+    DUTs sharing one serial line are polled in turn. The temperature sensors are read first, together
+    likewise."""
     pair = plan.set_reset == "pair"
     groups: dict[tuple[str, str], float] = {}
     for d in station.duts:
@@ -156,36 +192,13 @@ def sample_time_s(plan: Plan, station: Station) -> float:
     return max(groups.values()) + max(sensors, default=0.0)
 
 
-def slowest_lag_s(station: Station) -> float:
-    """The longest thermal lag of the station's DUT mounts (real mounts: ASSUMED_THERMAL_LAG_S)."""
-    lags = []
-    for d in station.duts:
-        sim = station.sim.duts.get(d.name) if d.simulated else None
-        lag = None if sim is None else sim.thermal_lag_s
-        lags.append(ASSUMED_THERMAL_LAG_S if lag is None else lag)
-    return max(lags)
-
-
-def fastest_ramp_c_per_min(station: Station) -> float:
-    """The fastest the chamber's air can move: its limit, or the simulated chamber's own pace if slower
-    (what a design plans with)."""
-    limit = station.chamber.limits.max_ramp_c_per_min
-    if not station.chamber.simulated:
-        return limit
-    from rig.devices.bench import chamber_ramp_c_per_min
-
-    return min(limit, chamber_ramp_c_per_min())
-
-
-def start_air_c(station: Station) -> float:
-    """Where the chamber air starts: the simulated world's, else a room."""
-    air = station.sim.air_c if station.chamber.simulated else None
-    return ASSUMED_START_C if air is None else air
-
-
-def stable_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float, st: Stability) -> float:
-    """A first-order mount lags a ramp by rate*lag; after the ramp that error decays with the lag."""
-    lag_error_c = min(abs(delta_c), ramp_c_per_min / 60.0 * lag_s)
+def stable_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float | None, st: Stability,
+                        overshoot_c: float = 0.0) -> float:
+    """A first-order mount lags a ramp by rate*lag (and the air overshoots by overshoot_c); after the ramp
+    that error decays with the lag. Without a known lag only the dwell is counted."""
+    if lag_s is None:
+        return st.dwell_s
+    lag_error_c = max(min(abs(delta_c), ramp_c_per_min / 60.0 * lag_s), overshoot_c)
     decay = lag_s * math.log(lag_error_c / st.band_c) if lag_error_c > st.band_c else 0.0
     return decay + st.dwell_s
 

@@ -4,23 +4,25 @@
     designed = design_plan(plan, station, inputs)            # fields, samples, legs (calib/planner.py)
     text = designed_plan_text(plan_text, designed, ...)      # a normal plan file: rig check / rig run take it
 
-Where the numbers come from, in order:
+Where the numbers come from (rig/schedules/inputs.py, each with its origin printed):
 - targets: the plan's `stop_when`, else its `acceptance.max_std_error` (t24);
-- each DUT's noise (one fitted sample, per axis) and lag behind the air: an earlier session given with
-  --from (the T24 fit's residual sigma; the lag from the temperature settling in its longest hold,
-  calib/lag.py), else a designed plan's `assumed:`, else the station's simulated values (a SET/RESET pair
-  halves the variance), else ASSUMED_NOISE_NT and plancheck's ASSUMED_THERMAL_LAG_S for a real DUT;
-- the range: the plan's temperatures (steps: lowest and highest; ramp or sequential: range_c);
-- the chamber's maximum ramp rate, the field source's move and settle times and the sample time.
+- each DUT's noise (one fitted sample, per axis), its lag behind the air and where it settles relative to
+  it: an earlier session given with --from (rig/schedules/measured.py), a designed plan's `assumed:`, the
+  station's thermal commissioning, the station's `duts[].expect`; with none of them the design stops in one
+  line naming the three ways. The simulated world's own values are never read: a design --from a session
+  is the same whatever the station's `sim:` says;
+- the range: the plan's temperatures (steps: lowest and highest; ramp or sequential: range_c), at the DUTs;
+- the chamber's pace and starting air, the pace of a point: measured (--from, the thermal commissioning),
+  else the station's stated limit and the drivers' stated conversion times, said so.
 The field set is the I-optimal (or D-optimal) exact design over the plan's own fields (calib/design.py,
 Fedorov exchange on the [1, h] part of T24, which separates from the temperatures); the samples per point
-are as many as keep one sweep within the ramp check's span; the legs come from calib/planner.py.
+are as many as keep one sweep within the ramp check's span; the legs come from calib/planner.py, each end
+held until the slowest DUT is within END_TOLERANCE_SHARE of the plan's stability band of it.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,41 +41,51 @@ from calib.planner import (
     summarise,
     temp_ref_of,
 )
-from rig.config import (
-    DesignedTemperatures,
-    Plan,
-    RampTemperatures,
-    SequentialTemperatures,
-    Station,
-    VectorFields,
-)
-from rig.core.errors import ConfigError, DataError
+from rig.config import DesignedTemperatures, Plan, Station, VectorFields
+from rig.core.errors import ConfigError
 from rig.schedules.check import (
-    ASSUMED_THERMAL_LAG_S,
     MAX_DURATION_S,
-    fastest_ramp_c_per_min,
+    MAX_POINTS,
+    MAX_SAMPLES_PER_DUT,
+    Timing,
     field_targets,
     format_duration,
-    start_air_c,
 )
+from rig.schedules.inputs import PlanningInputs, dut_models, planning_inputs, require_duts
 
-ASSUMED_NOISE_NT = 50.0  # a real DUT's noise per fitted sample and axis when nothing says otherwise
 MAX_SAMPLES = 100  # per point; beyond this a sweep gains little and spans more temperature
 MIN_SWEEP_FIELDS = 8  # [1, h] has 4 parameters; twice that keeps a sweep balanced
 MAX_SWEEP_FIELDS = 24
 DEFAULT_CHECKS = 3  # interior temperatures of the model check
 DESIGN_HORIZON_S = 7 * 86_400.0  # the search looks no further than this
+# a designed end is held until the slowest DUT is predicted within this share of the plan's stability band
+# of it; the rest is left for the error of its measured lag and offset (acceptance judges the whole band)
+END_TOLERANCE_SHARE = 0.5
 
 
 @dataclass
 class DesignInputs:
     targets: dict[str, float]
+    planning: PlanningInputs
     duts: list[DutModel]
-    origins: dict[str, str]  # DUT -> where its noise and lag came from
     range_c: tuple[float, float]
-    rate_c_per_min: float
-    start_c: float
-    notes: list[str] = field(default_factory=list)
+    band_c: float
+
+    @property
+    def origins(self) -> dict[str, str]:
+        return {name: d.origin for name, d in self.planning.duts.items()}
+
+    @property
+    def notes(self) -> list[str]:
+        return self.planning.notes
+
+    @property
+    def rate_c_per_min(self) -> float:
+        return self.planning.rate_c_per_min
+
+    @property
+    def start_c(self) -> float:
+        return self.planning.chamber.start_c
 
 
 @dataclass
@@ -99,110 +111,19 @@ def plan_targets(plan: Plan) -> dict[str, float]:
 
 
 def plan_range(plan: Plan) -> tuple[float, float]:
-    temps = plan.temperatures
-    if isinstance(temps, RampTemperatures | SequentialTemperatures):
-        values = list(temps.range_c)
-    elif isinstance(temps, DesignedTemperatures):
-        values = [leg.to_c for leg in temps.legs if not leg.check]
-    else:
-        values = [s.setpoint_c for s in temps.step_list()]
-    lo, hi = min(values), max(values)
+    lo, hi = plan.temperatures.covered_c()
     if hi - lo < 1.0:
         raise ConfigError(f"plan {plan.name}: temperatures span {hi - lo:g} degC; a T24 design needs a range")
     return lo, hi
 
 
-def station_duts(plan: Plan, station: Station) -> tuple[list[DutModel], dict[str, str]]:
-    """Each DUT's noise and lag as the station states them (simulated), or assumed (real)."""
-    from rig.devices.bench import dut_truths
-
-    truths = dut_truths(station)
-    duts, origins = [], {}
-    for d in station.duts:
-        truth = truths.get(d.name)
-        if truth is None:
-            duts.append(DutModel(d.name, ASSUMED_NOISE_NT, ASSUMED_THERMAL_LAG_S))
-            origins[d.name] = (f"assumed (real DUT): noise {ASSUMED_NOISE_NT:g} nT, lag "
-                               f"{ASSUMED_THERMAL_LAG_S:g} s; design --from a session to measure them")
-            continue
-        pair = plan.set_reset == "pair" and bool(getattr(d.options, "set_reset", False))
-        sigma = truth.noise_nt / (math.sqrt(2.0) if pair else 1.0)
-        duts.append(DutModel(d.name, max(sigma, 1e-3), truth.thermal_lag_s))
-        origins[d.name] = "the station's simulated values"
-    return duts, origins
-
-
-def session_duts(session: Path, base: list[DutModel]) -> tuple[list[DutModel], dict[str, str], list[str]]:
-    """Noise and lag measured by an earlier session: the residual sigma of each DUT's T24 fit (lag-corrected
-    for a ramp), and its lag from the temperature settling in the session's holds (calib/lag.py)."""
-    import calib
-    from rig.analysis.lagfit import lag_corrected, session_is_ramp
-    from rig.session.reader import read_dataset
-
-    moving = session_is_ramp(session)
-    out, origins, notes = [], {}, []
-    for prior in base:
-        try:
-            ds = read_dataset(session, prior.name)
-        except DataError as exc:
-            raise DataError(f"--from {session}: {exc}") from None
-        lag_info = None
-        if moving:
-            ds, lag_info = lag_corrected(ds)
-        cal = calib.fit(ds, "t24")
-        sigma = max(cal.stats["sigma_nt"].values())
-        lag = _hold_lag(ds)
-        origin = f"session {session.name}: noise from the fit residual"
-        if lag is None:
-            lag = prior.lag_s
-            origin += f"; lag {lag:g} s as before (no hold at one temperature shows it)"
-        else:
-            origin += ", lag from its holds at one temperature"
-        if lag_info and lag_info.get("tau_s") is not None:
-            notes.append(f"{prior.name}: recorded temperature lags the element by {lag_info['tau_s']:.0f} "
-                         f"+- {lag_info['tau_se_s']:.0f} s (calib/lag.py); corrected by the fit")
-        out.append(DutModel(prior.name, sigma, lag))
-        origins[prior.name] = origin
-    return out, origins, notes
-
-
-def _hold_lag(ds) -> float | None:
-    """Settling time constant in the session's longest hold: a run of two or more sweeps at one nominal
-    air temperature (a ramp's end hold, a designed leg's end), the longest showing the most decay. A single
-    sweep's nominal is only where the air was when it began, and a step's dwell starts once the DUT has
-    settled: neither shows it."""
-    from calib.lag import settling_lag_s
-
-    t, setpoint = ds.columns["t"], ds.columns["setpoint_c"]
-    order = np.argsort(t, kind="stable")
-    t, temp, setpoint, sweep = t[order], ds.temp_c[order], setpoint[order], ds.group[order]
-    starts = np.flatnonzero(np.concatenate([[True], np.diff(setpoint) != 0, [True]]))
-    holds = [(t[b - 1] - t[a], a, b) for a, b in zip(starts[:-1], starts[1:], strict=True)
-             if len(set(sweep[a:b])) >= 2]
-    for _, a, b in sorted(holds, reverse=True):
-        lag = settling_lag_s(t[a:b], temp[a:b], float(setpoint[a]))
-        if lag is not None and lag < 0.5 * DESIGN_HORIZON_S:
-            return lag
-    return None
-
-
 def design_inputs(plan: Plan, station: Station, session: Path | None = None) -> DesignInputs:
-    targets = plan_targets(plan)
-    duts, origins = station_duts(plan, station)
-    notes: list[str] = []
-    temps = plan.temperatures
-    if session is not None:
-        duts, origins, notes = session_duts(session, duts)
-    elif isinstance(temps, DesignedTemperatures) and temps.assumed:
-        by_name = {d.name: d for d in duts}
-        for name, a in temps.assumed.items():
-            if name in by_name:
-                by_name[name] = DutModel(name, a.noise_nt, a.lag_s)
-                origins[name] = "the plan's assumed values"
-        duts = list(by_name.values())
-    lo, hi = plan_range(plan)
-    return DesignInputs(targets, duts, origins, (lo, hi), fastest_ramp_c_per_min(station),
-                        start_air_c(station), notes)
+    """The targets, and every DUT's noise and lag from a measurement or the station's statement (ConfigError
+    naming the three ways when a DUT has neither)."""
+    targets, range_c = plan_targets(plan), plan_range(plan)
+    planning = planning_inputs(plan, station, session)
+    require_duts(planning, station)
+    return DesignInputs(targets, planning, dut_models(planning), range_c, plan.temperatures.band_c())
 
 
 # --- the design ----------------------------------------------------------------------------------------
@@ -232,11 +153,12 @@ def _with(plan: Plan, fields: list[tuple[float, ...]], samples: int, station: St
     return plan.model_copy(update={"fields": fieldset, "samples_per_point": samples})
 
 
-def pace_for(plan: Plan, station: Station, fields: list[tuple[float, ...]], samples: int) -> Pace:
-    """One sweep of `fields` with `samples` per point, timed as rig check times it."""
+def pace_for(plan: Plan, station: Station, fields: list[tuple[float, ...]], samples: int,
+             timing: Timing | None = None) -> Pace:
+    """One sweep of `fields` with `samples` per point, timed as rig check times it (at `timing`'s pace)."""
     from rig.schedules.ramp import sweep_time_s
 
-    sweep_s = sum(sweep_time_s(_with(plan, fields, samples, station), station, fields).values())
+    sweep_s = sum(sweep_time_s(_with(plan, fields, samples, station), station, fields, timing).values())
     nominal = np.array([station.field_source.nominal_field_nt(f) for f in fields], float)
     return Pace(nominal, samples, sweep_s / len(fields))
 
@@ -247,20 +169,25 @@ def design_plan(plan: Plan, station: Station, inputs: DesignInputs, *, criterion
 
     fields = design_fields(plan, station, criterion)
     lo, hi = inputs.range_c
+    timing = inputs.planning.timing
     rate = crossing_rate(inputs.rate_c_per_min, hi - lo, max(d.lag_s for d in inputs.duts))
     allowed_s = MAX_SWEEP_SPAN_FRACTION * (hi - lo) / rate * 60.0  # one sweep may span this much
-    one = pace_for(plan, station, fields, 1)
-    two = pace_for(plan, station, fields, 2)
+    one = pace_for(plan, station, fields, 1, timing)
+    two = pace_for(plan, station, fields, 2, timing)
     per_sample_s = two.sweep_s - one.sweep_s
     samples = int((allowed_s - one.sweep_s) // per_sample_s) + 1 if per_sample_s > 0 else MAX_SAMPLES
     samples = min(max(samples, 1), MAX_SAMPLES)
-    pace = pace_for(plan, station, fields, samples)
+    pace = pace_for(plan, station, fields, samples, timing)
     if pace.sweep_s > allowed_s:  # even one sample is too slow for the chamber's rate: ramp slower
         rate = MAX_SWEEP_SPAN_FRACTION * (hi - lo) / pace.sweep_s * 60.0
     checks = tuple(round((lo + (hi - lo) * (k + 1) / (n_checks + 1)) * 2) / 2 for k in range(n_checks))
-    chamber = ChamberModel((lo, hi), rate, checks, check_sweeps)
+    lim = station.chamber.limits
+    chamber = ChamberModel((lo, hi), rate, checks, check_sweeps, END_TOLERANCE_SHARE * inputs.band_c,
+                           (lim.min_setpoint_c, lim.max_setpoint_c))
+    most_sweeps = min(MAX_POINTS // len(fields), MAX_SAMPLES_PER_DUT // (len(fields) * samples))
+    longest_s = min(DESIGN_HORIZON_S, MAX_DURATION_S, most_sweeps * pace.sweep_s)  # a plan rig check takes
     schedule = design_schedule(inputs.duts, chamber, pace, inputs.targets, start_c=inputs.start_c,
-                               max_duration_s=min(DESIGN_HORIZON_S, MAX_DURATION_S))
+                               max_duration_s=longest_s)
     return Designed(fields, samples, rate, schedule, inputs, criterion, pace.sweep_s)
 
 
@@ -275,9 +202,22 @@ def designed_plan_dict(plan_text: str, designed: Designed, station: Station, nam
         if leg.kind == CHECK:
             entry["check"] = True
         legs.append(_FlowMap(entry))
+    planning = designed.inputs.planning
+    assumed = {}
+    for d in designed.inputs.duts:
+        entry = {"noise_nt": _round(d.sigma_nt), "lag_s": _round(d.lag_s)}
+        if planning.duts[d.name].offset_c is not None:
+            entry["offset_c"] = round(float(d.offset_c), 3)
+        assumed[d.name] = _FlowMap(entry)
     temps = {"mode": "designed", "rate_c_per_min": _round(designed.rate_c_per_min), "legs": legs,
-             "assumed": {d.name: _FlowMap(noise_nt=_round(d.sigma_nt), lag_s=_round(d.lag_s))
-                         for d in designed.inputs.duts}}
+             "range_c": _Flow(float(v) for v in designed.inputs.range_c), "assumed": assumed}
+    if not planning.timing.origin.startswith("the drivers'"):
+        temps["timing"] = _FlowMap(sample_s=_round(planning.timing.sample_s),
+                                   point_overhead_s=_round(planning.timing.point_overhead_s),
+                                   measured_by=planning.timing.origin.split(":")[0])
+    stability = (data.get("temperatures") or {}).get("stability")
+    if stability is not None:
+        temps["stability"] = stability
     data["temperatures"] = temps
     if "vectors" in station.field_source.field_kinds:
         data["fields"] = {"kind": "vectors",
@@ -337,7 +277,11 @@ def predicted_lines(plan: Plan, station: Station, targets_nt: list[tuple[float, 
     targets = plan.se_targets()
     if not targets:
         return None, ["predicted standard errors: give stop_when or acceptance.max_std_error to see them"]
-    inputs = design_inputs(plan, station)
+    planning = planning_inputs(plan, station)
+    if planning.missing():
+        return None, [f"predicted standard errors: not predicted: no measured lags and noise for "
+                      f"{', '.join(planning.missing()[:4])}"]
+    inputs = DesignInputs(targets, planning, dut_models(planning), plan_range(plan), temps.band_c())
     nominal = np.array([station.field_source.nominal_field_nt(t) for t in targets_nt], float)
     pace = Pace(nominal, plan.samples_per_point, sweep_s / len(targets_nt))
     legs = [Leg(leg.to_c, leg.sweeps, leg.rate_c_per_min or temps.rate_c_per_min,
@@ -367,6 +311,14 @@ def schedule_lines(schedule: Schedule, inputs: DesignInputs) -> list[str]:
         lines.append(f"  {format_duration(schedule.sweep_end_s[end]):>7} after {what}: "
                      + ", ".join(f"{g} {worst[g] * targets[g]:.3g}{TARGET_UNITS.get(g, '')}" for g in groups))
     lines.append(f"  {schedule.message}")
+    if schedule.element_c:
+        low = max(float(np.min(e)) for e in schedule.element_c.values())
+        high = min(float(np.max(e)) for e in schedule.element_c.values())
+        lo, hi = inputs.range_c
+        lines.append(f"  every DUT's element reaches {low:.1f} and {high:.1f} degC (predicted; the range "
+                     f"{lo:g} .. {hi:g} degC, stability band {inputs.band_c:g})")
     for d in inputs.duts:
-        lines.append(f"  {d.name}: noise {d.sigma_nt:.3g} nT, lag {d.lag_s:.0f} s ({inputs.origins[d.name]})")
+        offset = "" if d.offset_c == 0 else f", settles {d.offset_c:+.2f} degC from the air"
+        lines.append(f"  {d.name}: noise {d.sigma_nt:.3g} nT, lag {d.lag_s:.0f} s{offset} "
+                     f"({inputs.origins[d.name]})")
     return lines

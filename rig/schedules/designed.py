@@ -24,8 +24,8 @@ from rig.schedules.check import (
     ScheduleCheck,
     format_duration,
     plan_error,
-    start_air_c,
 )
+from rig.schedules.inputs import planning_inputs
 from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
 
 LEGS_PATH = ("temperatures", "legs")
@@ -69,6 +69,28 @@ def leg_points(plan: Plan, station: Station, targets: list[tuple[float, ...]], *
     return points
 
 
+def leg_times_s(temps: DesignedTemperatures, start_c: float, sweep_s: float, air_rate_c_per_min: float
+                ) -> list[float]:
+    """Each leg's time as a run takes it: a sweep begins when the one before has ended and the air has
+    reached the sweep's nominal temperature (rig/schedules/moving_tasks.py AwaitAir), the air moving at the
+    leg's rate, or at the chamber's pace where that is slower."""
+    from rig.schedules.moving_tasks import AIR_TOLERANCE_C
+
+    nominal_from, air, out = start_c, start_c, []
+    for i, leg in enumerate(temps.legs):
+        rate = leg_rate(temps, i)
+        real = min(rate, air_rate_c_per_min)
+        t = 0.0
+        for k in range(leg.sweeps):
+            nominal = nominal_air(nominal_from, leg.to_c, rate, k * sweep_s)
+            behind = (nominal - air) if leg.to_c >= nominal_from else (air - nominal)
+            t = max(t, (behind - AIR_TOLERANCE_C) / real * 60.0) + sweep_s
+        out.append(t)
+        air = nominal_air(air, leg.to_c, real, t)
+        nominal_from = nominal_air(nominal_from, leg.to_c, rate, leg.sweeps * sweep_s)
+    return out
+
+
 class LegSchedule:
     """The points of a designed plan and its part of the plan check."""
 
@@ -79,6 +101,7 @@ class LegSchedule:
         self.plan, self.station, self.targets, self.temps = plan, station, targets, plan.temperatures
         self.sweep_parts_s = sweep_time_s(plan, station, targets)
         self.sweep_s = sum(self.sweep_parts_s.values())
+        self.inputs = planning_inputs(plan, station)
 
     def points(self) -> list[RampPoint]:
         temps, targets = self.temps, self.targets
@@ -92,7 +115,7 @@ class LegSchedule:
         widths = (max(2, len(str(len(temps.legs)))), max(3, len(str(max(leg.sweeps for leg in temps.legs)))),
                   max(2, len(str(len(targets)))))
         points: list[RampPoint] = []
-        air = start_air_c(self.station)
+        air = self.inputs.chamber.start_c
         for i, leg in enumerate(temps.legs):
             rate = leg_rate(temps, i)
             points += leg_points(self.plan, self.station, targets, leg=i + 1, sweeps=(1, leg.sweeps),
@@ -108,15 +131,18 @@ class LegSchedule:
         self._check_limits()
         points = self.points()
         n_sweeps = sum(leg.sweeps for leg in self.temps.legs)
-        checks = sum(leg.sweeps for leg in self.temps.legs if leg.check)
-        breakdown = {"to and at the ends": (n_sweeps - checks) * self.sweep_s,
-                     "across via the checks": checks * self.sweep_s}
+        times = leg_times_s(self.temps, self.inputs.chamber.start_c, self.sweep_s, self.inputs.rate_c_per_min)
+        breakdown = {"to and at the ends": sum(t for t, leg in zip(times, self.temps.legs, strict=True)
+                                               if not leg.check),
+                     "across via the checks": sum(t for t, leg in zip(times, self.temps.legs, strict=True)
+                                                  if leg.check)}
         legs = ", ".join(f"{leg.to_c:g} degC x {leg.sweeps}" + (" (check)" if leg.check else "")
                          for leg in self.temps.legs)
         lines = [f"designed schedule: {len(self.temps.legs)} legs ({legs} sweeps), ramps at "
                  f"{self.temps.rate_c_per_min:g} degC/min",
                  f"one sweep of {len(self.targets)} fields: {format_duration(self.sweep_s)} ("
-                 + ", ".join(f"{k} {format_duration(v)}" for k, v in self.sweep_parts_s.items()) + ")"]
+                 + ", ".join(f"{k} {format_duration(v)}" for k, v in self.sweep_parts_s.items()) + ")",
+                 *self.inputs.lines()]
         prediction, predicted = predicted_lines(self.plan, self.station, self.targets, self.sweep_s)
         lines += predicted
         return ScheduleCheck(points, n_sweeps, breakdown, DURATION_KEYS, lines, self.word, prediction)
@@ -135,7 +161,7 @@ class LegSchedule:
                                                                                      "rate_c_per_min")
                 raise plan_error(LimitError, plan, path, f"{rate:g} degC/min exceeds chamber.limits "
                                  f"max_ramp_c_per_min {lim.max_ramp_c_per_min:g}")
-        ends = [leg.to_c for leg in temps.legs] + [start_air_c(self.station)]
+        ends = [leg.to_c for leg in temps.legs] + [self.inputs.chamber.start_c]
         span = max(ends) - min(ends)
         swept_c = max(leg_rate(temps, i) for i in range(len(temps.legs))) * self.sweep_s / 60.0
         if span > 0 and swept_c > MAX_SWEEP_SPAN_FRACTION * span:

@@ -24,14 +24,13 @@ from rig.schedules.check import (
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
     ScheduleCheck,
+    Timing,
     check_range_limits,
     format_duration,
     plan_error,
-    sample_time_s,
-    slowest_lag_s,
     stable_after_ramp_s,
-    start_air_c,
 )
+from rig.schedules.inputs import planning_inputs, timing_of
 
 RAMP_PATH = ("temperatures", "rate_c_per_min")
 DURATION_KEYS = {
@@ -66,11 +65,14 @@ def legs(ramp: RampTemperatures) -> list[Leg]:
     return out
 
 
-def sweep_time_s(plan: Plan, station: Station, targets: list[tuple[float, ...]]) -> dict[str, float]:
-    """One sweep of the field set: moves (back to the first target included), settling and sampling."""
+def sweep_time_s(plan: Plan, station: Station, targets: list[tuple[float, ...]],
+                 timing: Timing | None = None) -> dict[str, float]:
+    """One sweep of the field set at the measured pace (rig/schedules/inputs.py `timing_of`, or `timing`):
+    moves (back to the first target included) and each point's own time, settling, and sampling."""
+    timing = timing or timing_of(plan, station)
     moves = station.field_source.move_time_s([*targets, targets[0]])
-    return {"moves+settle": moves + plan.settle_s * len(targets),
-            "sampling": sample_time_s(plan, station) * plan.samples_per_point * len(targets)}
+    return {"moves+settle": moves + (plan.settle_s + timing.point_overhead_s) * len(targets),
+            "sampling": timing.sample_s * plan.samples_per_point * len(targets)}
 
 
 def sweeps_per_leg(ramp: RampTemperatures, sweep_s: float) -> int:
@@ -122,6 +124,7 @@ class RampSchedule:
         span_c = self._check_limits()
         points = self.points()
         per_leg = max(p.sweep for p in points)
+        inputs = planning_inputs(self.plan, self.station)
         lines = [
             f"continuous ramp {ramp.range_c[0]:g} -> {ramp.range_c[1]:g} degC and back at "
             f"{ramp.rate_c_per_min:g} degC/min, {ramp.cycles} cycle(s), {per_leg} sweeps per leg",
@@ -129,9 +132,13 @@ class RampSchedule:
             + ", ".join(f"{k} {format_duration(v)}" for k, v in self.sweep_parts_s.items())
             + f"), spanning {span_c:.2g} degC of air temperature (at most "
             f"{MAX_SWEEP_SPAN_FRACTION:.0%} of the range)",
+            *inputs.lines(),
         ]
-        return ScheduleCheck(points, per_leg * 2 * ramp.cycles, self._duration(per_leg), DURATION_KEYS,
-                             lines, self.word)
+        if not inputs.stated_rate and ramp.rate_c_per_min > inputs.rate_c_per_min:
+            lines.append(f"warning: the air was measured at {inputs.rate_c_per_min:.3g} degC/min: a "
+                         f"{ramp.rate_c_per_min:g} degC/min ramp lags behind its sweeps")
+        return ScheduleCheck(points, per_leg * 2 * ramp.cycles, self._duration(per_leg, inputs),
+                             DURATION_KEYS, lines, self.word)
 
     def _check_size(self, n_sweeps: int, n_fields: int) -> None:
         plan = self.plan
@@ -156,18 +163,20 @@ class RampSchedule:
                              f"<= {fastest:.2g} degC/min, or take fewer fields or samples")
         return span_c
 
-    def _duration(self, per_leg: int) -> dict[str, float]:
-        """To the range start and stable there, then the legs: ramps, end holds, and the last sweep of each
-        leg running past them (a leg ends with a whole sweep)."""
-        ramp, station = self.ramp, self.station
-        rate = station.chamber.limits.max_ramp_c_per_min
-        delta = ramp.range_c[0] - start_air_c(station)
+    def _duration(self, per_leg: int, inputs) -> dict[str, float]:
+        """To the range start and stable there, then the legs: ramps (at the plan's rate, or the air's
+        measured pace when slower), end holds, and the last sweep of each leg running past them (a leg ends
+        with a whole sweep)."""
+        ramp = self.ramp
+        rate = inputs.rate_c_per_min
+        delta = ramp.range_c[0] - inputs.chamber.start_c
         n_legs = 2 * ramp.cycles
-        ramps_s = abs(ramp.range_c[1] - ramp.range_c[0]) / ramp.rate_c_per_min * 60.0 * n_legs
+        ramps_s = abs(ramp.range_c[1] - ramp.range_c[0]) / min(ramp.rate_c_per_min, rate) * 60.0 * n_legs
         sweeps_s = per_leg * self.sweep_s * n_legs
         return {
             "to start": abs(delta) / rate * 60.0,
-            "stability": stable_after_ramp_s(delta, rate, slowest_lag_s(station), ramp.stability),
+            "stability": stable_after_ramp_s(delta, rate, inputs.slowest_lag_s(), ramp.stability,
+                                             inputs.overshoot_c()),
             "ramps": ramps_s,
             "end holds": ramp.end_hold_s * n_legs,
             "last sweeps": max(0.0, sweeps_s - ramps_s - ramp.end_hold_s * n_legs),

@@ -1,7 +1,10 @@
-"""A sequential schedule (`temperatures: {mode: sequential, ...}`): the campaign decides its sweeps as it
-goes (rig/schedules/sequential_run.py runs it; calib/planner.py decides). Before the run only the first sweep
-is known: to the end of `range_c` the design from the station's values starts with, at the fastest rate, with
-the optimal exact set of `fields_per_sweep` of the plan's fields. After the last point of every sweep the run
+"""A sequential schedule (`temperatures: {mode: sequential, ...}`): the campaign decides its sweeps as it goes
+(rig/schedules/sequential_run.py runs it; calib/planner.py decides). It needs no prior: what is known of the
+DUTs (measured or stated, rig/schedules/inputs.py) only shapes its first leg, and the run measures each DUT's
+lag and noise itself. Before the run only the first sweep is known: to the end of `range_c` the design from
+the known values starts with, or, when a DUT's lag is not known, to the nearer end (the run's own
+characterisation: it stays on that leg until it has measured every DUT's lag), at the fastest rate, with the
+optimal exact set of `fields_per_sweep` of the plan's fields. After the last point of every sweep the run
 decides the next sweep (stay, next leg, or stop) and records it in the session, in the same transaction as
 that point, as a row of the `decisions` table plus the sweep's points. So the planned points of a session are
 the first sweep followed by every recorded decision's sweep, and a resume rebuilds exactly them
@@ -13,12 +16,11 @@ as sweeps are added:
     L02-S0003-F07     leg 2, sweep 3 of that leg, field 7 of the plan's fields
 
 Its part of `rig check`: the chamber's limits, one sweep's pace, the worst-case duration (max_duration_h)
-and what the design from the station's values expects (legs, chamber time, standard errors).
+and what the design from the known values expects (legs, chamber time, standard errors), or that it is not
+predicted without measured lags.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -30,13 +32,14 @@ from rig.core.points import RampPoint
 from rig.schedules.check import (
     ScheduleCheck,
     check_range_limits,
-    fastest_ramp_c_per_min,
     format_duration,
     plan_error,
-    start_air_c,
 )
 from rig.schedules.designed import leg_points
+from rig.schedules.inputs import dut_models, planning_inputs
 from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
+
+END_TOLERANCE_SHARE = 0.5  # as a designed plan's (rig/schedules/design.py): the other half for the errors
 
 RATE_PATH = ("temperatures", "rate_c_per_min")
 WIDTHS_LEG_SWEEP = (2, len(str(MAX_SWEEPS)))
@@ -55,6 +58,8 @@ class SequentialSchedule:
         self.sweep_parts_s = sweep_time_s(plan, station, targets[: self.n_pick])
         self.sweep_s = sum(self.sweep_parts_s.values())
         self.widths = (*WIDTHS_LEG_SWEEP, max(2, len(str(len(targets)))))
+        self.inputs = planning_inputs(plan, station)
+        self.priors = None if self.inputs.missing() else dut_models(self.inputs)  # None: characterise first
 
     # --- the model the decisions use ---------------------------------------------------------------------
     def nominal_fields(self) -> np.ndarray:
@@ -62,13 +67,22 @@ class SequentialSchedule:
 
     def chamber(self, rate_c_per_min: float | None = None) -> ChamberModel:
         lo, hi = sorted(self.temps.range_c)
+        lim = self.station.chamber.limits
         return ChamberModel((lo, hi), rate_c_per_min or self.rate(), tuple(self.temps.checks()),
-                            self.temps.check_sweeps)
+                            self.temps.check_sweeps, END_TOLERANCE_SHARE * self.temps.band_c(),
+                            (lim.min_setpoint_c, lim.max_setpoint_c))
 
     def rate(self) -> float:
-        """The plan's rate, or the chamber's fastest if slower (rig check refuses one above the chamber's
-        limit); decisions may ramp slower."""
-        return min(self.temps.rate_c_per_min or math.inf, fastest_ramp_c_per_min(self.station))
+        """The plan's rate, or the chamber's fastest if slower (measured, else the stated limit; rig check
+        refuses one above the limit); without a rate of its own the plan ramps no faster than keeps one
+        sweep within MAX_SWEEP_SPAN_FRACTION of the range. Decisions may ramp slower."""
+        if self.temps.rate_c_per_min is not None:
+            return min(self.temps.rate_c_per_min, self.inputs.rate_c_per_min)
+        span = abs(self.temps.range_c[1] - self.temps.range_c[0])
+        return min(self.inputs.rate_c_per_min, MAX_SWEEP_SPAN_FRACTION * span / self.sweep_s * 60.0)
+
+    def start_c(self) -> float:
+        return self.inputs.chamber.start_c
 
     def pace(self, picks: list[int]) -> Pace:
         """One sweep of the fields `picks` (1-based) at the estimated pace."""
@@ -84,12 +98,13 @@ class SequentialSchedule:
         return sorted(int(i) + 1 for i in exchange(x, self.n_pick, "I"))
 
     def expected(self):
-        """The design from the station's values: where the first leg goes, and what the run may expect."""
-        from rig.schedules.design import station_duts
-
-        duts, _ = station_duts(self.plan, self.station)
-        return design_schedule(duts, self.chamber(), self.pace(self.first_picks()), self.plan.se_targets(),
-                               start_c=start_air_c(self.station), max_duration_s=self.max_duration_s())
+        """The design from the known values: where the first leg goes, and what the run may expect (None
+        when a DUT's lag is not known: the run characterises first)."""
+        if self.priors is None:
+            return None
+        return design_schedule(self.priors, self.chamber(), self.pace(self.first_picks()),
+                               self.plan.se_targets(), start_c=self.start_c(),
+                               max_duration_s=self.max_duration_s())
 
     def max_duration_s(self) -> float:
         return self.temps.max_duration_h * 3600.0
@@ -104,18 +119,25 @@ class SequentialSchedule:
                           field_indices=picks)
 
     def first_leg_end(self) -> float:
-        return self.expected().legs[0].to_c
+        """Where the design from the known values goes first; without them the nearer end of the range."""
+        expected = self.expected()
+        if expected is not None:
+            return expected.legs[0].to_c
+        lo, hi = sorted(self.temps.range_c)
+        return lo if abs(self.start_c() - lo) <= abs(self.start_c() - hi) else hi
+
+    def first_rate(self) -> float:
+        """The plan's rate, no faster than the slowest DUT (when known) can follow."""
+        lo, hi = sorted(self.temps.range_c)
+        slowest = self.inputs.slowest_lag_s()
+        return self.rate() if slowest is None else crossing_rate(self.rate(), hi - lo, slowest)
 
     def points(self) -> list[RampPoint]:
-        """Only the first sweep is known before the run: towards the end the design starts with, at the
-        plan's rate or as fast as the slowest DUT (by the station's values) can follow."""
-        from rig.schedules.design import station_duts
-
-        lo, hi = sorted(self.temps.range_c)
-        slowest = max(d.lag_s for d in station_duts(self.plan, self.station)[0])
-        return self.sweep_points(leg=1, sweep=1, from_c=start_air_c(self.station), to_c=self.first_leg_end(),
-                                 rate_c_per_min=crossing_rate(self.rate(), hi - lo, slowest),
-                                 picks=self.first_picks(), first_index=0, first_temp_index=1)
+        """Only the first sweep is known before the run: towards the end the design starts with (or the
+        nearer end), at the plan's rate or as fast as the slowest DUT (when known) can follow."""
+        return self.sweep_points(leg=1, sweep=1, from_c=self.start_c(), to_c=self.first_leg_end(),
+                                 rate_c_per_min=self.first_rate(), picks=self.first_picks(), first_index=0,
+                                 first_temp_index=1)
 
     def decided_points(self, decisions: list[dict], first_index: int) -> list[RampPoint]:
         """The sweeps recorded decisions added, in order (a resume rebuilds the session's planned points)."""
@@ -140,18 +162,23 @@ class SequentialSchedule:
         points = self.points()
         max_s = self.max_duration_s()
         expected = self.expected()
-        legs = ", ".join(f"{leg.to_c:g} x {leg.sweeps}" for leg in expected.legs)
         lo, hi = sorted(self.temps.range_c)
         lines = [
-            f"sequential schedule over {lo:g} .. {hi:g} degC at up to {self.rate():g} degC/min; checks at "
+            f"sequential schedule over {lo:g} .. {hi:g} degC at up to {self.rate():.3g} degC/min; checks at "
             + ", ".join(f"{c:g}" for c in self.temps.checks()) + " degC; decided after every sweep; stops "
             f"when every DUT meets stop_when, at the latest after {format_duration(max_s)}",
             f"one sweep of {self.n_pick} of the {len(self.targets)} fields: {format_duration(self.sweep_s)} ("
             + ", ".join(f"{k} {format_duration(v)}" for k, v in self.sweep_parts_s.items()) + ")",
-            f"expected from the station's values: legs {legs} sweeps, "
-            f"{format_duration(expected.duration_s)}; "
-            + expected.message,
+            *self.inputs.lines(),
         ]
+        if expected is None:
+            lines.append(f"expected legs and time: not predicted: no measured lags; the run characterises "
+                         f"each DUT on its first leg (to {self.first_leg_end():g} degC) and measures them "
+                         "itself")
+        else:
+            legs = ", ".join(f"{leg.to_c:g} x {leg.sweeps}" for leg in expected.legs)
+            lines.append(f"expected from the known values: legs {legs} sweeps, "
+                         f"{format_duration(expected.duration_s)}; " + expected.message)
         n_sweeps = int(max_s // self.sweep_s)
         breakdown = {"at most": max_s}
         # the T24 design is the decisions' business (both ends, the checks): the first sweep alone is not it
@@ -168,7 +195,7 @@ class SequentialSchedule:
         check_range_limits(plan, self.station, temps.range_c, temps.rate_c_per_min, RATE_PATH)
         span = abs(temps.range_c[1] - temps.range_c[0])
         swept_c = self.rate() * self.sweep_s / 60.0
-        if swept_c > MAX_SWEEP_SPAN_FRACTION * span:
+        if swept_c > MAX_SWEEP_SPAN_FRACTION * span * (1 + 1e-9):
             raise plan_error(LimitError, plan, RATE_PATH,
                              f"one sweep of {self.n_pick} fields takes {format_duration(self.sweep_s)} and "
                              "spans "

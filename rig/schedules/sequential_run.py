@@ -7,17 +7,22 @@ air is. CollectPoint of a sweep's last point calls `decide` with the point's row
 
 1. each DUT's data so far, its temperature moved to the element's (calib/lag.py, when the lag shows),
    gives its Gram, noise and standard errors; the worst ratio to the targets (calib/targets.py);
-2. calib/sequential.py `next_leg`: stop (every DUT meets its targets and the model check's temperatures are
-   done; or max_duration_h is reached), stay at the current leg's temperature, or start the next leg;
-3. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag behind the air
-   plus its recorded temperature's lag estimated so far);
-4. the sweep's fields: `fields_per_sweep` of the plan's fields, picked one by one for the largest drop
+2. each DUT's lag behind the air and where it settles, fitted again from its temperature against the air
+   the run logs, replaces the one in use when it differs (rig/schedules/sequential_estimates.py): the
+   run measures what it plans with, and needs no prior. While a DUT's lag is not known yet the run stays
+   on its first leg (its characterisation);
+3. calib/sequential.py `next_leg`: stop (every DUT meets its targets, the model check's temperatures are
+   done and every DUT's data covers both ends of the range; or max_duration_h is reached), stay at the
+   current leg's temperature (an end until every DUT has come close enough to it), or start the next leg;
+4. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag in use);
+5. the sweep's fields: `fields_per_sweep` of the plan's fields, picked one by one for the largest drop
    in the variance of the worst DUT's worst parameter (calib/design.py `gain_for`), at the temperature
    its element is expected at.
 
-The decision and the sweep's points go into the session in the same transaction as the point itself
-(rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds exactly the points
-decided so far, whenever the run stopped; the engine gets the new tasks at the point's Checkpoint.
+The decision (with the estimates in use) and the sweep's points go into the session in the same transaction as
+the point itself (rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds
+exactly the points decided so far, whenever the run stopped; the engine gets the new tasks at the point's
+Checkpoint.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from rig.engine.commands import Task
 from rig.schedules.check import field_targets
 from rig.schedules.moving_tasks import RampMode
 from rig.schedules.sequential import SequentialSchedule
+from rig.schedules.sequential_estimates import AirLog, Estimate, adopted, affine_sigma_nt
 from rig.session.events import Kind, Reason
 from rig.session.rows import Decision
 
@@ -78,6 +84,7 @@ class Measured:
     element_c: float | None
     lag_s: float | None
     lag_se_s: float | None
+    covered_c: tuple[float, float] | None = None  # its lowest and highest element temperature so far
 
 
 def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measured:
@@ -105,7 +112,8 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measur
     sigma = None
     if math.isfinite(status.worst_ratio):
         sigma = max(acc.solve().stats["sigma_nt"].values())
-    return Measured(acc.gram[:8, :8].copy(), sigma, status.worst_ratio, float(corrected[-1]), lag, lag_se)
+    return Measured(acc.gram[:8, :8].copy(), sigma, status.worst_ratio, float(corrected[-1]), lag, lag_se,
+                    (float(np.min(corrected)), float(np.max(corrected))))
 
 
 class SequentialMode(RampMode):
@@ -118,9 +126,11 @@ class SequentialMode(RampMode):
         self.schedule = SequentialSchedule(plan, station, field_targets(plan, station))
         self.targets = plan.se_targets()
         self.temp_ref_c = temp_ref_of(self.schedule.chamber())
-        from rig.schedules.design import station_duts
-
-        self.priors = {d.name: d for d in station_duts(plan, station)[0]}
+        self.in_use: dict[str, Estimate] = {  # what is known before the run (measured or stated), if anything
+            d.name: Estimate(d.lag_s, None, d.offset_c, d.sigma_nt, self.schedule.inputs.duts[d.name].origin)
+            for d in self.schedule.priors or []}
+        self.air = AirLog()
+        self.reached: dict[str, tuple[float, float]] = {}  # each DUT's lowest and highest element so far
         self.rows = {dut: _Rows() for dut in runner.rig.duts}
         self.pending: list[RampPoint] = []
         self.stop_message: tuple[str, Reason] | None = None
@@ -135,6 +145,15 @@ class SequentialMode(RampMode):
 
         with SessionReader(session_path) as reader:
             self.started_s = reader.info()["started"]
+            for row in reader.temperatures():
+                self.air.add(row["t"], row["air_c"])
+            decisions = reader.decisions()
+            recorded = [d["estimates"] for d in decisions if d.get("estimates")]
+            if recorded:  # the estimates the run was planning with when it stopped
+                self.in_use = {dut: Estimate.from_dict(e) for dut, e in recorded[-1].items()}
+            reached = [d["reached_c"] for d in decisions if d.get("reached_c")]
+            if reached:
+                self.reached = {dut: (float(lo), float(hi)) for dut, (lo, hi) in reached[-1].items()}
             for dut, rows in self.rows.items():
                 try:
                     ds = reader.dataset(dut)
@@ -152,6 +171,7 @@ class SequentialMode(RampMode):
     def decide(self, point: RampPoint, rows) -> Decision | None:
         """Called with each point's rows before they are stored; the next sweep after a sweep's last point."""
         self._add(rows)
+        self.air.add(self.runner.rig.clock.now(), self.runner.status.chamber_c)
         if point.id != self.runner.points[-1].id:
             return None
         try:
@@ -174,27 +194,43 @@ class SequentialMode(RampMode):
     def _next(self, point: RampPoint) -> tuple[dict, list[RampPoint]]:
         measured = {dut: measure(rows, self.targets, self.temp_ref_c) for dut, rows in self.rows.items()}
         ratios = {dut: m.ratio for dut, m in measured.items()}
+        noise = {dut: self._noise(dut, m) for dut, m in measured.items()}
+        replanned = self._estimate(noise)
+        for dut, m in measured.items():  # an end once reached stays reached (lag estimates move the data)
+            if m.covered_c is not None:
+                low, high = self.reached.get(dut, m.covered_c)
+                self.reached[dut] = (min(low, m.covered_c[0]), max(high, m.covered_c[1]))
         info = {"ratios": {d: _num(r) for d, r in ratios.items()},
-                "sigma_nt": {d: _num(m.sigma_nt) for d, m in measured.items()},
-                "lag_s": {d: _num(m.lag_s) for d, m in measured.items()}}
+                "sigma_nt": {d: _num(n) for d, n in noise.items()},
+                "lag_s": {d: _num(m.lag_s) for d, m in measured.items()},
+                "estimates": {d: e.as_dict() for d, e in self.in_use.items()},
+                "reached_c": {d: list(r) for d, r in self.reached.items()}}
+        if replanned:
+            info["replanned"] = replanned
         elapsed = self._elapsed_s()
         if elapsed + self.schedule.sweep_s > self.schedule.max_duration_s():
             worst = max(ratios, key=ratios.__getitem__)
             return {"stop": True, "code": Reason.TIME_BUDGET.value, **info,
                     "reason": f"max_duration_h {self.temps.max_duration_h:g} reached; targets not met "
                               f"({worst} at {ratios[worst]:.2f} x its target)"}, []
+        unknown = [d for d in self.rows if d not in self.in_use or noise[d] is None]
+        if unknown:  # the run's own characterisation: more of its first leg until every DUT is measured
+            return self._sweep_data(point, point.leg, point.sweep + 1, point.leg_start_c, point.leg_end_c,
+                                    point.ramp_c_per_min, self._picks(None, point),
+                                    f"characterising: the lag or noise of {', '.join(unknown[:4])} is not "
+                                    "measured yet", {**info, "kind": "characterise"})
         air = self.runner.status.chamber_c
         air = point.setpoint_c if air is None else float(air)
         state = State(elapsed, air,
                       {d: (m.element_c if m.element_c is not None else air) for d, m in measured.items()},
                       {d: m.gram for d, m in measured.items()})
-        duts = [DutModel(d, m.sigma_nt or self.priors[d].sigma_nt, self.priors[d].lag_s)
-                for d, m in measured.items()]
+        duts = [DutModel(d, noise[d], self.in_use[d].lag_s, self.in_use[d].offset_c) for d in measured]
         legs = self._legs_done()
-        rate = self._rate(measured)
+        rate = self._rate()
         pace = self._pace()
         decision = next_leg(state, legs, duts, self.schedule.chamber(rate), pace, self.targets,
-                            max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios)
+                            max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios,
+                            covered_c=self.reached if len(self.reached) == len(measured) else None)
         if decision.stop:
             return {"stop": True, "code": Reason.TARGETS_MET.value, "reason": decision.reason, **info}, []
         leg = decision.leg
@@ -205,8 +241,33 @@ class SequentialMode(RampMode):
             from_c, rate_c = point.leg_start_c, point.ramp_c_per_min
         worst = max(ratios, key=ratios.__getitem__)
         picks = self._picks(measured[worst] if math.isfinite(ratios[worst]) else None, point, leg.to_c)
-        return self._sweep_data(point, number, sweep, from_c, leg.to_c, rate_c, picks, decision.reason,
+        reason = decision.reason
+        if replanned:
+            reason += f" (re-planned: {', '.join(replanned[:4])} measured anew)"
+        return self._sweep_data(point, number, sweep, from_c, leg.to_c, rate_c, picks, reason,
                                 {**info, "worst_dut": worst, "kind": leg.kind})
+
+    def _noise(self, dut: str, m: Measured) -> float | None:
+        """The DUT's noise per fitted sample: its T24 fit's, else the last sweep's affine residual, else
+        what was known before the run."""
+        if m.sigma_nt is not None:
+            return m.sigma_nt
+        t, h, temp, ref = self.rows[dut].arrays()
+        last = self.schedule.n_pick * self.runner.plan.samples_per_point
+        sigma = affine_sigma_nt(h[-last:], temp[-last:], ref[-last:]) if len(t) >= last else None
+        prior = self.in_use.get(dut)
+        return sigma if sigma is not None else (None if prior is None else prior.noise_nt)
+
+    def _estimate(self, noise: dict[str, float | None]) -> list[str]:
+        """Each DUT's lag and offset fitted again; those that differ from the ones in use replace them."""
+        changed = []
+        for dut, rows in self.rows.items():
+            t, _, temp, _ = rows.arrays()
+            new = adopted(self.in_use.get(dut), self.air.fit(t, temp), noise[dut])
+            if new is not None:
+                self.in_use[dut] = new
+                changed.append(dut)
+        return changed
 
     def _sweep_data(self, point, leg: int, sweep: int, from_c: float, to_c: float, rate: float,
                     picks: list[int],
@@ -240,11 +301,11 @@ class SequentialMode(RampMode):
                               p.ramp_c_per_min, CHECK if p.leg_end_c in checks else END, p.leg_start_c)
         return [legs[k] for k in sorted(legs)]
 
-    def _rate(self, measured: dict[str, Measured]) -> float:
-        """The plan's rate, no faster than the slowest DUT follows a crossing (calib/planner.py): its lag
-        behind the air plus the lag of its recorded temperature as estimated so far (calib/lag.py)."""
+    def _rate(self) -> float:
+        """The plan's rate, no faster than the slowest DUT follows a crossing (calib/planner.py): the lag
+        of its recorded temperature behind the air, as in use."""
         lo, hi = sorted(self.temps.range_c)
-        slowest = max(self.priors[d].lag_s + (m.lag_s or 0.0) for d, m in measured.items())
+        slowest = max(e.lag_s for e in self.in_use.values())
         return crossing_rate(self.schedule.rate(), hi - lo, slowest)
 
     def _picks(self, worst: Measured | None, point: RampPoint, to_c: float | None = None) -> list[int]:

@@ -21,11 +21,9 @@ from rig.schedules.check import (
     MAX_TEMPERATURES,
     ScheduleCheck,
     plan_error,
-    sample_time_s,
-    slowest_lag_s,
     stable_after_ramp_s,
-    start_air_c,
 )
+from rig.schedules.inputs import planning_inputs
 
 DURATION_KEYS: dict[str, KeyPath] = {
     "ramps": ("temperatures", "ramp_c_per_min"),
@@ -96,7 +94,12 @@ class StepSchedule:
         points = self.points()
         n_temps, _ = check_size(self.plan)
         self._check_setpoints(points)
-        return ScheduleCheck(points, n_temps, self._duration(points), DURATION_KEYS, [], self.word)
+        inputs = planning_inputs(self.plan, self.station)
+        lines = inputs.lines()
+        if inputs.slowest_lag_s() is None:
+            lines.append("stability waits: not predicted without every DUT's lag (counted as the dwell "
+                         "alone)")
+        return ScheduleCheck(points, n_temps, self._duration(points, inputs), DURATION_KEYS, lines, self.word)
 
     def _step_path(self, temp_index: int) -> KeyPath:
         temps = self.plan.temperatures
@@ -122,20 +125,21 @@ class StepSchedule:
                     f"exceeds chamber.limits max_ramp_c_per_min {lim.max_ramp_c_per_min:g}"
                 )
 
-    def _duration(self, points: list[Point]) -> dict[str, float]:
-        """Seconds spent ramping, waiting for stability, moving/settling and sampling (see sample_time_s);
-        real-station mounts are assumed to lag by ASSUMED_THERMAL_LAG_S."""
+    def _duration(self, points: list[Point], inputs) -> dict[str, float]:
+        """Seconds spent ramping (at the step's rate, or the air's measured pace when slower), waiting for
+        stability (the slowest DUT's measured lag; the dwell alone without it), moving/settling and sampling
+        at the measured pace (rig/schedules/inputs.py)."""
         station = self.station
-        lag_s = slowest_lag_s(station)
+        lag_s = inputs.slowest_lag_s()
         ramp_s = stable_s = 0.0
-        temp = start_air_c(station)
+        temp = inputs.chamber.start_c
         for p in points[::len(self.targets)]:
-            rate = min(p.ramp_c_per_min, station.chamber.limits.max_ramp_c_per_min)
+            rate = min(p.ramp_c_per_min, inputs.rate_c_per_min)
             delta = p.setpoint_c - temp
             ramp_s += abs(delta) / rate * 60.0
-            stable_s += stable_after_ramp_s(delta, rate, lag_s, p.stability)
+            stable_s += stable_after_ramp_s(delta, rate, lag_s, p.stability, inputs.overshoot_c())
             temp = p.setpoint_c
         moves_s = station.field_source.move_time_s([p.command for p in points])
-        move_s = sum(p.settle_s for p in points) + moves_s
-        sampling_s = sample_time_s(self.plan, station) * sum(p.samples for p in points)
+        move_s = sum(p.settle_s + inputs.timing.point_overhead_s for p in points) + moves_s
+        sampling_s = inputs.timing.sample_s * sum(p.samples for p in points)
         return {"ramps": ramp_s, "stability": stable_s, "moves+settle": move_s, "sampling": sampling_s}

@@ -24,14 +24,16 @@ SAMPLES = 4
 
 
 def seq_plan(tmp_path, name: str = "seq") -> str:
-    """A narrow sequential campaign: 18 .. 26 degC, a check at 22, 6 of 10 directions a sweep."""
+    """A narrow sequential campaign: 18 .. 26 degC, a check at 22, 6 of 10 directions a sweep; nothing known
+    of the DUTs before the run (it characterises them on its first leg), each end held until every DUT is
+    within a quarter degree of it (settle_s makes a sweep a minute of the campaign clock: few points)."""
     plan = {
         "name": name,
-        "temperatures": {"mode": "sequential", "range_c": [18, 26], "rate_c_per_min": 5.0, "checks_c": [22],
-                         "fields_per_sweep": 6, "max_duration_h": 1},
+        "temperatures": {"mode": "sequential", "range_c": [18, 26], "rate_c_per_min": 1.0, "checks_c": [22],
+                         "fields_per_sweep": 6, "max_duration_h": 2},
         "fields": {"kind": "directions", "magnitude_nt": 50000, "directions": DIRECTIONS},
         "samples_per_point": SAMPLES,
-        "settle_s": 0.2,
+        "settle_s": 5.0,
         "fit": {"models": ["t24"]},
         "stop_when": TARGETS,
     }
@@ -74,6 +76,16 @@ def test_a_sequential_campaign_decides_each_sweep_and_stops_at_its_targets(tmp_p
     assert made[-1]["stop"] and "meets its targets" in made[-1]["reason"]
     legs = {d["leg"]: d["to_c"] for d in made if not d["stop"]}
     assert 22.0 in legs.values()  # the model check's interior temperature was visited
+    # no prior: the run characterised the DUTs on its first leg, then planned with what it measured (each
+    # estimate recorded with its decision); the simulated mounts lag by 300 and 450 s
+    assert made[0]["kind"] == "characterise" and made[0]["estimates"] == {}
+    final = made[-1]["estimates"]
+    assert final["mmc0"]["lag_s"] == pytest.approx(300.0, rel=0.1)
+    assert final["serial0"]["lag_s"] == pytest.approx(450.0, rel=0.1)
+    assert {e["source"] for e in final.values()} == {"measured by this run"}
+    assert any(d.get("replanned") for d in made)
+    for dut, (low, high) in made[-1]["reached_c"].items():  # both ends reached at the DUTs, not in the air
+        assert low <= 18.25 and high >= 25.75, dut
     for fit in outcome.fits:  # the calibrations meet the targets the run stopped at
         cal = calfile.load(fit["path"])
         assert cal.stats["linearity"]["testable"]  # the check temperature lets the model check see a curve

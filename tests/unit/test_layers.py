@@ -1,7 +1,9 @@
 """The layers hold: calib imports neither rig nor drivers, and its own imports point one way; drivers
-import no rig, only rig/devices/bench.py imports drivers.sim; rig's folders import downwards only, in the
-declared order; nothing in rig/ asks which concrete device or field source it holds, nor, outside
-rig/fieldsources/, which kind of field source it is."""
+import no rig, only rig/devices/bench.py imports drivers.sim; nothing that plans, decides or states a
+result reads the simulator's truth (a station's `sim:`, rig/devices/bench.py, drivers.sim) outside
+rig/devices/ and rig/config/; rig's folders import downwards only, in the declared order; nothing in rig/
+asks which concrete device or field source it holds, nor, outside rig/fieldsources/, which kind of field
+source it is."""
 
 from __future__ import annotations
 
@@ -22,6 +24,9 @@ RIG_TIERS = ("core", "session fieldsources", "config", "devices engine", "refere
 MAX_MODULE_LINES = 400
 LONG_MODULES = {"drivers/serialmag.py", "drivers/sim/serialmag.py"}  # one device's protocol each
 STATION_BUILDER = "rig/devices/bench.py"  # the one production module that may import drivers.sim
+# where a station's `sim:` may be read: the simulated bench builds the world from it, rig/config/ states it
+TRUTH_FOLDERS = ("rig/devices/", "rig/config/")
+TRUTH_MODULES = ("rig.devices.bench", "drivers.sim")
 
 
 def sources(*folders: str) -> list[Path]:
@@ -98,6 +103,50 @@ def test_only_the_station_builder_imports_the_simulators():
                   if not rel(p).startswith("drivers/sim/") and rel(p) != STATION_BUILDER]
     assert offenders(production, "drivers.sim") == []
     assert offenders([REPO / STATION_BUILDER], "drivers.sim")  # the rule names a module that does
+
+
+def _names_a_station(node: ast.AST) -> bool:
+    """An expression naming a station: `station`, `self.station`, `campaign.station`, `load_station(p)`."""
+    if isinstance(node, ast.Call):
+        node = node.func
+    name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
+    return "station" in name.lower()
+
+
+def truth_readers(path: Path) -> list[str]:
+    """Where `path` reads the simulator's truth: `<station>.sim` (or getattr(<station>, "sim")), or an
+    import of rig/devices/bench.py or drivers.sim."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Attribute) and node.attr == "sim" and _names_a_station(node.value):
+            found.append(f"{rel(path)}:{node.lineno} reads {ast.unparse(node)}")
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "getattr"
+              and len(node.args) >= 2 and _names_a_station(node.args[0])
+              and isinstance(node.args[1], ast.Constant) and node.args[1].value == "sim"):
+            found.append(f"{rel(path)}:{node.lineno} reads {ast.unparse(node)}")
+    for module in sorted(imported_modules(path)):
+        if any(module == m or module.startswith(m + ".") for m in TRUTH_MODULES):
+            found.append(f"{rel(path)} imports {module}")
+    return found
+
+
+def test_only_the_simulated_bench_reads_the_simulators_truth():
+    readers = [p for p in sources("rig", "calib") if not rel(p).startswith(TRUTH_FOLDERS)]
+    assert [r for p in readers for r in truth_readers(p)] == []
+    assert truth_readers(REPO / STATION_BUILDER)  # the rule names a module that does
+
+
+def test_the_truth_reader_detector_detects(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("from rig.devices.bench import dut_truths\n"
+                      "import drivers.sim.world\n"
+                      "def lag(station, campaign, self):\n"
+                      "    a = station.sim.duts\n"
+                      "    b = campaign.station.sim.air_c + self.station.sim.seed\n"
+                      "    return getattr(station, 'sim'), load_station('x').sim, transport.sim\n")
+    found = truth_readers(sample)
+    assert len(found) == 8, found  # two imports (three names), five reads; a transport's `sim` is its own
+    assert not any("transport.sim" in f for f in found)
 
 
 def _subclasses(cls: type) -> set[type]:

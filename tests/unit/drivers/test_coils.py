@@ -69,6 +69,7 @@ def test_read_decodes_readback_enable_and_fault_bits(clock):
     assert reading.currents_a == (0.499956, 0.0, 0.1)
     assert reading.enabled == (True, False, True)
     assert reading.faults == {"y:over_temperature", "z:compliance"}
+    assert reading.settled == (True, False, True)  # status bit 1
 
 
 # --- against the simulator ------------------------------------------------------------------------
@@ -147,7 +148,8 @@ def test_slow_source_times_out_on_the_clock(world, clock):
         coils = controller(sim.port, clock)
         coils.set([0.5, 0.0, 0.0])
         start = clock.now()
-        with pytest.raises(DeviceTimeout, match="coils: wait settled: readback .* not within 0.001 A"):
+        expected = r"coils: wait settled: readback .* not within \(0.001, 0.001, 0.001\) A"
+        with pytest.raises(DeviceTimeout, match=expected):
             coils.wait_settled(timeout_s=0.5, tol_a=1e-3)
         assert clock.now() - start == pytest.approx(0.5, abs=0.02)
         coils.close()

@@ -192,3 +192,15 @@ def test_an_off_centre_reference_needs_the_geometry(tmp_path):
     where = r"reference_magnetometers\[0\]\.position_mm: ref0 is not at the centre"
     with pytest.raises(ConfigError, match=where):
         commission(write_station(tmp_path, off_centre), tmp_path)
+
+
+def test_a_file_without_a_thermal_section_still_loads_and_plans_nothing_from_it(tmp_path):
+    from rig.config import CONFIGS_DIR
+    from rig.reference.commissioning_file import read
+    from rig.schedules.inputs import planning_inputs
+
+    old = read(CONFIGS_DIR / "stations" / "sim-commissioned.commissioning.yaml")  # written before --thermal
+    assert old.thermal is None and old.record.coils is not None
+    campaign = load_campaign(small_plan(tmp_path), CONFIGS_DIR / "stations" / "sim-commissioned.yaml")
+    inputs = planning_inputs(campaign.plan, campaign.station)
+    assert inputs.stated_rate and inputs.missing() == [d.name for d in campaign.station.duts]

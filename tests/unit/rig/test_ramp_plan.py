@@ -46,7 +46,7 @@ def test_check_estimates_ramps_sweeps_and_the_span_of_one_sweep():
     report = check_plan(plan, coil_station())
     b = report.breakdown_s
     assert b["ramps"] == pytest.approx(2 * 100 / 2.0 * 60)
-    assert b["end holds"] == 600 and b["to start"] == pytest.approx(50 / 5 * 60)  # from 20 degC at 5/min
+    assert b["end holds"] == 600 and b["to start"] == pytest.approx(52 / 5 * 60)  # from a room at 5/min
     assert report.duration_s == pytest.approx(sum(b.values()))
     text = "\n".join(report.summary_lines())
     assert "sweeps x 24 fields" in text and "one sweep of 24 fields" in text and "spanning" in text
@@ -56,8 +56,9 @@ def test_ramp_is_much_shorter_than_the_same_steps():
     steps = make_plan(temperatures={"steps": [-30, -15, 0, 15, 25, 40, 55, 70], "ramp_c_per_min": 2.0,
                                     "stability": {"band_c": 0.3, "rate_c_per_min": 0.05, "dwell_s": 600}},
                       samples_per_point=2)
-    ramp = check_plan(ramp_plan(), coil_station()).duration_s
-    assert ramp < 0.5 * check_plan(steps, coil_station()).duration_s
+    station = coil_station(expect={"noise_nt": 200, "thermal_lag_s": 600})
+    ramp = check_plan(ramp_plan(), station).duration_s
+    assert ramp < 0.5 * check_plan(steps, station).duration_s
 
 
 @pytest.mark.parametrize("temps, match", [
