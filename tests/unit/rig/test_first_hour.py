@@ -189,7 +189,8 @@ def test_the_configs_readme_describes_the_demo_as_it_is():
 
 def test_rig_design_prints_its_targets_with_units(tmp_path, capsys):
     out = tmp_path / "designed.yaml"
-    plan, station = CONFIGS / "plans" / "sequential-campaign.yaml", CONFIGS / "stations" / "sim-4.yaml"
+    # lab-example states its DUTs' noise and lags (duts[].expect): a design needs measured or stated ones
+    plan, station = CONFIGS / "plans" / "sequential-campaign.yaml", CONFIGS / "stations" / "lab-example.yaml"
     assert main(["design", str(plan), "--station", str(station), "-o", str(out)]) == 0
     text = capsys.readouterr().out
     targets = re.search(r"targets (.*):\n", text).group(1)

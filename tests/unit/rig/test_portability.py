@@ -73,7 +73,8 @@ def test_a_bad_port_names_file_key_and_line(tmp_path):
         load_station(path)
     message = str(err.value)
     assert message.startswith(f"{path}: duts[2].transport.port: 'ttyUSB1' is not a serial port")
-    assert message.endswith("(line 79)") and "\n" not in message
+    line = 1 + next(n for n, text in enumerate(path.read_text().splitlines()) if "port: ttyUSB1" in text)
+    assert message.endswith(f"(line {line})") and "\n" not in message
 
 
 def test_the_scan_takes_each_port_once_and_refuses_a_non_port():
