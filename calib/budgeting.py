@@ -8,23 +8,25 @@ Carlo (GUM S1) where it is needed.
 1. Law of propagation (calib/propagation.py): every source's covariance J Sigma_q J^T, the fit's own
    sigma^2 G^-1, their sum, each one's RMS field error over the grid. Exact for T24 / T36 and sources
    that change the references; first order for P12, the scalar fit and temperature changes (said so).
-2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`): a temperature source on T24 /
-   T36 (the regressors hold the temperature: each draw is refitted exactly, calib/mcrefit.py), the
-   scalar fit, or a non-normal input (a rectangular tolerance: the coverage interval is not 1.96 u).
-   The scalar fit is first refitted on VALIDATION_DRAWS draws of every input (its readings' noise
-   redrawn) and compared draw by draw with its first-order map (`validate_scalar`): the draws go through
-   the map when it holds to half the numerical tolerance, else every draw is refitted (said in the
-   notes). Every draw adds the linear sources' J q to the
-   refitted part, so the draws are of all inputs together; the number of draws is chosen by the
-   adaptive procedure of GUM S1 7.9 (calib/adaptive.py). Parameters' u and coverage intervals, and the
-   calibrated field's error at each grid point, come from the draws; the covariance from the draws when
-   refits were made, else from the law of propagation (exact whatever the inputs' distributions).
-3. Without Monte Carlo (all inputs normal, the model linear in them): u and the covariance from the law
-   of propagation, intervals +-1.96 u, the field's 95 % radius at each point from its 3x3 covariance.
+2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`, monte_carlo="auto"): where a
+   first-order map does not hold to within half the numerical tolerance (the scalar fit, checked by
+   VALIDATION_DRAWS exact refits, `validate_scalar`; temperature changes on T24 / T36, checked the same
+   way, calib/lawcheck.py), or where non-normal inputs (a rectangular tolerance) move a coverage
+   interval away from +-1.96 u by more than that (their kurtosis, calib/lawcheck.py). The draws: every
+   draw adds the linear sources' J q to the refitted part (T24 / T36 refitted exactly for their
+   temperature sources, the scalar fit refitted or through its validated map), so the draws are of all
+   inputs together; the number of draws is chosen by the adaptive procedure of GUM S1 7.9
+   (calib/adaptive.py). Parameters' u and coverage intervals, and the calibrated field's error at each
+   grid point, come from the draws; the covariance from the draws when refits were made, else from the
+   law of propagation (exact whatever the inputs' distributions). monte_carlo="always" draws whatever
+   the checks say.
+3. Without Monte Carlo: u and the covariance from the law of propagation, intervals +-1.96 u, the field's
+   95 % radius at each point from its 3x3 covariance; the method says which checks held.
 
 The field error is judged at every grid point: `vector_error_nt` holds the 95 % radius per point, its
 maximum and the 95th percentile over the points; `expanded_vector_error_nt` is the maximum, so the worst
-point is covered.
+point is covered. A source may also move the true field at the grid points directly (a model error the
+calibration cannot follow, InputSource.field_nt): its error there is (F J - a_grid) q.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 from calib.adaptive import MAX_DRAWS, adaptive_monte_carlo, numerical_tolerance, quantiles
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.lawcheck import normal_interval_holds, validate_temperature
 from calib.linearise import ScalarGaussNewton, linearised
 from calib.mcrefit import CHUNK_DRAWS, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
@@ -48,17 +51,31 @@ VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
 
-def needs_monte_carlo(cal: Calibration, sources: list[InputSource]) -> list[str]:
-    """Why the law of propagation alone is not the whole answer (empty: it is)."""
-    why = []
-    if cal.model == "scalar":
-        why.append("the scalar fit is not linear in its data")
-    if cal.model in ("t24", "t36") and any(s.temp_c is not None for s in sources):
-        why.append("temperature changes move the regressors")
-    rect = [s.name for s in sources if s.distribution != "normal"]
-    if rect:
-        why.append(f"{', '.join(rect)}: not normal, the coverage interval is not 1.96 u")
-    return why
+def needs_monte_carlo(ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
+                      rng: np.random.Generator, *, statistical: bool, ndig: int,
+                      notes: list[str]) -> tuple[list[str], bool | None, int]:
+    """(why the law of propagation alone is not the whole answer (empty: it is), whether the scalar fit
+    needs refits (None: not checked), refits that failed in the checks); what each check found is added
+    to `notes`."""
+    why, scalar_refits, failed = [], None, 0
+    if isinstance(lin, ScalarGaussNewton):
+        holds, found, failed = validate_scalar(lin, linear, sources, rng, statistical=statistical, ndig=ndig)
+        notes.append(found)
+        scalar_refits = not holds
+        if not holds:
+            why.append("the scalar fit is not linear in its data here")
+    elif cal.model in ("t24", "t36") and any(s.temp_c is not None for s in sources):
+        holds, found, bad = validate_temperature(lin, linear, sources, rng, ndig=ndig)
+        notes.append(found)
+        failed += bad
+        if not holds:
+            why.append("temperature changes move the regressors beyond first order")
+    holds, found = normal_interval_holds(linear, ndig)
+    if found != "every input normal":
+        notes.append(found)
+    if not holds:
+        why.append("inputs that are not normal move the coverage intervals")
+    return why, scalar_refits, failed
 
 
 def _root(cov: np.ndarray) -> np.ndarray:
@@ -85,27 +102,30 @@ class _Draws:
     fit through its first-order map when `validate_scalar` showed refits agree with it, else refitted."""
 
     def __init__(self, ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
-                 statistical: bool, scalar_refits: bool):
+                 statistical: bool, scalar_refits: bool, refit_temperature: bool = True):
         self.cal, self.lin, self.linear = cal, lin, linear
         self.scalar = isinstance(lin, ScalarGaussNewton)
         self.scalar_refits = self.scalar and scalar_refits
-        self.linear_parts = []  # (J (P,Q), root of Sigma_q, distribution): J q added to every draw
+        self.linear_parts = []  # (J (P,Q), root of Sigma_q, distribution, a_grid): J q added to every draw
         self.data_parts = []  # (root, distribution, a_ref, a_temp): changes the data of a refit
         by_name = {c.name: c for c in linear.contributions}
         if statistical and not self.scalar_refits:
             own = _root(by_name[STATISTICAL].covariance)
-            self.linear_parts.append((np.eye(linear.layout.size), own, "normal"))
+            self.linear_parts.append((np.eye(linear.layout.size), own, "normal", None))
         for source in sources:
             a_ref, a_temp = source.sensitivities(ds)
             root = _root(source.covariance)
-            if self.scalar_refits:
+            a_grid = by_name[source.name].grid_effect
+            if a_grid is not None:  # a model error: its data and its direct effect through one linear map
+                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, a_grid))
+            elif self.scalar_refits:
                 self.data_parts.append((root, source.distribution, a_ref, a_temp))
-            elif a_temp is not None and cal.model in ("t24", "t36"):
+            elif a_temp is not None and cal.model in ("t24", "t36") and refit_temperature:
                 if a_ref is not None:
-                    self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution))
+                    self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution, None))
                 self.data_parts.append((root, source.distribution, None, a_temp))
             else:
-                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution))
+                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, None))
         temps = [a for (_, _, _, a) in self.data_parts if a is not None]
         self.refit = None
         if self.scalar_refits or temps:
@@ -114,8 +134,13 @@ class _Draws:
 
     def __call__(self, rng: np.random.Generator, m: int):
         change = np.zeros((m, self.linear.layout.size))
-        for jac, root, dist in self.linear_parts:
-            change += (_unit(rng, dist, (m, root.shape[1])) @ root.T) @ jac.T
+        direct = None  # (m,G,3): the draws' direct effects on the true field at the grid points
+        for jac, root, dist, a_grid in self.linear_parts:
+            q = _unit(rng, dist, (m, root.shape[1])) @ root.T
+            change += q @ jac.T
+            if a_grid is not None:
+                moved = np.einsum("giq,mq->mgi", a_grid, q)
+                direct = moved if direct is None else direct + moved
         failed = np.zeros(m, bool)
         if self.refit is not None:
             qs = [(_unit(rng, dist, (m, root.shape[1])) @ root.T, a_ref, a_temp)
@@ -130,6 +155,8 @@ class _Draws:
                 moved, failed = self.refit(np.column_stack([q for q, _, _ in qs]))
                 change += moved
         error = self._field_error(change)
+        if direct is not None:
+            error -= direct
         return change, np.sqrt(np.einsum("mgi,mgi->mg", error, error)), failed
 
     def _field_error(self, change: np.ndarray) -> np.ndarray:
@@ -211,19 +238,26 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
     its first-order map does not hold (None)."""
     lin = linearised(ds, cal, weights)
     linear = propagate_linear(ds, cal, sources, grid, statistical=statistical, lin=lin)
+    notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
+    checked_failed, refit_temperature = 0, True
     if monte_carlo == "auto":
-        why = needs_monte_carlo(cal, sources)
+        why, checked, checked_failed = needs_monte_carlo(ds, cal, lin, linear, sources, rng,
+                                                         statistical=statistical, ndig=ndig, notes=notes)
+        scalar_refits = checked if scalar_refits is None else scalar_refits
+        refit_temperature = any("temperature" in w for w in why)
     else:
         why = ["asked for"] if monte_carlo == "always" else []
-    notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
     if why:
         figures = _monte_carlo(ds, cal, lin, linear, sources, rng, statistical=statistical, ndig=ndig,
                                batch_draws=batch_draws, max_draws=max_draws, why=why, notes=notes,
-                               scalar_refits=scalar_refits)
+                               scalar_refits=scalar_refits, refit_temperature=refit_temperature,
+                               checked_failed=checked_failed)
     else:
         u = np.sqrt(np.diag(linear.covariance))
+        checks = " (the checks above held)" if monte_carlo == "auto" and (linear.first_order or any(
+            c.source is not None and c.source.distribution != "normal" for c in linear.contributions)) else ""
         method = "law of propagation (GUM), " + ("first order" if linear.first_order
-                                                 else "exact: a linear model")
+                                                 else "exact: a linear model") + checks
         figures = {"u": u, "low": -Z_975 * u, "high": Z_975 * u, "radius": linear.radius_nt,
                    "rms": linear.field_rms_nt, "covariance": linear.covariance, "method": method, "mc": None}
     layout, radius, mc = linear.layout, figures["radius"], figures["mc"]
@@ -243,20 +277,20 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
                          "percentile_95": float(quantiles(radius[:, None], [0.95])[0, 0]),
                          "grid_field_nt": linear.grid_field_nt.tolist(),
                          "grid_temp_c": None if linear.grid_temp_c is None else linear.grid_temp_c.tolist()},
-        failed_draws=0 if mc is None else mc["failed"], stated=True if mc is None else mc["stated"],
+        failed_draws=checked_failed if mc is None else mc["failed"],
+        stated=True if mc is None else mc["stated"],
         monte_carlo=mc, linear=linear)
 
 
 def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch_draws, max_draws, why,
-                 notes, scalar_refits) -> dict:
+                 notes, scalar_refits, refit_temperature=True, checked_failed=0) -> dict:
     """The figures of the adaptive Monte Carlo (u, interval offsets, radius per grid point, ...)."""
-    refits, checked_failed = bool(scalar_refits), 0
+    refits = bool(scalar_refits)
     if isinstance(lin, ScalarGaussNewton) and scalar_refits is None:
-        holds, found, checked_failed = validate_scalar(lin, linear, sources, rng, statistical=statistical,
-                                                       ndig=ndig)
+        holds, found, bad = validate_scalar(lin, linear, sources, rng, statistical=statistical, ndig=ndig)
         notes.append(found)
-        refits = not holds
-    draws = _Draws(ds, cal, lin, linear, sources, statistical, refits)
+        refits, checked_failed = not holds, checked_failed + bad
+    draws = _Draws(ds, cal, lin, linear, sources, statistical, refits, refit_temperature)
     result = adaptive_monte_carlo(draws, rng, ndig=ndig, batch_size=batch_draws, max_draws=max_draws)
     refitted = draws.refit is not None  # else every draw is a linear map: its covariance is exact
     if not result.stated:

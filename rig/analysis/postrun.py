@@ -33,16 +33,22 @@ def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dic
     return verdicts
 
 
-def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
+def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) -> list[dict]:
     """Fit each of the plan's models for each DUT from the session's own dataset; write one calibration
-    file per DUT and model next to the session and record each fit in it."""
+    file per DUT and model next to the session and record each fit in it; the DUTs' shared inputs in the
+    cross-covariance file beside them (rig/analysis/crosscov.py). `progress(dut, model, done, total)` is
+    told before each fit; the session records it too (rig/analysis/fitprogress.py)."""
     import calib
     from calib import calfile
+    from rig.analysis.crosscov import CrossCovariance
+    from rig.analysis.fitprogress import FitProgress
     from rig.core.paths import calibration_file
     from rig.session.reader import each_dataset
 
     out = []
     inputs = run_inputs(session.path)
+    shared = CrossCovariance()
+    tell = FitProgress(session, len(station.duts) * len(plan.fit.models), progress)
     for dut, ds in each_dataset(session.path, station.duts):
         if isinstance(ds, Exception):
             out.append({"dut": dut.name, "model": "-", "error": str(ds)})
@@ -55,6 +61,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
 
             ds, lag = lag_corrected(ds)
         for model in plan.fit.models:
+            tell(dut.name, model)
             entry: dict[str, Any] = {"dut": dut.name, "model": model}
             try:
                 cal = calib.fit(ds, model, robust=plan.fit.robust, software_version=__version__)
@@ -70,9 +77,10 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
                 annotate(cal, lag)
             if model == "t24":  # the model check the plan's interior temperatures are for
                 check_linearity(cal, ds)
+                record_checks(inputs, dut.name, ds, cal)
             if ambient is not None:
                 cal.stats["ambient"] = ambient
-            state_uncertainty(inputs, dut.name, ds, cal)
+            shared.add(dut.name, model, state_uncertainty(inputs, dut.name, ds, cal))
             try:
                 path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:
@@ -84,6 +92,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)
             entry.update(path=path, rms_nt=rms, calibration=cal, n=len(ds))
             out.append(entry)
+    tell.finished(shared)
     return out
 
 
@@ -107,20 +116,35 @@ def refined(inputs, ds):
     return (ds, None) if inputs is None else inputs.refined(ds)
 
 
-def state_uncertainty(inputs, dut: str, ds, cal) -> None:
+def state_uncertainty(inputs, dut: str, ds, cal):
     """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
-    budget that cannot be made is a warning in its stats, never a lost calibration."""
+    budget that cannot be made is a warning in its stats, never a lost calibration. Returns the calib
+    Budget (None without one)."""
     from calib.uncertainty import statistical_only
+    from rig.reference.budget import uncertainty_section
 
     try:
         if inputs is None:
             cal.uncertainty = statistical_only(ds, cal)
             cal.uncertainty["notes"] = ["the session's recorded plan or station cannot be read: the "
                                         "reference's own uncertainty is not in this budget"]
-        else:
-            cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
+            return None
+        budget = inputs.budget(dut, ds, cal)
+        cal.uncertainty = uncertainty_section(budget)
+        return budget
     except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
+        return None
+
+
+def record_checks(inputs, dut: str, ds, cal) -> None:
+    """T24's model checks (calib/checks.py) in the calibration's stats, the thermal direction of every
+    sample from the run's temperature history (rig/reference/modelerror.py)."""
+    from rig.reference.modelerror import record_model_checks, thermal_direction
+
+    direction = thermal_direction(ds.columns["t"], ds.temp_c) if inputs is None else \
+        inputs.thermal_direction(dut, ds)
+    record_model_checks(cal, ds, direction)
 
 
 def check_linearity(cal, ds) -> None:

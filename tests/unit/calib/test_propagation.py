@@ -249,7 +249,8 @@ def test_a_temperature_source_is_refitted_and_every_model_states_its_method():
         temp = temperature_source("temperature", np.column_stack([np.ones(len(data)), data.temp_c - 25.0]),
                                   np.diag([0.3**2 / 3, 0.005**2 / 3]), distribution="rectangular")
         cal = calib.fit(data, model)
-        b = budget(data, cal, [*coil_sources(data, cur), temp], g, rng=np.random.default_rng(16))
+        b = budget(data, cal, [*coil_sources(data, cur), temp], g, rng=np.random.default_rng(16),
+                   monte_carlo="always")
         assert b.stated and b.monte_carlo["converged"] and "Monte Carlo (GUM S1, adaptive)" in b.method
         assert b.monte_carlo["refits"] == ("every draw" if model in ("t24", "t36") else "none (linear maps)")
         lin_u = np.sqrt(np.diag(b.linear.covariance))
@@ -265,10 +266,11 @@ def test_scalar_refitted_draws_agree_with_its_validated_map():
     ds, currents = scalar_case(17)
     cal = calib.fit(ds, "scalar", temperature_terms=False, balance_orientations=False)
     sources = coil_sources(ds, currents)
-    mapped = budget(ds, cal, sources, grid(), rng=np.random.default_rng(18))
+    mapped = budget(ds, cal, sources, grid(), rng=np.random.default_rng(18), monte_carlo="always")
     assert any("refitted draws stay within" in n and "it holds" in n for n in mapped.notes)
     assert mapped.monte_carlo["refits"] == "none (linear maps)"
-    refitted = budget(ds, cal, sources, grid(), rng=np.random.default_rng(19), scalar_refits=True)
+    refitted = budget(ds, cal, sources, grid(), rng=np.random.default_rng(19), scalar_refits=True,
+                      monte_carlo="always")
     assert refitted.monte_carlo["refits"] == "every draw" and refitted.failed_draws == 0
     for key in ("A", "c_nt"):
         np.testing.assert_allclose(refitted.standard[key], mapped.standard[key], rtol=0.1, atol=1e-12)

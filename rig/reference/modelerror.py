@@ -1,0 +1,211 @@
+"""What a calibration's model leaves out, as lines of its budget: the model checks' terms and the misfit.
+
+    direction = thermal_direction(times, temps, history)       # +1 heating, -1 cooling, 0 unknown
+    record_model_checks(cal, ds, direction)                    # cal.stats["model_checks"] (T24)
+    sources, notes = model_sources(ds, cal, direction, weights)
+
+- The model checks (calib/checks.py): T24 against T24 plus one deviation (a quadratic temperature term,
+  a thermal hysteresis of the offset, a cubic field term). Where a check finds its term (p < P_TERM), the
+  term is fitted together with T24 and enters the budget as a source whose quantities are its
+  coefficients (u^2 + b^2: the estimate b, uncorrected, as a bias of unknown sign): it moves the data by
+  z c (the T24 parameters absorb J z c) and the true field at the grid points by z_grid c, which T24
+  cannot follow (calib.propagation InputSource.field_nt). A hysteresis state at a grid point is the one
+  the fit saw least (the worse sign).
+- The misfit: the fit's residual (after those terms) beyond what the DUT's own noise explains. The noise
+  is the scatter within points (the samples of one point see the same field and temperature); the
+  excess, when significant (MISFIT_SIGNIFICANCE standard errors of the variance ratio), is a field error
+  at every grid point that no parameter carries. A stated uncertainty below the measured scatter is then
+  impossible. With one sample a point the noise cannot be told from the misfit: a note says so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.checks import FIELD_SCALE_NT, model_checks
+from calib.design import regressors as t24_regressors
+from calib.propagation import InputSource
+
+P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
+MISFIT_SIGNIFICANCE = 3.0
+THERMAL_PLAY_C = 1.0  # a temperature change beyond this reverses the thermal direction
+CHECK_TERMS = {"linearity in temperature": "temperature", "thermal hysteresis": "hysteresis",
+               "linearity in the field": "field"}
+
+
+def thermal_direction(times, temps, history=None, play_c: float = THERMAL_PLAY_C) -> np.ndarray:
+    """(N,): +1 where the last temperature move beyond `play_c` before a sample was up, -1 down, 0 none
+    yet; `history` ((t, temp_c) pairs, e.g. the session's temperature log) adds what came before and
+    between the samples."""
+    times, temps = np.asarray(times, float), np.asarray(temps, float)
+    t_all, temp_all = times, temps
+    if history:
+        h = np.asarray(history, float).reshape(-1, 2)
+        t_all, temp_all = np.r_[h[:, 0], times], np.r_[h[:, 1], temps]
+    order = np.argsort(t_all, kind="stable")
+    state, low, high = 0.0, np.inf, -np.inf
+    seen = np.empty(len(order))
+    for k in order:
+        value = temp_all[k]
+        low, high = min(low, value), max(high, value)
+        if state >= 0 and value < high - play_c:
+            state, low, high = -1.0, value, value
+        elif state <= 0 and value > low + play_c:
+            state, low, high = 1.0, value, value
+        seen[k] = state
+    return seen[len(t_all) - len(times):]
+
+
+def record_model_checks(cal, ds, direction) -> None:
+    """T24's model checks in the calibration's stats, for its budget and for acceptance."""
+    cal.stats["model_checks"] = [c.as_dict() for c in model_checks(ds, direction)]
+
+
+def _terms(kind: str, h, temp, direction, temp_mid: float) -> np.ndarray:
+    """(N,3,k): the term's regressors per output axis (the same k per axis)."""
+    n = len(h)
+    if kind == "temperature":
+        z = ((temp - temp_mid) ** 2)[:, None] * np.column_stack([h, np.ones(n)])  # (N,4)
+        return np.repeat(z[:, None, :], 3, axis=1)
+    if kind == "hysteresis":
+        return np.repeat(np.asarray(direction, float).reshape(n, 1, 1), 3, axis=1)
+    norm2 = np.sum(h * h, axis=1) / FIELD_SCALE_NT**2
+    return (norm2[:, None] * h)[:, :, None]
+
+
+def _found(cal, ds, direction) -> list[str]:
+    """The checks whose terms the data show (recorded in the stats, else made here)."""
+    checks = cal.stats.get("model_checks")
+    if checks is None:
+        checks = [c.as_dict() for c in model_checks(ds, direction)]
+    return [CHECK_TERMS[c["name"]] for c in checks
+            if c.get("testable") and c.get("p") is not None and c["p"] < P_TERM and c["name"] in CHECK_TERMS]
+
+
+def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray):
+    """Per output axis, ref_i on [x_base, z[:, i]] (rows weighted): (coefficients of z (3,k),
+    their covariance (3,k,k), residuals (N,3), dof)."""
+    k = z.shape[2]
+    coef, cov, resid = np.zeros((3, k)), np.zeros((3, k, k)), np.zeros_like(ref)
+    used = w > 0
+    dof = int(used.sum()) - x_base.shape[1] - k
+    for i in range(3):
+        x = np.column_stack([x_base, z[:, i, :]])
+        scale = np.linalg.norm(x[used], axis=0)
+        scale[scale == 0] = 1.0
+        xs = x[used] / scale
+        u, s, vt = np.linalg.svd(xs * np.sqrt(w[used])[:, None], full_matrices=False)
+        beta = (vt.T @ ((u.T @ (ref[used, i] * np.sqrt(w[used]))) / s)) / scale
+        resid[:, i] = ref[:, i] - x @ beta
+        sigma2 = float(np.sum(w[used] * resid[used, i] ** 2) / max(dof, 1))
+        inv = (vt.T / s**2) @ vt / np.outer(scale, scale)
+        coef[i], cov[i] = beta[-k:], sigma2 * inv[-k:, -k:]
+    return coef, cov, resid, dof
+
+
+def within_point_noise(residuals: np.ndarray, points) -> tuple[np.ndarray, int]:
+    """(per axis RMS scatter of the residuals within points, its degrees of freedom)."""
+    labels, index = np.unique(np.asarray(points, object).astype(str), return_inverse=True)
+    counts = np.bincount(index, minlength=len(labels))
+    means = np.stack([np.bincount(index, residuals[:, i], len(labels)) for i in range(residuals.shape[1])],
+                     axis=1) / np.maximum(counts, 1)[:, None]
+    dof = int(np.sum(np.maximum(counts - 1, 0)))
+    if dof == 0:
+        return np.full(residuals.shape[1], np.nan), 0
+    return np.sqrt(np.sum((residuals - means[index]) ** 2, axis=0) / dof), dof
+
+
+def model_sources(ds, cal, direction, weights=None) -> tuple[list[InputSource], list[str]]:
+    """The budget's model-check sources (T24) and its misfit source, with notes."""
+    notes: list[str] = []
+    w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
+    out: list[InputSource] = []
+    if cal.model == "t24":
+        out, resid, dof = _check_sources(ds, cal, direction, w, notes)
+    elif cal.model == "scalar":
+        field = cal.apply(ds.h_nt, ds.temp_c)
+        norm_ref = np.linalg.norm(ds.ref_nt, axis=1) if ds.ref_nt is not None else None
+        if norm_ref is None:
+            return [], ["misfit: the data have no reference field"]
+        resid = (np.linalg.norm(field, axis=1) - norm_ref)[:, None]
+        dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values())
+    else:
+        resid = ds.ref_nt - cal.apply(ds.h_nt, ds.temp_c)
+        dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values()) // 3
+    misfit = _misfit(resid, w, dof, ds.columns.get("point"), notes)
+    return out + ([misfit] if misfit is not None else []), notes
+
+
+def _check_sources(ds, cal, direction, w, notes):
+    """One source for every term the checks found, fitted together (their estimates are correlated: over
+    a few temperature steps a curvature and a hysteresis share what the steps show), and the hysteresis
+    state at a grid point (either sign, E[s^2] = 1) as a field error of its own."""
+    found = _found(cal, ds, direction)
+    x_base = t24_regressors(ds.h_nt, ds.temp_c, cal.temp_ref_c)
+    temps = np.asarray(ds.temp_c, float)
+    mid = 0.5 * (float(temps.min()) + float(temps.max()))
+    moving = np.asarray(direction, float) if direction is not None else np.zeros(len(ds))
+    parts = [(kind, _terms(kind, ds.h_nt, temps, moving, mid)) for kind in found]
+    z = np.concatenate([p for _, p in parts], axis=2) if parts else np.zeros((len(ds), 3, 0))
+    coef, cov, resid, dof = _joint_fit(x_base, z, ds.ref_nt, w)
+    if not found:
+        notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
+        return [], resid, dof
+    k = z.shape[2]
+    sigma = np.zeros((3 * k, 3 * k))
+    a = np.zeros((len(ds), 3, 3 * k))
+    for i in range(3):
+        block = slice(k * i, k * i + k)
+        sigma[block, block] = cov[i] + np.outer(coef[i], coef[i])
+        a[:, i, block] = z[:, i, :]
+
+    def grid_effect(grid_h, grid_temp):
+        """The terms at the grid points; a hysteresis state there is the next source's (mean 0)."""
+        g_temp = np.full(len(grid_h), mid) if grid_temp is None else np.asarray(grid_temp, float)
+        zg = np.concatenate([_terms(kind, np.asarray(grid_h, float), g_temp, np.zeros(len(grid_h)), mid)
+                             for kind in found], axis=2)
+        out = np.zeros((len(grid_h), 3, 3 * k))
+        for i in range(3):
+            out[:, i, k * i:k * i + k] = zg[:, i, :]
+        return out
+
+    checks = {CHECK_TERMS.get(c["name"]): c for c in cal.stats.get("model_checks") or []}
+    said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found" for kind in found)
+    out = [InputSource("model checks (" + ", ".join(found) + ")", sigma, ref_nt=a, field_nt=grid_effect,
+                       origin=said + "; fitted together with T24 (u^2 + b^2)")]
+    if "hysteresis" in found:
+        at = sum(p.shape[2] for kind, p in parts[:found.index("hysteresis")])
+        size = np.array([cov[i][at, at] + coef[i, at] ** 2 for i in range(3)])
+        said = f"either thermal direction at a point of use: +-d ({_fmt(np.sqrt(size))}) nT"
+        out.append(InputSource("thermal hysteresis state", np.diag(size), field_nt=everywhere, origin=said))
+    return out, resid, dof
+
+
+def _misfit(resid, w, dof, points, notes) -> InputSource | None:
+    used = w > 0
+    rms2 = np.sum(w[used, None] * resid[used] ** 2, axis=0) / max(dof, 1)
+    if points is None:
+        notes.append("misfit: the samples carry no point labels; the DUT's noise cannot be told from it")
+        return None
+    noise, noise_dof = within_point_noise(resid[used], np.asarray(points, object)[used])
+    if noise_dof == 0:
+        notes.append("misfit: one sample a point, the DUT's noise cannot be told from the misfit: not in the "
+                     "budget (take two or more samples a point)")
+        return None
+    limit = 1.0 + MISFIT_SIGNIFICANCE * np.sqrt(2.0 / max(dof, 1) + 2.0 / noise_dof)
+    excess2 = np.where(rms2 > limit * noise**2, rms2 - noise**2, 0.0)
+    excess = np.sqrt(np.broadcast_to(excess2, (3,)) if excess2.size == 1 else excess2)
+    rms = np.sqrt(np.broadcast_to(rms2, (3,)))
+    noise3 = np.broadcast_to(noise, (3,))
+    origin = (f"residual rms ({_fmt(rms)}) nT against the noise within points ({_fmt(noise3)}) nT: excess "
+              f"({_fmt(excess)}) nT")
+    return InputSource("misfit", np.diag(excess**2), field_nt=everywhere, origin=origin)
+
+
+def everywhere(grid_h, grid_temp) -> np.ndarray:
+    """(G,3,3): a field error of its own on each axis at every grid point."""
+    return np.broadcast_to(np.eye(3), (len(grid_h), 3, 3))
+
+
+def _fmt(values) -> str:
+    return ", ".join(f"{v:.1f}" for v in values)
