@@ -132,7 +132,7 @@ def state_uncertainty(inputs, dut: str, ds, cal):
         budget = inputs.budget(dut, ds, cal)
         cal.uncertainty = uncertainty_section(budget)
         return budget
-    except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
+    except (*ERRORS, ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
         return None
 

@@ -67,6 +67,7 @@ class RunInputs:
     reference_name: str | None = None
     temperature_log: list[dict] = dataclasses.field(default_factory=list)  # the run's temperature rows
     run_utc: dt.datetime | None = None  # when the run started (wall clock)
+    _chains: dict = dataclasses.field(default_factory=dict, repr=False)  # dut: (ds, sources, notes)
 
     @classmethod
     def of_session(cls, reader) -> RunInputs:
@@ -98,9 +99,9 @@ class RunInputs:
     def budget(self, dut: str, ds, cal: Calibration, *, rng: np.random.Generator | None = None,
                monte_carlo: str = "auto") -> Budget:
         rng = rng or np.random.default_rng(zlib.crc32(f"{dut}/{cal.model}".encode()))
-        sources, notes = self.sources(dut, ds, cal)
+        sources, notes, noise = self.sources(dut, ds, cal)
         b = calib_budget(ds, cal, sources, self._grid, rng=rng, weights=fit_weights(cal),
-                         monte_carlo=monte_carlo)
+                         monte_carlo=monte_carlo, noise_nt=noise)
         b.notes = b.notes + notes
         return b
 
@@ -120,13 +121,26 @@ class RunInputs:
             temps = np.linspace(temps.min(), temps.max(), 5)
         return np.repeat(fields, len(temps), axis=0), np.tile(temps, len(fields))
 
-    def sources(self, dut: str, ds, cal: Calibration) -> tuple[list, list[str]]:
+    def sources(self, dut: str, ds, cal: Calibration) -> tuple[list, list[str], np.ndarray | None]:
+        """(every input source but the fit's own noise, notes, the readings' noise for the fit's
+        statistics where the model sources take a share of its residual: modelerror.model_sources)."""
         notes: list[str] = []
-        chain = self.station.field_source.budget_chain(self, dut, ds)
-        out = list(chain.sources(notes))
+        out = self._reference_field_sources(dut, ds, notes)
         out += self._temperature(dut, ds, cal, notes)
-        model, said = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds), fit_weights(cal))
-        return out + model, notes + said
+        model, said, noise = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds),
+                                                      fit_weights(cal))
+        return out + model, notes + said, noise
+
+    def _reference_field_sources(self, dut: str, ds, notes: list[str]) -> list:
+        """The field source's sources for one DUT's data, made once for every model fitted to the same
+        dataset (their sensitivities are most of a budget's time)."""
+        cached = self._chains.get(dut)
+        if cached is None or cached[0] is not ds:
+            said: list[str] = []
+            sources = list(self.station.field_source.budget_chain(self, dut, ds).sources(said))
+            cached = self._chains[dut] = (ds, sources, said)
+        notes += cached[2]
+        return list(cached[1])
 
     def _temperature(self, dut: str, ds, cal: Calibration, notes: list[str]) -> list:
         """The probe's accuracy and the DUT-to-probe gradient (rectangular) and, on a ramp, the uncertainty

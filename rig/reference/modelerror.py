@@ -4,13 +4,20 @@
     record_model_checks(cal, ds, direction)                    # cal.stats["model_checks"] (T24)
     sources, notes = model_sources(ds, cal, direction, weights)
 
+What the parameters stand for: the T24 model that describes the DUT best over the calibration's fields
+and temperatures, in its mean thermal state. A term T24 lacks then costs the calibrated field what T24
+cannot follow of it, and a thermal hysteresis costs the parameters what the fit took from an unbalanced
+history besides:
+
 - The model checks (calib/checks.py): T24 against T24 plus one deviation (a quadratic temperature term,
-  a thermal hysteresis of the offset, a cubic field term). Where a check finds its term (p < P_TERM), the
-  term is fitted together with T24 and enters the budget as a source whose quantities are its
-  coefficients (u^2 + b^2: the estimate b, uncorrected, as a bias of unknown sign): it moves the data by
-  z c (the T24 parameters absorb J z c) and the true field at the grid points by z_grid c, which T24
-  cannot follow (calib.propagation InputSource.field_nt). A hysteresis state at a grid point is the one
-  the fit saw least (the worse sign).
+  a thermal hysteresis of the offset, a cubic field term). The terms the checks find (p < P_TERM) are
+  fitted together with T24 (over a few temperature steps a curvature and a hysteresis share what the
+  steps show: their estimates are correlated) and enter the budget as one source whose quantities are
+  their coefficients, as u^2 + b^2 (the estimate b, uncorrected, a bias of unknown sign): a curvature or
+  a cubic term moves the true field at the grid points by what a T24 fit over the grid cannot follow of
+  it (calib.propagation InputSource.field_nt); the hysteresis moved the data by d_n c (d_n the thermal
+  direction of each sample), which the parameters absorbed. At a point of use the DUT may be in either
+  thermal state: +-c, a field error of its own ("thermal hysteresis state").
 - The misfit: the fit's residual (after those terms) beyond what the DUT's own noise explains. The noise
   is the scatter within points (the samples of one point see the same field and temperature); the
   excess, when significant (MISFIT_SIGNIFICANCE standard errors of the variance ratio), is a field error
@@ -25,6 +32,7 @@ import numpy as np
 from calib.checks import FIELD_SCALE_NT, model_checks
 from calib.design import regressors as t24_regressors
 from calib.propagation import InputSource
+from rig.reference.wander import wander_source
 
 P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
 MISFIT_SIGNIFICANCE = 3.0
@@ -83,10 +91,11 @@ def _found(cal, ds, direction) -> list[str]:
 
 
 def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray):
-    """Per output axis, ref_i on [x_base, z[:, i]] (rows weighted): (coefficients of z (3,k),
-    their covariance (3,k,k), residuals (N,3), dof)."""
+    """Per output axis, ref_i on [x_base, z[:, i]] (rows weighted): (coefficients of z (3,k), their
+    covariance for white noise (3,k,k), residuals (N,3), dof, the linear maps from ref_i to them (3,k,N))."""
     k = z.shape[2]
     coef, cov, resid = np.zeros((3, k)), np.zeros((3, k, k)), np.zeros_like(ref)
+    maps = np.zeros((3, k, len(ref)))
     used = w > 0
     dof = int(used.sum()) - x_base.shape[1] - k
     for i in range(3):
@@ -100,7 +109,8 @@ def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray
         sigma2 = float(np.sum(w[used] * resid[used, i] ** 2) / max(dof, 1))
         inv = (vt.T / s**2) @ vt / np.outer(scale, scale)
         coef[i], cov[i] = beta[-k:], sigma2 * inv[-k:, -k:]
-    return coef, cov, resid, dof
+        maps[i][:, used] = (((vt.T / s) @ u.T) * np.sqrt(w[used]) / scale[:, None])[-k:]
+    return coef, cov, resid, dof, maps
 
 
 def within_point_noise(residuals: np.ndarray, points) -> tuple[np.ndarray, int]:
@@ -115,70 +125,115 @@ def within_point_noise(residuals: np.ndarray, points) -> tuple[np.ndarray, int]:
     return np.sqrt(np.sum((residuals - means[index]) ** 2, axis=0) / dof), dof
 
 
-def model_sources(ds, cal, direction, weights=None) -> tuple[list[InputSource], list[str]]:
-    """The budget's model-check sources (T24) and its misfit source, with notes."""
+def model_sources(ds, cal, direction, weights=None) -> tuple[list[InputSource], list[str], np.ndarray | None]:
+    """The budget's model-check sources (T24), its misfit and the offset's wander (rig/reference/wander.py),
+    with notes; and for T24 the readings' noise the fit's statistics should take: the residual of T24 with
+    the checks' terms (their share of the plain residual is budgeted by the terms' source)."""
     notes: list[str] = []
     w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
-    out: list[InputSource] = []
-    if cal.model == "t24":
-        out, resid, dof = _check_sources(ds, cal, direction, w, notes)
+    points = ds.columns.get("point")
+    fit = _TermsFit(ds, cal, direction, w) if cal.model == "t24" else None
+    if fit is not None:
+        resid, dof = fit.resid, fit.dof
     elif cal.model == "scalar":
+        if ds.ref_nt is None:
+            return [], ["misfit: the data have no reference field"], None
         field = cal.apply(ds.h_nt, ds.temp_c)
-        norm_ref = np.linalg.norm(ds.ref_nt, axis=1) if ds.ref_nt is not None else None
-        if norm_ref is None:
-            return [], ["misfit: the data have no reference field"]
-        resid = (np.linalg.norm(field, axis=1) - norm_ref)[:, None]
+        resid = (np.linalg.norm(field, axis=1) - np.linalg.norm(ds.ref_nt, axis=1))[:, None]
         dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values())
     else:
         resid = ds.ref_nt - cal.apply(ds.h_nt, ds.temp_c)
         dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values()) // 3
-    misfit = _misfit(resid, w, dof, ds.columns.get("point"), notes)
-    return out + ([misfit] if misfit is not None else []), notes
+    out: list[InputSource] = []
+    step_var = None
+    if resid.shape[1] == 3 and points is not None:
+        noise, _ = within_point_noise(resid[w > 0], np.asarray(points, object)[w > 0])
+        wander, said, step_var = wander_source(ds, resid, noise, w)
+        notes += [] if wander is not None else [said]
+        out += [] if wander is None else [wander]
+    if fit is not None:
+        out = fit.sources(ds, cal, step_var, notes) + out
+    misfit = _misfit(resid, w, dof, points, notes)
+    noise = None
+    if fit is not None and fit.found:
+        used = w > 0
+        noise = np.sqrt(np.sum(w[used, None] * resid[used] ** 2, axis=0) / max(dof, 1))
+    return out + ([misfit] if misfit is not None else []), notes, noise
 
 
-def _check_sources(ds, cal, direction, w, notes):
-    """One source for every term the checks found, fitted together (their estimates are correlated: over
-    a few temperature steps a curvature and a hysteresis share what the steps show), and the hysteresis
-    state at a grid point (either sign, E[s^2] = 1) as a field error of its own."""
-    found = _found(cal, ds, direction)
-    x_base = t24_regressors(ds.h_nt, ds.temp_c, cal.temp_ref_c)
-    temps = np.asarray(ds.temp_c, float)
-    mid = 0.5 * (float(temps.min()) + float(temps.max()))
-    moving = np.asarray(direction, float) if direction is not None else np.zeros(len(ds))
-    parts = [(kind, _terms(kind, ds.h_nt, temps, moving, mid)) for kind in found]
-    z = np.concatenate([p for _, p in parts], axis=2) if parts else np.zeros((len(ds), 3, 0))
-    coef, cov, resid, dof = _joint_fit(x_base, z, ds.ref_nt, w)
-    if not found:
-        notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
-        return [], resid, dof
-    k = z.shape[2]
-    sigma = np.zeros((3 * k, 3 * k))
-    a = np.zeros((len(ds), 3, 3 * k))
-    for i in range(3):
-        block = slice(k * i, k * i + k)
-        sigma[block, block] = cov[i] + np.outer(coef[i], coef[i])
-        a[:, i, block] = z[:, i, :]
+class _TermsFit:
+    """T24 and the terms its checks found, fitted together (module docstring)."""
 
-    def grid_effect(grid_h, grid_temp):
-        """The terms at the grid points; a hysteresis state there is the next source's (mean 0)."""
-        g_temp = np.full(len(grid_h), mid) if grid_temp is None else np.asarray(grid_temp, float)
-        zg = np.concatenate([_terms(kind, np.asarray(grid_h, float), g_temp, np.zeros(len(grid_h)), mid)
-                             for kind in found], axis=2)
-        out = np.zeros((len(grid_h), 3, 3 * k))
+    def __init__(self, ds, cal, direction, w):
+        self.found = _found(cal, ds, direction)
+        temps = np.asarray(ds.temp_c, float)
+        self.mid = 0.5 * (float(temps.min()) + float(temps.max()))
+        moving = np.asarray(direction, float) if direction is not None else np.zeros(len(ds))
+        self.parts = [(kind, _terms(kind, ds.h_nt, temps, moving, self.mid)) for kind in self.found]
+        self.z = (np.concatenate([p for _, p in self.parts], axis=2) if self.parts
+                  else np.zeros((len(ds), 3, 0)))
+        x_base = t24_regressors(ds.h_nt, ds.temp_c, cal.temp_ref_c)
+        self.coef, self.cov, self.resid, self.dof, self.maps = _joint_fit(x_base, self.z, ds.ref_nt, w)
+
+    def sources(self, ds, cal, step_var, notes: list[str]) -> list[InputSource]:
+        """The terms as one source (their coefficients' covariance widened by the offset's wander between
+        steps, which the white-noise covariance misses: the terms share the steps with it), and the
+        hysteresis state."""
+        if not self.found:
+            notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
+            return []
+        k, coef, cov = self.z.shape[2], self.coef, self.cov.copy()
+        if step_var is not None:
+            groups = np.unique(np.asarray(ds.group, object).astype(str), return_inverse=True)[1]
+            for i in range(3):
+                per_step = np.stack([np.bincount(groups, row, groups.max() + 1) for row in self.maps[i]])
+                cov[i] += step_var[i] * per_step @ per_step.T
+        hysteresis = np.concatenate([np.full(p.shape[2], kind == "hysteresis") for kind, p in self.parts])
+        sigma = np.zeros((3 * k, 3 * k))
+        a = np.zeros((len(ds), 3, 3 * k))
         for i in range(3):
-            out[:, i, k * i:k * i + k] = zg[:, i, :]
+            block = slice(k * i, k * i + k)
+            sigma[block, block] = cov[i] + _shrunk(coef[i], cov[i])
+            a[:, i, block] = np.where(hysteresis, self.z[:, i, :], 0.0)
+        parts, mid = self.parts, self.mid
+
+        def grid_effect(grid_h, grid_temp):
+            """What a T24 fit over the grid cannot follow of each curvature or cubic term there."""
+            h = np.asarray(grid_h, float)
+            g_temp = np.full(len(h), mid) if grid_temp is None else np.asarray(grid_temp, float)
+            zg = np.concatenate([_terms(kind, h, g_temp, np.zeros(len(h)), mid) for kind, _ in parts], axis=2)
+            x = t24_regressors(h, g_temp, cal.temp_ref_c)
+            out = np.zeros((len(h), 3, 3 * k))
+            for i in range(3):
+                left = zg[:, i, :] - x @ np.linalg.lstsq(x, zg[:, i, :], rcond=None)[0]
+                out[:, i, k * i:k * i + k] = np.where(hysteresis, 0.0, left)
+            return out
+
+        checks = {CHECK_TERMS.get(c["name"]): c for c in cal.stats.get("model_checks") or []}
+        said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found"
+                         for kind in self.found)
+        out = [InputSource("model checks (" + ", ".join(self.found) + ")", sigma, ref_nt=a,
+                           field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2, b^2 "
+                           "less its noise's share)")]
+        if "hysteresis" in self.found:
+            at = int(np.flatnonzero(hysteresis)[0])
+            size = np.array([max(cov[i][at, at], coef[i, at] ** 2) for i in range(3)])
+            said = f"either thermal direction at a point of use: +-d ({_fmt(np.sqrt(size))}) nT"
+            out.append(InputSource("thermal hysteresis state", np.diag(size), field_nt=everywhere,
+                                   origin=said))
         return out
 
-    checks = {CHECK_TERMS.get(c["name"]): c for c in cal.stats.get("model_checks") or []}
-    said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found" for kind in found)
-    out = [InputSource("model checks (" + ", ".join(found) + ")", sigma, ref_nt=a, field_nt=grid_effect,
-                       origin=said + "; fitted together with T24 (u^2 + b^2)")]
-    if "hysteresis" in found:
-        at = sum(p.shape[2] for kind, p in parts[:found.index("hysteresis")])
-        size = np.array([cov[i][at, at] + coef[i, at] ** 2 for i in range(3)])
-        said = f"either thermal direction at a point of use: +-d ({_fmt(np.sqrt(size))}) nT"
-        out.append(InputSource("thermal hysteresis state", np.diag(size), field_nt=everywhere, origin=said))
-    return out, resid, dof
+
+def _shrunk(estimate: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """b b^T of an uncorrected estimate b, less the share its own noise gives it (b^T cov^-1 b is about k,
+    its number of terms, when there is nothing but noise: James-Stein), so that u^2 + b^2 does not count
+    the noise twice: E[b b^T] = c c^T + cov for a true effect c."""
+    k = len(estimate)
+    try:
+        chi2 = float(estimate @ np.linalg.solve(cov, estimate))
+    except np.linalg.LinAlgError:
+        return np.outer(estimate, estimate)
+    return max(0.0, 1.0 - k / chi2) * np.outer(estimate, estimate) if chi2 > 0 else np.zeros((k, k))
 
 
 def _misfit(resid, w, dof, points, notes) -> InputSource | None:

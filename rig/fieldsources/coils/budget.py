@@ -25,9 +25,10 @@ import numpy as np
 
 from calib.propagation import InputSource, matrix_source
 from rig.fieldsources.coils import commissioned
+from rig.fieldsources.coils.geometry import pair_field, rotation_between
 from rig.fieldsources.coils.loops import loop_sensitivity
 
-SQRT3 = np.sqrt(3.0)
+POSITION_STEP_MM = 0.5
 
 
 def _rectangular(half_widths) -> np.ndarray:
@@ -52,8 +53,7 @@ class CoilChain:
         self.ambient = self._ambient_of(run, ds)
         self.currents = np.linalg.solve(self.matrix, (ds.ref_nt - self.ambient).T).T
         self.measured = self.source.needs_measurement() and bool(run.site)
-        self.by_centre = self._sensitivity(
-            lambda d: self._matrix_at(self.centre + d.reshape(3, 3), self.position), 9, 1.0)
+        self.by_centre = self._centre_sensitivity()
 
     def _ambient_of(self, run, ds) -> np.ndarray:
         """The ambient in `ds`'s references: the run's best estimate (a refined dataset, RunInputs.refined),
@@ -76,6 +76,32 @@ class CoilChain:
         drawn = g.model_copy(update={"size_m": tuple(np.add(g.size_m, d[:3])),
                                      "spacing_m": tuple(np.add(g.spacing_m, d[3:]))})
         return self._matrix_at(self.centre, self.position, drawn)
+
+    def _centre_sensitivity(self, step: float = 1.0) -> np.ndarray:
+        """(9,3,3): d(matrix at the DUT)/d(centre matrix entry, row-major). Column j of the matrix at a
+        point follows column j of the centre matrix alone (geometry.coil_matrix_at), so each column's
+        three entries are moved together in one evaluation of its pair's field."""
+        out = np.zeros((9, 3, 3))
+        geometry = self.source.geometry
+        if geometry is None or not np.any(self.position):
+            for k in range(9):
+                out[k, k // 3, k % 3] = 1.0
+            return out
+        point = self.position / 1000.0
+        for j in range(3):
+            shape, size, spacing = geometry.shape, geometry.size_m[j], geometry.spacing_m[j]
+            centre = pair_field(shape, j, size, spacing, np.zeros((1, 3)))[0]
+            moved = np.repeat(self.centre[:, j][None], 6, axis=0)
+            for i in range(3):
+                moved[2 * i, i] += step
+                moved[2 * i + 1, i] -= step
+            rots = np.array([rotation_between(np.eye(3)[j], c / np.linalg.norm(c)) for c in moved])
+            scale = np.linalg.norm(moved, axis=1) / np.linalg.norm(centre)
+            field = pair_field(shape, j, size, spacing, np.einsum("dji,j->di", rots, point))
+            columns = scale[:, None] * np.einsum("dij,dj->di", rots, field)
+            for i in range(3):
+                out[3 * i + j, :, j] = (columns[2 * i] - columns[2 * i + 1]) / (2 * step)
+        return out
 
     @staticmethod
     def _sensitivity(matrix_of, n: int, step: float) -> np.ndarray:
@@ -126,21 +152,31 @@ class CoilChain:
                              shared="coil matrix")
 
     def _ambient(self) -> InputSource:
-        """The run's ambient estimate: its coefficients (value at t0 [, slope per s]) per axis and any excess
-        scatter of its measurements as a constant offset."""
+        """The run's ambient estimate: its coefficients (value at t0 [, slope per s]) per axis; and any
+        excess scatter of its measurements (the lab's field moving by more than the measurements' noise
+        between them: steps, a chamber's heater and compressor) as an offset of its own from each
+        measurement to the next, independent of the others."""
         model = self.run.ambient
         p = len(model.coef)
         x = np.column_stack([np.ones(len(self.times)), self.times - model.t0])[:, :p]  # (N,p)
-        a = np.zeros((len(self.times), 3, 3 * p))
-        sigma = np.zeros((3 * p, 3 * p))
+        measured_at = np.sort([m["t"] for m in self.run.site])
+        epoch = np.clip(np.searchsorted(measured_at, self.times, side="right") - 1, 0, None)
+        epochs = int(epoch.max()) + 1
+        a = np.zeros((len(self.times), 3, 3 * (p + epochs)))
+        sigma = np.zeros((3 * (p + epochs),) * 2)
+        rows = np.arange(len(self.times))
         for i in range(3):
             idx = [3 * k + i for k in range(p)]
             a[:, i, idx] = x
-            sigma[np.ix_(idx, idx)] = model.cov[i]
-            sigma[i, i] += model.excess_nt[i] ** 2
+            sigma[np.ix_(idx, idx)] = 0.5 * (model.cov[i] + model.cov[i].T)  # pinv's rounding: symmetric
+            a[rows, i, 3 * (p + epoch) + i] = 1.0
+            for e in range(epochs):
+                sigma[3 * (p + e) + i, 3 * (p + e) + i] = model.excess_nt[i] ** 2
         drift = " with a drift" if model.drifting else ""
-        return InputSource("ambient", sigma, ref_nt=a, origin=f"measured {model.n} time(s){drift}",
-                           shared="ambient")
+        excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
+        return InputSource("ambient", sigma, ref_nt=a, shared="ambient",
+                           origin=f"measured {model.n} time(s){drift}; scatter beyond their noise ({excess}) "
+                           "nT, an offset of its own between measurements")
 
     def _gradient(self, notes: list[str]) -> list[InputSource]:
         """The lab field's gradient between the reference magnetometer that measured the ambient and the
@@ -170,7 +206,9 @@ class CoilChain:
             return []
         out = []
         if self.tolerance_mm > 0:
-            by_position = self._sensitivity(lambda d: self._matrix_at(self.centre, self.position + d), 3, 0.5)
+            moved = self.position + np.concatenate([np.eye(3), -np.eye(3)]) * POSITION_STEP_MM
+            matrices = geometry.matrices_at(self.centre, moved)
+            by_position = (matrices[:3] - matrices[3:]) / (2 * POSITION_STEP_MM)
             out.append(matrix_source("position", self.currents, by_position,
                                      _rectangular(np.full(3, self.tolerance_mm)), distribution="rectangular",
                                      origin=f"+-{self.tolerance_mm:g} mm"))

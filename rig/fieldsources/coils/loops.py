@@ -67,15 +67,43 @@ def matrix_with_loops(centre_matrix_nt_per_a, shape: str, size_m, spacing_m, pos
 
 def loop_sensitivity(centre_matrix_nt_per_a, geometry, position_mm) -> np.ndarray:
     """(3 * 2 * PER_LOOP, 3, 3): d(matrix at the position)/d(each loop quantity, in its unit), by central
-    differences about the drawn loops (order: axis, loop, quantity)."""
+    differences about the drawn loops (order: axis, loop, quantity). Every deviated pair of an axis is
+    evaluated in one call per loop (the points carried into each deviated loop's own frame)."""
+    m = np.asarray(centre_matrix_nt_per_a, float)
     point = np.asarray(position_mm, float) / 1000.0
-    out = np.empty((3, 2, PER_LOOP, 3, 3))
-    for index in np.ndindex(3, 2, PER_LOOP):
-        step = np.zeros((3, 2, PER_LOOP))
-        step[index] = STEPS[index[2]]
-        up = matrix_with_loops(centre_matrix_nt_per_a, geometry.shape, geometry.size_m, geometry.spacing_m,
-                               point, step)
-        down = matrix_with_loops(centre_matrix_nt_per_a, geometry.shape, geometry.size_m, geometry.spacing_m,
-                                 point, -step)
-        out[index] = (up - down) / (2 * STEPS[index[2]])
+    loop = LOOPS[geometry.shape]
+    out = np.zeros((3, 2, PER_LOOP, 3, 3))
+    for j in range(3):
+        steps = np.zeros((2 * 2 * PER_LOOP, 2, PER_LOOP))  # +step, -step of every quantity of both loops
+        for n, (k, q) in enumerate(np.ndindex(2, PER_LOOP)):
+            steps[2 * n, k, q], steps[2 * n + 1, k, q] = STEPS[q], -STEPS[q]
+        column = _pair_columns(loop, j, geometry.size_m[j], geometry.spacing_m[j], steps, m[:, j], point)
+        diff = (column[0::2] - column[1::2]) / (2 * np.tile(STEPS, 2))[:, None]  # (2 * PER_LOOP, 3)
+        out[j, :, :, :, j] = diff.reshape(2, PER_LOOP, 3)
     return out.reshape(-1, 3, 3)
+
+
+def _pair_columns(loop, axis: int, size_m: float, spacing_m: float, deviations: np.ndarray,
+                  column: np.ndarray, point_m: np.ndarray) -> np.ndarray:
+    """(D,3): column `axis` of the matrix at `point_m` for D deviated pairs (D, 2, PER_LOOP), each scaled and
+    turned to match `column` at the centre (as matrix_with_loops)."""
+    d = len(deviations)
+    tilts = np.array([[_tilt((axis + 1) % 3, deviations[i, k, 3]) for k in range(2)] for i in range(d)])
+
+    def field(points: np.ndarray) -> np.ndarray:  # points (D,3): the deviated pairs' fields (D,3), T/A
+        total = np.zeros((d, 3))
+        for k, offset in enumerate((spacing_m / 2, -spacing_m / 2)):
+            centre = np.zeros(3)
+            centre[axis] = offset
+            shifted = points - deviations[:, k, :3] / 1000.0 - centre
+            local = np.einsum("dj,dji->di", shifted, tilts[:, k]) + centre
+            b = loop(axis, offset, size_m, local)
+            total += (1.0 + deviations[:, k, 4] * 1e-6)[:, None] * np.einsum("dij,dj->di", tilts[:, k], b)
+        return total
+
+    at_centre = field(np.zeros((d, 3)))
+    target = column / np.linalg.norm(column)
+    rots = np.array([rotation_between(c / np.linalg.norm(c), target) for c in at_centre])
+    scale = np.linalg.norm(column) / np.linalg.norm(at_centre, axis=1)
+    moved = field(np.einsum("dji,j->di", rots, point_m))  # R^T r for every deviated pair
+    return scale[:, None] * np.einsum("dij,dj->di", rots, moved)
