@@ -48,6 +48,7 @@ NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: u
 # same, smaller batches only let it stop nearer the number of draws the tolerance needs (stated in `method`)
 BATCH_DRAWS = 2000
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
+SCALAR_BATCH, SCALAR_MAX_DRAWS = 1000, 4000  # a scalar Monte Carlo refitting every draw stops there
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
 
@@ -315,6 +316,9 @@ def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch
         notes.append(found)
         refits, checked_failed = not holds, checked_failed + bad
     draws = _Draws(ds, cal, lin, linear, sources, statistical, refits, refit_temperature)
+    if draws.scalar_refits:  # each draw a scalar refit (~1 ms): limited; the result says if it converged
+        batch_draws = min(batch_draws or SCALAR_BATCH, SCALAR_BATCH)
+        max_draws = min(max_draws, SCALAR_MAX_DRAWS)
     result = adaptive_monte_carlo(draws, rng, ndig=ndig, batch_size=batch_draws, max_draws=max_draws)
     refitted = draws.refit is not None  # else every draw is a linear map: its covariance is exact
     if not result.stated:

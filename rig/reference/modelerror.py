@@ -108,8 +108,9 @@ def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray
         resid[:, i] = ref[:, i] - x @ beta
         sigma2 = float(np.sum(w[used] * resid[used, i] ** 2) / max(dof, 1))
         inv = (vt.T / s**2) @ vt / np.outer(scale, scale)
-        coef[i], cov[i] = beta[-k:], sigma2 * inv[-k:, -k:]
-        maps[i][:, used] = (((vt.T / s) @ u.T) * np.sqrt(w[used]) / scale[:, None])[-k:]
+        first = x.shape[1] - k  # the terms' columns (none when k = 0)
+        coef[i], cov[i] = beta[first:], sigma2 * inv[first:, first:]
+        maps[i][:, used] = (((vt.T / s) @ u.T) * np.sqrt(w[used]) / scale[:, None])[first:]
     return coef, cov, resid, dof, maps
 
 

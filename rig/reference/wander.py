@@ -11,10 +11,11 @@ differ by more than their white noise. Their Allan variance at that spacing, A (
 difference, less the white noise's share), is the same at every averaging time for a 1/f noise; the
 offset of a step (a few minutes' average) against the run's mean then varies by about 2.5 A for a 1/f
 noise from a second to hours (the components slower than a step, against the flat Allan variance), and
-a random walk adds to it: WANDER_FACTOR x A per step. A per axis is a small difference of large numbers
-(the white noise's share dominates), so each axis takes at least the mean over the three (an AMR's
-offset noise is alike on its axes). The source: one offset per step and axis, independent; it changes
-the data (the parameters absorb it, b and kb most), never the true field.
+a random walk adds to it: WANDER_FACTOR x A per step. A is a small difference of large numbers (the
+white noise's share dominates): it counts only when its mean over the three axes is SIGNIFICANCE
+standard errors above zero, and then each axis takes at least that mean (an AMR's offset noise is alike
+on its axes). The source: one offset per step and axis, independent; it changes the data (the
+parameters absorb it, b and kb most), never the true field.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from calib.propagation import InputSource
 
 WANDER_FACTOR = 3.0
+SIGNIFICANCE = 3.0
 
 
 def _point_means(ds, resid: np.ndarray, used: np.ndarray):
@@ -56,8 +58,13 @@ def wander_source(ds, resid: np.ndarray, noise_nt: np.ndarray,
         return None, "offset wander: no step with two points and a known noise, not in the budget", None
     diff2 = (means[1:] - means[:-1])[same] ** 2
     white = noise_nt**2 * (1.0 / counts[1:] + 1.0 / counts[:-1])[same][:, None]
-    allan = np.mean(diff2 - white, axis=0) / 2.0
-    allan = np.maximum(allan, max(float(np.mean(allan)), 0.0))
+    excess = (diff2 - white) / 2.0  # (differences, axes)
+    pooled = float(np.mean(excess))
+    se = float(np.std(np.mean(excess, axis=1), ddof=1) / np.sqrt(len(excess))) if len(excess) > 1 else np.inf
+    if pooled <= SIGNIFICANCE * se:
+        allan = np.zeros(3)
+    else:
+        allan = np.maximum(np.mean(excess, axis=0), pooled)
     variance = WANDER_FACTOR * allan
     labels, index = np.unique(np.asarray(ds.group if ds.group is not None else ds.columns["point"],
                                          object).astype(str), return_inverse=True)

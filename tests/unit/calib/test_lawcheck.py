@@ -39,7 +39,8 @@ def test_a_dominant_rectangular_input_needs_monte_carlo_and_small_ones_do_not():
     assert holds and "+-1.96 u holds" in found
     b = budget(ds, cal, [matrix, small], grid(), rng=np.random.default_rng(2))
     assert b.monte_carlo is None and "the checks above held" in b.method
-    drawn = budget(ds, cal, [matrix, small], grid(), rng=np.random.default_rng(3), monte_carlo="always", ndig=2)
+    drawn = budget(ds, cal, [matrix, small], grid(), rng=np.random.default_rng(3), monte_carlo="always",
+                   ndig=2)
     # the drawn intervals agree with +-1.96 u to within the numerical tolerance the check allowed
     for key in ("S", "b_nt"):
         half = (drawn.interval[key][1] - drawn.interval[key][0]) / 2
@@ -82,7 +83,8 @@ def test_a_direct_effect_on_the_true_field_agrees_with_1e5_draws_within_2_percen
             out[:, i, i] = zg[:, i]
         return out
 
-    term = InputSource("quadratic term", np.diag([1.0e-3, 0.6e-3, 1.5e-3]) ** 2, ref_nt=a_ref, field_nt=at_grid)
+    sigma = np.diag([1.0e-3, 0.6e-3, 1.5e-3]) ** 2
+    term = InputSource("quadratic term", sigma, ref_nt=a_ref, field_nt=at_grid)
     linear = budget(ds, cal, [term], grid(), rng=np.random.default_rng(10), statistical=False,
                     monte_carlo="never")
     drawn = budget(ds, cal, [term], grid(), rng=np.random.default_rng(11), statistical=False,

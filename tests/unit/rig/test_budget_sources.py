@@ -30,8 +30,9 @@ def test_each_loop_off_its_drawing_matches_the_simulators_biot_savart():
     deviations[..., :3] = rng.uniform(-0.7, 0.7, (3, 2, 3))
     deviations[..., 3] = rng.uniform(-0.15, 0.15, (3, 2))
     deviations[..., 4] = rng.uniform(-1800, 1800, (3, 2))
-    loops = {j: LoopErrors(turns_error_ppm=tuple(deviations[j, :, 4]), offset_m=tuple(
-        tuple(v / 1000.0) for v in deviations[j, :, :3]), tilt_deg=tuple(deviations[j, :, 3])) for j in range(3)}
+    loops = {j: LoopErrors(turns_error_ppm=tuple(deviations[j, :, 4]),
+                           offset_m=tuple(tuple(v / 1000.0) for v in deviations[j, :, :3]),
+                           tilt_deg=tuple(deviations[j, :, 3])) for j in range(3)}
     sim = SimGeometry("square", GEOMETRY.size_m, GEOMETRY.spacing_m)
     for position_mm in ([70.0, 0.0, 0.0], [0.0, -50.0, 30.0], [40.0, 40.0, -40.0]):
         point = np.asarray(position_mm) / 1000.0
@@ -57,8 +58,9 @@ def test_the_loop_sensitivity_predicts_a_small_deviation():
 
 
 def _settings(readings, currents, readback=None):
-    return [SimpleNamespace(setting=tuple(c), mean_nt=tuple(r), readback=None if readback is None else
-                            tuple(readback[k])) for k, (c, r) in enumerate(zip(currents, readings, strict=True))]
+    return [SimpleNamespace(setting=tuple(c), mean_nt=tuple(r),
+                            readback=None if readback is None else tuple(readback[k]))
+            for k, (c, r) in enumerate(zip(currents, readings, strict=True))]
 
 
 def _design(level: float = 1.2, repeats: int = 2) -> np.ndarray:
@@ -93,7 +95,8 @@ def test_the_commissioning_settings_show_the_coils_non_linearity_and_hysteresis(
     a = commissioned.nonlinearity_sensitivity(run, absorbed)
     predicted = np.einsum("niq,q->ni", a, c.ravel())
     true_bend = (run**2) @ quad.T
-    linear_part = np.column_stack([run, np.ones(len(run))]) @ (absorbed @ np.vstack([quad.T, np.zeros((3, 3))]))
+    c_true = np.vstack([quad.T, np.zeros((3, 3))])  # (6 terms, 3 axes)
+    linear_part = np.column_stack([run, np.ones(len(run))]) @ (absorbed @ c_true)
     np.testing.assert_allclose(predicted, true_bend - linear_part, atol=2.0)
 
 
