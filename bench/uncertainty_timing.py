@@ -1,9 +1,10 @@
 """Timings of the uncertainty (bench/uncertainty.py timing), and the demo's certificates (certificates).
 
-timing: the demo plan (4 temperatures x 26 fields x 5 samples), fitted with T24, P12 and the scalar model,
-on configs/stations/sim-64.yaml (64 DUTs) and on two of its DUTs, each `rig run` in a new process: its
-wall time, the post-run fits' share (the session's own record of them), and the 64 / 2 ratio. Then every
-budget of the 64-DUT session (RunInputs.budget, every DUT and model) in one process and in two. With
+timing: the demo plan (4 temperatures x 26 fields x 5 samples, its T24 and P12 fits) on
+configs/stations/sim-64.yaml (64 DUTs) and on two of its DUTs, each `rig run` in a new process: its wall
+time, the post-run fits' share (the session's own record of them), and the 64 / 2 ratio. Then every
+budget of the 64-DUT session's DUTs with T24, P12 and the scalar model (bench/budget_timer.py:
+RunInputs.budget, every DUT and model) in one process and in two. With
 --before COMMIT the same runs are made with that commit's code (a copy from `git archive`), so the
 figures before and after come from the same machine in the same hour.
 
@@ -27,12 +28,8 @@ REPO = Path(__file__).resolve().parents[1]
 STATION64 = REPO / "configs" / "stations" / "sim-64.yaml"
 LAB = REPO / "configs" / "stations" / "sim-lab.yaml"
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
-MODELS = ["t24", "p12", "scalar"]
-
-
 def _plan(folder: Path, station: Path) -> Path:
     data = yaml.safe_load(DEMO.read_text())
-    data["fit"] = {"models": MODELS, "robust": False}
     data["station"] = str(station)
     path = folder / "plan.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))

@@ -279,3 +279,52 @@ def test_a_certificate_states_every_item_and_renders_in_the_browser(worlds, tmp_
         assert not errors, errors
     for item in ITEMS:
         assert item in shown
+
+
+def test_the_cockpit_links_and_serves_each_certificate(worlds):
+    import urllib.parse
+    import urllib.request
+
+    session, _, _, _ = worlds["on"]
+    with browser.cockpit(str(session.parent)) as url:
+        base = f"{url}/s/0/{urllib.parse.quote(session.name)}"
+        with urllib.request.urlopen(base, timeout=30) as reply:
+            page = reply.read().decode()
+        assert "Calibration certificates" in page and "certificate?dut=dut1" in page
+        with urllib.request.urlopen(f"{base}/certificate?dut=dut1", timeout=60) as reply:
+            certificate = reply.read().decode()
+        assert "Calibration certificate" in certificate and ">Traceability</h2>" in certificate
+        name = urllib.parse.quote(session.name.removesuffix(".session") + ".dut3.certificate.html")
+        with urllib.request.urlopen(f"{base}/{name}", timeout=60) as reply:  # the report's own link
+            assert "dut3" in reply.read().decode()
+
+
+def test_a_turntable_budget_states_its_axes_site_field_and_reference(tmp_path):
+    def table(data):
+        data["sim"]["turntable_axes"] = {"az_tilt_deg": [0.2, -0.15], "el_tilt_deg": 0.3,
+                                         "zero_offsets_deg": [1.0, -0.4]}
+        data["sim"]["site_field_nt"] = [19_148.0, 894.0, 45_587.0]
+        data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"}, "rate_deg_s": 30,
+                                "site_field": {"reference_magnetometer": "ref0"}}
+        data["duts"] = [d for d in data["duts"] if d["name"] == "dut1"]
+        data["duts"][0].pop("position_mm")
+        data["temperature_sensors"] = [s for s in data["temperature_sensors"] if s["beside"] == "dut1"]
+        data["sim"]["duts"] = {k: v for k, v in data["sim"]["duts"].items() if k in ("dut1", "ref0")}
+        del data["sim"]["coil_geometry"]
+
+    station = write_station(tmp_path, table)
+    com = commission(station, tmp_path, repeats=1)
+    data = yaml.safe_load(station.read_text())
+    data["field_source"]["commissioning"] = com.name
+    station.write_text(yaml.safe_dump(data, sort_keys=False))
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(PLAN.replace("fields: {kind: cube24, magnitude_nt: 50000}",
+                                 "fields: {kind: grid, az_deg: [0, 90, 180, 270], el_deg: [-60, 0, 60]}"))
+    outcome = run_campaign(campaign=load_campaign(plan, station), session_path=tmp_path / "table.session")
+    assert outcome.result.status == "completed", outcome.result.reason
+    cal = calfile.load(calibration_file(outcome.session_path, "dut1", "t24"))
+    lines = {b["source"]: b["contribution_nt"] for b in cal.uncertainty["budget"]}
+    assert {"table axes", "site field", "reference magnetometer"} <= set(lines)
+    assert all(lines[k] > 0 for k in ("table axes", "site field", "reference magnetometer"))
+    total = sum(v**2 for v in lines.values())
+    assert cal.uncertainty["combined_standard_nt"] ** 2 == pytest.approx(total, rel=1e-6)
