@@ -48,7 +48,7 @@ NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: u
 # same, smaller batches only let it stop nearer the number of draws the tolerance needs (stated in `method`)
 BATCH_DRAWS = 2000
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
-SCALAR_BATCH, SCALAR_MAX_DRAWS = 1000, 4000  # a scalar Monte Carlo refitting every draw stops there
+SCALAR_BATCH, SCALAR_MAX_DRAWS = 500, 2000  # a scalar Monte Carlo refitting every draw stops there
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
 
