@@ -31,9 +31,9 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import calib  # noqa: E402
 from bench.coverage_worlds import BASE, random_world  # noqa: E402
 from bench.reference_chain import prepared, run, validation_grid  # noqa: E402
-import calib  # noqa: E402
 from calib import calfile  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
 from calib.fielderror import expanded_at  # noqa: E402
@@ -74,8 +74,15 @@ def best_t24(truth, temp_ref_c: float) -> dict:
 
 
 def one_world(args) -> dict:
-    """Build, commission and run one world; the coverage figures of its DUTs."""
-    seed, index, out = args
+    """Build, commission and run one world; the coverage figures of its DUTs (none, and why, when the
+    world could not be run)."""
+    try:
+        return _one_world(*args)
+    except Exception as exc:  # noqa: BLE001 - one world that cannot run is reported, the others count
+        return {"index": args[1], "rows": [], "error": f"{type(exc).__name__}: {exc}"}
+
+
+def _one_world(seed: int, index: int, out: str) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -88,18 +95,21 @@ def one_world(args) -> dict:
         cal = calfile.load(calibration_file(session, dut, "t24"))
         expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
         true = best_t24(truth, cal.temp_ref_c)
-        inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist() for g, k in GROUPS.items()}
+        inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
+                  for g, k in GROUPS.items()}
         z = {g: (np.abs(cal.params[k] - true[k]) / np.maximum(expanded[k] / 2, 1e-300)).ravel().tolist()
              for g, k in GROUPS.items()}
         fields, temps = validation_grid(np.array([-20.0, 0.0, 25.0, 60.0]))
         hyst = np.zeros(3) if truth.deviations is None else truth.deviations.hysteresis_offset_nt
         state = rng.choice([-1.0, 1.0], len(fields))
-        h = np.array([truth.raw_from_field(f, t, s * hyst) for f, t, s in zip(fields, temps, state, strict=True)])
+        h = np.array([truth.raw_from_field(f, t, s * hyst)
+                      for f, t, s in zip(fields, temps, state, strict=True)])
         error = np.linalg.norm(cal.apply(h, temps) - fields, axis=1)
         _, radius = expanded_at(cal, h, temps)
         worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
         out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
-                         "points": (error <= radius).tolist(), "worst": (error[worst] <= radius[worst]).tolist(),
+                         "points": (error <= radius).tolist(),
+                         "worst": (error[worst] <= radius[worst]).tolist(),
                          "rms_error": float(np.sqrt(np.mean(error**2))), "stated_max": float(radius.max()),
                          "file_max": float(cal.uncertainty["expanded_vector_error_nt"]),
                          "ratio": (error / radius).tolist()})
@@ -115,6 +125,9 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int) -> None:
     else:
         results = [one_world(a) for a in jobs_args]
     rows = [r for res in results for r in res["rows"]]
+    for res in results:
+        if res.get("error"):
+            print(f"  world {res['index']} not run: {res['error']}")
     print(f"coverage: {len(rows)} DUTs on {worlds} worlds (seed {seed}; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
     print("  true T24 parameters within U (k = 2):")
@@ -123,22 +136,23 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int) -> None:
         values = [v for r in rows for v in r["inside"][g]]
         zs = np.array([v for r in rows for v in r["z"][g]])
         total += values
-        print(f"    {g:3s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median {np.median(zs):.2f}, "
-              f"95th percentile {np.quantile(zs, 0.95):.2f}")
+        print(f"    {g:3s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median "
+              f"{np.median(zs):.2f}, 95th percentile {np.quantile(zs, 0.95):.2f}")
     print(f"    all {np.mean(total):6.1%} of {len(total)}")
     points = [v for r in rows for v in r["points"]]
     worst = [v for r in rows for v in r["worst"]]
     ratio = np.array([v for r in rows for v in r["ratio"]])
-    print(f"  true vector error within the stated 95 % radius at the validation points: {np.mean(points):.1%} "
-          f"of {len(points)}; at each DUT's worst {WORST_SHARE:.0%} (largest stated radius): {np.mean(worst):.1%} "
-          f"of {len(worst)}")
+    print(f"  true vector error within the stated 95 % radius at the validation points: "
+          f"{np.mean(points):.1%} of {len(points)}; at each DUT's worst {WORST_SHARE:.0%} (largest stated "
+          f"radius): {np.mean(worst):.1%} of {len(worst)}")
     print(f"  error / radius: median {np.median(ratio):.2f}, 95th percentile {np.quantile(ratio, 0.95):.2f}; "
           f"per DUT: RMS true error median {np.median([r['rms_error'] for r in rows]):.1f} nT, stated "
           f"expanded_vector_error_nt median {np.median([r['file_max'] for r in rows]):.1f} nT")
     per_world = {}
     for r in rows:
         per_world.setdefault(r["world"], []).extend(r["points"])
-    print("  per world, points covered: " + " ".join(f"{np.mean(v):.0%}" for _, v in sorted(per_world.items())))
+    shares = " ".join(f"{np.mean(v):.0%}" for _, v in sorted(per_world.items()))
+    print(f"  per world, points covered: {shares}")
 
 
 def main() -> None:

@@ -51,8 +51,8 @@ def _run(code: Path, station: Path, folder: Path) -> tuple[float, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "PYTHONPATH": str(code), "OPENBLAS_NUM_THREADS": "1"}
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "rig", "run", str(_plan(folder, station)), "--out", str(folder),
-                           "--no-live"], cwd=code, env=env, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "rig", "run", str(_plan(folder, station)), "--out",
+                           str(folder), "--no-live"], cwd=code, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
     if proc.returncode not in (0, 3):
         raise RuntimeError(proc.stderr[-2000:])
@@ -77,8 +77,9 @@ def _budget_times(code: Path, session: Path) -> tuple[float, float]:
     env = {**os.environ, "PYTHONPATH": str(code), "OPENBLAS_NUM_THREADS": "1"}
     out = []
     for jobs in (1, 2):
-        proc = subprocess.run([sys.executable, str(REPO / "bench" / "budget_timer.py"), str(session), "--jobs",
-                               str(jobs)], cwd=code, env=env, capture_output=True, text=True, check=True)
+        proc = subprocess.run([sys.executable, str(REPO / "bench" / "budget_timer.py"), str(session),
+                               "--jobs", str(jobs)], cwd=code, env=env, capture_output=True, text=True,
+                              check=True)
         out.append(float(proc.stdout.split()[-1]))
     return out[0], out[1]
 
@@ -103,8 +104,9 @@ def timing(out: Path, before: str | None = None) -> None:
         one, both = _budget_times(code, session64)
         post64, post2 = _postrun_s(session64), _postrun_s(session2)
         posts = "" if post64 is None else f" (post-run fits {post64:.1f} s and {post2:.1f} s)"
-        print(f"{label}: demo on 64 DUTs {wall64:.1f} s, on 2 DUTs {wall2:.1f} s{posts}: ratio {wall64 / wall2:.2f}; "
-              f"every budget of the 64 DUTs (T24, P12, scalar): {one:.1f} s in one process, {both:.1f} s in two")
+        print(f"{label}: demo on 64 DUTs {wall64:.1f} s, on 2 DUTs {wall2:.1f} s{posts}: ratio "
+              f"{wall64 / wall2:.2f}; every budget of the 64 DUTs (T24, P12, scalar): {one:.1f} s in one "
+              f"process, {both:.1f} s in two")
 
 
 def certificates(out: Path) -> None:

@@ -36,7 +36,7 @@ import numpy as np
 from calib.adaptive import MAX_DRAWS, adaptive_monte_carlo, numerical_tolerance, quantiles
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.lawcheck import normal_interval_holds, validate_temperature
+from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
 from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
 from calib.mcrefit import CHUNK_DRAWS, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
@@ -89,10 +89,7 @@ def _root(cov: np.ndarray) -> np.ndarray:
     return d[:, None] * (v * np.sqrt(np.clip(w, 0.0, None)))
 
 
-def _unit(rng: np.random.Generator, distribution: str, shape) -> np.ndarray:
-    if distribution == "rectangular":
-        return rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), shape)
-    return rng.standard_normal(shape)
+_unit = unit_draws
 
 
 class _Draws:

@@ -7,10 +7,10 @@ conditions; 7.9.2: the numerical tolerance delta the answer is stated to).
 1. Non-normal inputs through a linear map. Every output (a parameter, a field component at a grid point)
    is y = sum_k c_k v_k over the inputs' independent unit parts v_k (q = L v per source), so its
    cumulants add: var y = sum c_k^2, kappa_4(y) = sum c_k^4 kappa_4(v_k) (a rectangular v has -1.2, a
-   normal 0; every input is symmetric, so y is too). The Cornish-Fisher expansion moves the 97.5 %
-   quantile from 1.96 u by (z^3 - 3 z) g2 / 24 u, g2 = kappa_4 / var^2 the excess kurtosis. When that is
-   below half the numerical tolerance of u for every output, +-1.96 u is the coverage interval to the
-   digits stated, and the field's 95 % radius that of its Gaussian covariance.
+   two-point one -2, a normal 0; every input is symmetric, so y is too). The Cornish-Fisher expansion
+   moves the 97.5 % quantile from 1.96 u by (z^3 - 3 z) g2 / 24 u, g2 = kappa_4 / var^2 the excess
+   kurtosis. When that is below half the numerical tolerance of u for every output, +-1.96 u is the
+   coverage interval to the digits stated, and the field's 95 % radius that of its Gaussian covariance.
 2. Temperature changes on T24 / T36 move the regressors: first order only. VALIDATION_DRAWS draws of the
    temperature sources are refitted exactly (calib/mcrefit.py) and compared draw by draw with the
    first-order map; when no parameter strays from it by more than half its tolerance, the map is used
@@ -25,10 +25,19 @@ from calib.adaptive import numerical_tolerance
 from calib.mcrefit import refit_for
 
 Z_975 = 1.959963984540054
-KURTOSIS = {"normal": 0.0, "rectangular": -1.2}  # excess kurtosis of a unit input of each distribution
+KURTOSIS = {"normal": 0.0, "rectangular": -1.2, "two-point": -2.0}  # excess kurtosis of a unit input
 CF_SLOPE = (Z_975**3 - 3 * Z_975) / 24.0  # the quantile's shift per unit excess kurtosis
 SHARE = 0.5  # of the numerical tolerance: how far the law of propagation's interval may be off
 VALIDATION_DRAWS = 100
+
+
+def unit_draws(rng: np.random.Generator, distribution: str, shape) -> np.ndarray:
+    """Independent draws of mean 0 and variance 1 from a source's distribution."""
+    if distribution == "rectangular":
+        return rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), shape)
+    if distribution == "two-point":
+        return rng.choice(np.array([-1.0, 1.0]), size=shape)
+    return rng.standard_normal(shape)
 
 
 def _root(cov: np.ndarray) -> np.ndarray:
@@ -85,9 +94,7 @@ def validate_temperature(lin, linear, sources, rng: np.random.Generator, *, ndig
     qs, mapped = [], np.zeros((draws, linear.layout.size))
     for source, a_temp in parts:
         root = _root(source.covariance)
-        unit = (rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), (draws, root.shape[1]))
-                if source.distribution == "rectangular" else rng.standard_normal((draws, root.shape[1])))
-        q = unit @ root.T
+        q = unit_draws(rng, source.distribution, (draws, root.shape[1])) @ root.T
         qs.append(q)
         mapped += q @ lin.temp_jacobian(a_temp).T
     refit = refit_for(lin, np.column_stack([a for _, a in parts]))

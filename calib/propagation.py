@@ -47,7 +47,9 @@ from calib.linearise import ParamLayout, field_jacobian, linearised
 from calib.uncertainty import raw_for
 
 STATISTICAL = "fit (statistical)"
-DISTRIBUTIONS = ("normal", "rectangular")
+# of each unit part of q: normal, rectangular (a +- tolerance), two-point (+-1 with equal chance: a state
+# that is one way or the other, as a thermal hysteresis at a point of use)
+DISTRIBUTIONS = ("normal", "rectangular", "two-point")
 Sensitivity = np.ndarray | Callable[[Dataset], np.ndarray] | None
 GridSensitivity = np.ndarray | Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None
 

@@ -127,8 +127,9 @@ class RunInputs:
         notes: list[str] = []
         out = self._reference_field_sources(dut, ds, notes)
         out += self._temperature(dut, ds, cal, notes)
+        per_step = None if self.ambient is None else self.ambient.excess_nt**2
         model, said, noise = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds),
-                                                      fit_weights(cal))
+                                                      fit_weights(cal), per_step)
         return out + model, notes + said, noise
 
     def _reference_field_sources(self, dut: str, ds, notes: list[str]) -> list:

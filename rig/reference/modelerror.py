@@ -36,6 +36,7 @@ from rig.reference.wander import wander_source
 
 P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
 MISFIT_SIGNIFICANCE = 3.0
+SIGNIFICANT = 3.0  # standard errors: a point-level error counts
 THERMAL_PLAY_C = 1.0  # a temperature change beyond this reverses the thermal direction
 CHECK_TERMS = {"linearity in temperature": "temperature", "thermal hysteresis": "hysteresis",
                "linearity in the field": "field"}
@@ -126,10 +127,14 @@ def within_point_noise(residuals: np.ndarray, points) -> tuple[np.ndarray, int]:
     return np.sqrt(np.sum((residuals - means[index]) ** 2, axis=0) / dof), dof
 
 
-def model_sources(ds, cal, direction, weights=None) -> tuple[list[InputSource], list[str], np.ndarray | None]:
+def model_sources(ds, cal, direction, weights=None,
+                  step_reference_var=None) -> tuple[list[InputSource], list[str], np.ndarray | None]:
     """The budget's model-check sources (T24), its misfit and the offset's wander (rig/reference/wander.py),
     with notes; and for T24 the readings' noise the fit's statistics should take: the residual of T24 with
-    the checks' terms (their share of the plain residual is budgeted by the terms' source)."""
+    the checks' terms (their share of the plain residual is budgeted by the terms' source), widened where
+    the samples of a point share an error. step_reference_var (3,): the variance of the reference's own
+    error from one temperature step to the next (the ambient's scatter between its measurements), which
+    the terms' estimates share with the offset's wander."""
     notes: list[str] = []
     w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
     points = ds.columns.get("point")
@@ -153,13 +158,41 @@ def model_sources(ds, cal, direction, weights=None) -> tuple[list[InputSource], 
         notes += [] if wander is not None else [said]
         out += [] if wander is None else [wander]
     if fit is not None:
-        out = fit.sources(ds, cal, step_var, notes) + out
+        out = fit.sources(ds, cal, step_var, step_reference_var, notes) + out
     misfit = _misfit(resid, w, dof, points, notes)
     noise = None
-    if fit is not None and fit.found:
+    if fit is not None:
         used = w > 0
         noise = np.sqrt(np.sum(w[used, None] * resid[used] ** 2, axis=0) / max(dof, 1))
+        if points is not None:
+            noise = _clustered_noise(resid[used], np.asarray(points, object)[used], noise, notes)
     return out + ([misfit] if misfit is not None else []), notes, noise
+
+
+def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str]) -> np.ndarray:
+    """The noise the fit's statistics should take when the samples of one point share part of their error
+    (a slow offset noise, anything fixed for a point): with n samples a point, an offset of variance s^2
+    common to them weighs in the fit as a white noise of variance n s^2 does (the design effect: the
+    samples of a point have the same regressors), so sqrt(sigma_w^2 + n s^2), sigma_w the scatter within
+    points; s^2 the point means' variance beyond what sigma_w gives them, when SIGNIFICANT standard errors
+    above zero (pooled over the axes). Else the residual's RMS (its white-noise reading)."""
+    noise_w, _ = within_point_noise(resid, points)
+    labels, index = np.unique(np.asarray(points).astype(str), return_inverse=True)
+    counts = np.bincount(index, minlength=len(labels))
+    if not np.all(np.isfinite(noise_w)) or len(labels) < 3:
+        return rms
+    sums = np.stack([np.bincount(index, resid[:, i], len(labels)) for i in range(3)], axis=1)
+    means = sums / counts[:, None]
+    excess = np.mean(means**2 - noise_w**2 / counts[:, None], axis=1)  # per point, pooled over the axes
+    s2, se = float(np.mean(excess)), float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
+    if s2 <= SIGNIFICANT * se:
+        return rms
+    n = float(np.mean(counts))
+    taken = np.sqrt(noise_w**2 + n * s2)
+    notes.append(f"fit (statistical): the samples of a point share an error of {np.sqrt(s2):.1f} nT beyond "
+                 f"their noise ({_fmt(noise_w)}) nT: taken as a noise of ({_fmt(taken)}) nT for the {n:.0f} "
+                 "samples a point")
+    return taken
 
 
 class _TermsFit:
@@ -176,25 +209,33 @@ class _TermsFit:
         x_base = t24_regressors(ds.h_nt, ds.temp_c, cal.temp_ref_c)
         self.coef, self.cov, self.resid, self.dof, self.maps = _joint_fit(x_base, self.z, ds.ref_nt, w)
 
-    def sources(self, ds, cal, step_var, notes: list[str]) -> list[InputSource]:
-        """The terms as one source (their coefficients' covariance widened by the offset's wander between
-        steps, which the white-noise covariance misses: the terms share the steps with it), and the
-        hysteresis state."""
-        if not self.found:
-            notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
-            return []
-        k, coef, cov = self.z.shape[2], self.coef, self.cov.copy()
+    def _widened(self, ds, step_var) -> np.ndarray:
+        """The terms' covariance per axis with an error of variance step_var (3,) per temperature step."""
+        cov = self.cov.copy()
         if step_var is not None:
             groups = np.unique(np.asarray(ds.group, object).astype(str), return_inverse=True)[1]
             for i in range(3):
                 per_step = np.stack([np.bincount(groups, row, groups.max() + 1) for row in self.maps[i]])
                 cov[i] += step_var[i] * per_step @ per_step.T
+        return cov
+
+    def sources(self, ds, cal, wander_var, reference_var, notes: list[str]) -> list[InputSource]:
+        """The terms as one source, their coefficients' covariance widened by what changes from one step
+        to the next (the offset's wander, the reference's error), which the white-noise covariance misses:
+        the terms share the steps with them; and the hysteresis state, the DUT's own hysteresis in use
+        (its estimate's share of the reference's error is the first source's)."""
+        if not self.found:
+            notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
+            return []
+        per_step = [v for v in (wander_var, reference_var) if v is not None]
+        k, coef = self.z.shape[2], self.coef
+        cov = self._widened(ds, np.sum(per_step, axis=0) if per_step else None)
         hysteresis = np.concatenate([np.full(p.shape[2], kind == "hysteresis") for kind, p in self.parts])
         sigma = np.zeros((3 * k, 3 * k))
         a = np.zeros((len(ds), 3, 3 * k))
         for i in range(3):
             block = slice(k * i, k * i + k)
-            sigma[block, block] = cov[i] + _shrunk(coef[i], cov[i])
+            sigma[block, block] = cov[i] + np.outer(coef[i], coef[i])
             a[:, i, block] = np.where(hysteresis, self.z[:, i, :], 0.0)
         parts, mid = self.parts, self.mid
 
@@ -214,27 +255,15 @@ class _TermsFit:
         said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found"
                          for kind in self.found)
         out = [InputSource("model checks (" + ", ".join(self.found) + ")", sigma, ref_nt=a,
-                           field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2, b^2 "
-                           "less its noise's share)")]
+                           field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2)")]
         if "hysteresis" in self.found:
             at = int(np.flatnonzero(hysteresis)[0])
-            size = np.array([max(cov[i][at, at], coef[i, at] ** 2) for i in range(3)])
+            own = self._widened(ds, wander_var)
+            size = np.array([max(own[i][at, at], coef[i, at] ** 2) for i in range(3)])
             said = f"either thermal direction at a point of use: +-d ({_fmt(np.sqrt(size))}) nT"
             out.append(InputSource("thermal hysteresis state", np.diag(size), field_nt=everywhere,
-                                   origin=said))
+                                   distribution="two-point", origin=said))
         return out
-
-
-def _shrunk(estimate: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """b b^T of an uncorrected estimate b, less the share its own noise gives it (b^T cov^-1 b is about k,
-    its number of terms, when there is nothing but noise: James-Stein), so that u^2 + b^2 does not count
-    the noise twice: E[b b^T] = c c^T + cov for a true effect c."""
-    k = len(estimate)
-    try:
-        chi2 = float(estimate @ np.linalg.solve(cov, estimate))
-    except np.linalg.LinAlgError:
-        return np.outer(estimate, estimate)
-    return max(0.0, 1.0 - k / chi2) * np.outer(estimate, estimate) if chi2 > 0 else np.zeros((k, k))
 
 
 def _misfit(resid, w, dof, points, notes) -> InputSource | None:

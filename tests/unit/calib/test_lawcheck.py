@@ -121,3 +121,16 @@ def test_a_source_without_data_effect_changes_only_the_field(distribution):
     b = budget(ds, cal, [only], grid(), rng=np.random.default_rng(14), statistical=False, monte_carlo="never")
     assert np.all(ParamLayout.of(cal.params).flatten(b.standard) == 0)
     np.testing.assert_allclose(b.combined_standard_nt, np.sqrt(3) * 20.0, rtol=1e-9)
+
+
+def test_a_two_point_state_has_its_own_coverage():
+    """A field error of +-20 nT, one way or the other (a thermal hysteresis's state at a point of use):
+    its 95 % radius is 20 nT, not the 1.96 x 20 of a normal error of the same variance."""
+    ds, currents, cal = case(15)
+    state = InputSource("state", np.diag([20.0**2, 1e-6, 1e-6]), distribution="two-point",
+                        field_nt=lambda gh, gt: np.broadcast_to(np.eye(3), (len(gh), 3, 3)))
+    holds, _ = normal_interval_holds(propagate_linear(ds, cal, [state], grid(), statistical=False), ndig=1)
+    assert not holds
+    b = budget(ds, cal, [state], grid(), rng=np.random.default_rng(16), statistical=False)
+    assert b.monte_carlo is not None
+    np.testing.assert_allclose(b.vector_error_nt["per_point"], 20.0, rtol=0.01)

@@ -352,5 +352,6 @@ def test_a_badly_described_source_is_one_line_naming_it():
     with pytest.raises(DataError, match="source 'ambient': covariance must be a symmetric"):
         propagate_linear(ds, cal, [lopsided], grid())
     odd = dataclasses.replace(coil_sources(ds, currents)[0], distribution="triangular")
-    with pytest.raises(DataError, match="distribution 'triangular' \\(known: normal, rectangular\\)"):
+    known = r"distribution 'triangular' \(known: normal, rectangular, two-point\)"
+    with pytest.raises(DataError, match=known):
         propagate_linear(ds, cal, [odd], grid())

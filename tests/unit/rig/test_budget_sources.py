@@ -179,3 +179,20 @@ def test_the_offset_wander_between_points_sets_each_steps_offset():
     quiet_ds, quiet = _stepped(rng, noise=30.0, wander=0.0)
     _, _, small = wander_source(quiet_ds, quiet, within_point_noise(quiet, quiet_ds.columns["point"])[0])
     assert np.all(small < 0.3 * variance)
+
+
+def test_an_error_shared_by_a_points_samples_weighs_as_n_times_its_variance():
+    """Five samples a point sharing an error of 20 nT weigh in a fit like a white noise of variance
+    30^2 + 5 x 20^2: the statistics take that; without a shared error they take the residual's RMS."""
+    from rig.reference.modelerror import _clustered_noise
+
+    rng = np.random.default_rng(6)
+    ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=20.0, step_nt=0.0)
+    notes: list[str] = []
+    rms = np.sqrt(np.mean(resid**2, axis=0))
+    taken = _clustered_noise(resid, ds.columns["point"], rms, notes)
+    np.testing.assert_allclose(taken, np.sqrt(30.0**2 + 5 * 20.0**2), rtol=0.15)
+    assert notes and "share an error" in notes[0]
+    ds, white = _stepped(rng, noise=30.0, wander=0.0, excess=0.0, step_nt=0.0)
+    rms = np.sqrt(np.mean(white**2, axis=0))
+    assert np.array_equal(_clustered_noise(white, ds.columns["point"], rms, []), rms)
