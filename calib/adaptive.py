@@ -111,6 +111,8 @@ def adaptive_monte_carlo(draw_batch: Callable, rng: np.random.Generator, *, ndig
         drawn += m
         failed += int(np.count_nonzero(bad))
         values, lengths = values[~bad], lengths[~bad]
+        if failed > MAX_FAILED_SHARE * drawn and len(values) < 2:  # nothing left to estimate from
+            return _unstated(values, lengths, drawn, failed, len(estimates) + 1, m, ndig, probability)
         if shortest is None:
             shortest = (_skewed(values) if interval == "auto"
                         else np.full(values.shape[1], interval == "shortest"))
@@ -149,6 +151,19 @@ def adaptive_monte_carlo(draw_batch: Callable, rng: np.random.Generator, *, ndig
                           low, high, shortest, quantile, np.sqrt(np.mean(lengths_cat**2, axis=0)),
                           numerical_tolerance(u, ndig),
                           numerical_tolerance(quantile, ndig), ndig, probability, message, values_cat)
+
+
+def _unstated(values, lengths, drawn: int, failed: int, batches: int, m: int, ndig: int,
+              probability: float) -> AdaptiveResult:
+    """The result when (nearly) every draw of a batch failed: nothing can be stated."""
+    k, r = values.shape[1], lengths.shape[1]
+    nan_k, nan_r = np.full(k, np.nan), np.full(r, np.nan)
+    share = 100 * failed / drawn
+    message = (f"{drawn} draws in {batches} batches of {m}; {failed} refits failed ({share:.2g} % of the "
+               f"draws): more than {100 * MAX_FAILED_SHARE:g} % failed, the uncertainty cannot be stated")
+    return AdaptiveResult(drawn, failed, batches, m, False, False, nan_k, nan_k, nan_k, nan_k,
+                          np.zeros(k, bool), nan_r, nan_r, nan_k, nan_r, ndig, probability, message,
+                          np.zeros((0, k)))
 
 
 def _skewed(values: np.ndarray) -> np.ndarray:

@@ -8,23 +8,25 @@ Carlo (GUM S1) where it is needed.
 1. Law of propagation (calib/propagation.py): every source's covariance J Sigma_q J^T, the fit's own
    sigma^2 G^-1, their sum, each one's RMS field error over the grid. Exact for T24 / T36 and sources
    that change the references; first order for P12, the scalar fit and temperature changes (said so).
-2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`): a temperature source on T24 /
-   T36 (the regressors hold the temperature: each draw is refitted exactly, calib/mcrefit.py), the
-   scalar fit, or a non-normal input (a rectangular tolerance: the coverage interval is not 1.96 u).
-   The scalar fit is first refitted on VALIDATION_DRAWS draws of every input (its readings' noise
-   redrawn) and compared draw by draw with its first-order map (`validate_scalar`): the draws go through
-   the map when it holds to half the numerical tolerance, else every draw is refitted (said in the
-   notes). Every draw adds the linear sources' J q to the
-   refitted part, so the draws are of all inputs together; the number of draws is chosen by the
-   adaptive procedure of GUM S1 7.9 (calib/adaptive.py). Parameters' u and coverage intervals, and the
-   calibrated field's error at each grid point, come from the draws; the covariance from the draws when
-   refits were made, else from the law of propagation (exact whatever the inputs' distributions).
-3. Without Monte Carlo (all inputs normal, the model linear in them): u and the covariance from the law
-   of propagation, intervals +-1.96 u, the field's 95 % radius at each point from its 3x3 covariance.
+2. Monte Carlo where that is not the whole answer (`needs_monte_carlo`, monte_carlo="auto"): where a
+   first-order map does not hold to within half the numerical tolerance (the scalar fit, checked by
+   VALIDATION_DRAWS exact refits, `validate_scalar`; temperature changes on T24 / T36, checked the same
+   way, calib/lawcheck.py), or where non-normal inputs (a rectangular tolerance) move a coverage
+   interval away from +-1.96 u by more than that (their kurtosis, calib/lawcheck.py). The draws: every
+   draw adds the linear sources' J q to the refitted part (T24 / T36 refitted exactly for their
+   temperature sources, the scalar fit refitted or through its validated map), so the draws are of all
+   inputs together; the number of draws is chosen by the adaptive procedure of GUM S1 7.9
+   (calib/adaptive.py). Parameters' u and coverage intervals, and the calibrated field's error at each
+   grid point, come from the draws; the covariance from the draws when refits were made, else from the
+   law of propagation (exact whatever the inputs' distributions). monte_carlo="always" draws whatever
+   the checks say.
+3. Without Monte Carlo: u and the covariance from the law of propagation, intervals +-1.96 u, the field's
+   95 % radius at each point from its 3x3 covariance; the method says which checks held.
 
 The field error is judged at every grid point: `vector_error_nt` holds the 95 % radius per point, its
 maximum and the 95th percentile over the points; `expanded_vector_error_nt` is the maximum, so the worst
-point is covered.
+point is covered. A source may also move the true field at the grid points directly (a model error the
+calibration cannot follow, InputSource.field_nt): its error there is (F J - a_grid) q.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ import numpy as np
 from calib.adaptive import MAX_DRAWS, adaptive_monte_carlo, numerical_tolerance, quantiles
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.linearise import ScalarGaussNewton, linearised
+from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
+from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
 from calib.mcrefit import CHUNK_DRAWS, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.uncertainty import COVERAGE_FACTOR, Budget
@@ -45,20 +48,35 @@ NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: u
 # same, smaller batches only let it stop nearer the number of draws the tolerance needs (stated in `method`)
 BATCH_DRAWS = 2000
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
+SCALAR_BATCH, SCALAR_MAX_DRAWS = 500, 2000  # a scalar Monte Carlo refitting every draw stops there
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
 
 
-def needs_monte_carlo(cal: Calibration, sources: list[InputSource]) -> list[str]:
-    """Why the law of propagation alone is not the whole answer (empty: it is)."""
-    why = []
-    if cal.model == "scalar":
-        why.append("the scalar fit is not linear in its data")
-    if cal.model in ("t24", "t36") and any(s.temp_c is not None for s in sources):
-        why.append("temperature changes move the regressors")
-    rect = [s.name for s in sources if s.distribution != "normal"]
-    if rect:
-        why.append(f"{', '.join(rect)}: not normal, the coverage interval is not 1.96 u")
-    return why
+def needs_monte_carlo(ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
+                      rng: np.random.Generator, *, statistical: bool, ndig: int,
+                      notes: list[str]) -> tuple[list[str], bool | None, int]:
+    """(why the law of propagation alone is not the whole answer (empty: it is), whether the scalar fit
+    needs refits (None: not checked), refits that failed in the checks); what each check found is added
+    to `notes`."""
+    why, scalar_refits, failed = [], None, 0
+    if isinstance(lin, ScalarGaussNewton):
+        holds, found, failed = validate_scalar(lin, linear, sources, rng, statistical=statistical, ndig=ndig)
+        notes.append(found)
+        scalar_refits = not holds
+        if not holds:
+            why.append("the scalar fit is not linear in its data here")
+    elif cal.model in ("t24", "t36") and any(s.temp_c is not None for s in sources):
+        holds, found, bad = validate_temperature(lin, linear, sources, rng, ndig=ndig)
+        notes.append(found)
+        failed += bad
+        if not holds:
+            why.append("temperature changes move the regressors beyond first order")
+    holds, found = normal_interval_holds(linear, ndig)
+    if found != "every input normal":
+        notes.append(found)
+    if not holds:
+        why.append("inputs that are not normal move the coverage intervals")
+    return why, scalar_refits, failed
 
 
 def _root(cov: np.ndarray) -> np.ndarray:
@@ -71,10 +89,7 @@ def _root(cov: np.ndarray) -> np.ndarray:
     return d[:, None] * (v * np.sqrt(np.clip(w, 0.0, None)))
 
 
-def _unit(rng: np.random.Generator, distribution: str, shape) -> np.ndarray:
-    if distribution == "rectangular":
-        return rng.uniform(-np.sqrt(3.0), np.sqrt(3.0), shape)
-    return rng.standard_normal(shape)
+_unit = unit_draws
 
 
 class _Draws:
@@ -85,27 +100,30 @@ class _Draws:
     fit through its first-order map when `validate_scalar` showed refits agree with it, else refitted."""
 
     def __init__(self, ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
-                 statistical: bool, scalar_refits: bool):
+                 statistical: bool, scalar_refits: bool, refit_temperature: bool = True):
         self.cal, self.lin, self.linear = cal, lin, linear
         self.scalar = isinstance(lin, ScalarGaussNewton)
         self.scalar_refits = self.scalar and scalar_refits
-        self.linear_parts = []  # (J (P,Q), root of Sigma_q, distribution): J q added to every draw
+        self.linear_parts = []  # (J (P,Q), root of Sigma_q, distribution, a_grid): J q added to every draw
         self.data_parts = []  # (root, distribution, a_ref, a_temp): changes the data of a refit
         by_name = {c.name: c for c in linear.contributions}
         if statistical and not self.scalar_refits:
             own = _root(by_name[STATISTICAL].covariance)
-            self.linear_parts.append((np.eye(linear.layout.size), own, "normal"))
+            self.linear_parts.append((np.eye(linear.layout.size), own, "normal", None))
         for source in sources:
             a_ref, a_temp = source.sensitivities(ds)
             root = _root(source.covariance)
-            if self.scalar_refits:
+            a_grid = by_name[source.name].grid_effect
+            if a_grid is not None:  # a model error: its data and its direct effect through one linear map
+                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, a_grid))
+            elif self.scalar_refits:
                 self.data_parts.append((root, source.distribution, a_ref, a_temp))
-            elif a_temp is not None and cal.model in ("t24", "t36"):
+            elif a_temp is not None and cal.model in ("t24", "t36") and refit_temperature:
                 if a_ref is not None:
-                    self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution))
+                    self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution, None))
                 self.data_parts.append((root, source.distribution, None, a_temp))
             else:
-                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution))
+                self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, None))
         temps = [a for (_, _, _, a) in self.data_parts if a is not None]
         self.refit = None
         if self.scalar_refits or temps:
@@ -114,8 +132,13 @@ class _Draws:
 
     def __call__(self, rng: np.random.Generator, m: int):
         change = np.zeros((m, self.linear.layout.size))
-        for jac, root, dist in self.linear_parts:
-            change += (_unit(rng, dist, (m, root.shape[1])) @ root.T) @ jac.T
+        direct = None  # (m,G,3): the draws' direct effects on the true field at the grid points
+        for jac, root, dist, a_grid in self.linear_parts:
+            q = _unit(rng, dist, (m, root.shape[1])) @ root.T
+            change += q @ jac.T
+            if a_grid is not None:
+                moved = np.einsum("giq,mq->mgi", a_grid, q)
+                direct = moved if direct is None else direct + moved
         failed = np.zeros(m, bool)
         if self.refit is not None:
             qs = [(_unit(rng, dist, (m, root.shape[1])) @ root.T, a_ref, a_temp)
@@ -130,6 +153,8 @@ class _Draws:
                 moved, failed = self.refit(np.column_stack([q for q, _, _ in qs]))
                 change += moved
         error = self._field_error(change)
+        if direct is not None:
+            error -= direct
         return change, np.sqrt(np.einsum("mgi,mgi->mg", error, error)), failed
 
     def _field_error(self, change: np.ndarray) -> np.ndarray:
@@ -168,7 +193,12 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
     and u of draws made through the map are those of refitted draws to within delta / 2 (an order
     statistic moves no more than the draws do, and the draws that set a 95 % interval's ends lie about
     2 sd out, where 100 draws already reach): the same allowance the adaptive rule gives its own scatter
-    (2 s <= delta), so the Monte Carlo may use the map. Else every draw is refitted (slower, said so)."""
+    (2 s <= delta), so the Monte Carlo may use the map. That bound is loose where the map's error is of
+    second order (it grows as the square of a draw, and the largest of 100 draws sits 2.5 sd out): the
+    draws being paired, the map's error also gives the shift of every parameter's 95 % interval ends
+    directly, |mean d| + 1.96 |du| (du = (var d + 2 cov(map, d)) / 2u) plus twice its sampling error, and
+    the map holds when that is within the same share of delta (the comparison of GUM S1 8.2, made on the
+    parameters). Else every draw is refitted (slower, said so)."""
     by_name = {c.name: c for c in linear.contributions}
     qs, linear_change = [], np.zeros((draws, linear.layout.size))
     for source in sources:
@@ -184,12 +214,26 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
     if dh is None and dref is None and dt is None:
         return True, "no input to draw", 0
     refitted, failed = refit_for(lin, None)(dh, dref, dt)
-    off = np.max(np.abs(refitted[~failed] - linear_change[~failed]), axis=0, initial=0.0)
-    delta = numerical_tolerance(np.sqrt(np.diag(linear.covariance)), ndig)
-    ratio = float(np.max(np.where(delta > 0, off / np.where(delta > 0, delta, 1.0), 0.0)))
-    holds = ratio <= VALIDATION_SHARE and not failed.any()
+    d, mapped = refitted[~failed] - linear_change[~failed], linear_change[~failed]
+    off = np.max(np.abs(d), axis=0, initial=0.0)
+    u = np.sqrt(np.diag(linear.covariance))
+    delta = numerical_tolerance(u, ndig)
+    ratio = _share(off, delta)
+    paired = np.inf
+    if len(d) > 2:
+        du = (d.var(axis=0, ddof=1) + 2 * np.mean((mapped - mapped.mean(0)) * (d - d.mean(0)), axis=0)) / \
+            (2 * np.where(u > 0, u, 1.0))
+        shift = np.abs(d.mean(axis=0)) + Z_975 * np.abs(du) + 2 * d.std(axis=0, ddof=1) / np.sqrt(len(d))
+        paired = _share(shift, delta)
+    holds = min(ratio, paired) <= VALIDATION_SHARE and not failed.any()
     return holds, (f"{draws} refitted draws stay within {ratio:.2g} of the numerical tolerance of the "
-                   f"first-order map ({'it holds' if holds else 'refitting every draw'})"), int(failed.sum())
+                   f"first-order map and move its 95 % intervals by {paired:.2g} of it "
+                   f"({'it holds' if holds else 'refitting every draw'})"), int(failed.sum())
+
+
+def _share(values: np.ndarray, delta: np.ndarray) -> float:
+    """The largest value / delta over the parameters with a tolerance."""
+    return float(np.max(np.where(delta > 0, values / np.where(delta > 0, delta, 1.0), 0.0), initial=0.0))
 
 
 def _total(parts):
@@ -203,27 +247,39 @@ def _total(parts):
 def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, rng: np.random.Generator,
            weights: np.ndarray | None = None, statistical: bool = True, monte_carlo: str = "auto",
            ndig: int = NDIG, batch_draws: int | None = BATCH_DRAWS, max_draws: int = MAX_DRAWS,
-           coverage_factor: float = COVERAGE_FACTOR, scalar_refits: bool | None = None) -> Budget:
+           coverage_factor: float = COVERAGE_FACTOR, scalar_refits: bool | None = None,
+           noise_nt: np.ndarray | None = None) -> Budget:
     """The uncertainty budget of `cal` (fitted to `ds` with row `weights`) over `sources` and the fit's own
     noise (`statistical`), the field error judged over `grid` = (fields (G,3) nT, temperatures (G,) or
     None). monte_carlo: "auto" (where needed), "always" or "never" (the law of propagation alone).
     scalar_refits: refit every draw of a scalar calibration (True), or only when `validate_scalar` finds
-    its first-order map does not hold (None)."""
+    its first-order map does not hold (None). noise_nt (3,): the readings' noise per axis where the
+    caller knows it apart from the residual (T24 / T36: a residual that also holds a model error the
+    caller budgets on its own would count it twice); the fit's own statistical part then uses it."""
     lin = linearised(ds, cal, weights)
+    if noise_nt is not None and isinstance(lin, LinearInReference):
+        lin.sigma2 = np.broadcast_to(np.asarray(noise_nt, float) ** 2, (3,)).copy()
     linear = propagate_linear(ds, cal, sources, grid, statistical=statistical, lin=lin)
+    notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
+    checked_failed, refit_temperature = 0, True
     if monte_carlo == "auto":
-        why = needs_monte_carlo(cal, sources)
+        why, checked, checked_failed = needs_monte_carlo(ds, cal, lin, linear, sources, rng,
+                                                         statistical=statistical, ndig=ndig, notes=notes)
+        scalar_refits = checked if scalar_refits is None else scalar_refits
+        refit_temperature = any("temperature" in w for w in why)
     else:
         why = ["asked for"] if monte_carlo == "always" else []
-    notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
     if why:
         figures = _monte_carlo(ds, cal, lin, linear, sources, rng, statistical=statistical, ndig=ndig,
                                batch_draws=batch_draws, max_draws=max_draws, why=why, notes=notes,
-                               scalar_refits=scalar_refits)
+                               scalar_refits=scalar_refits, refit_temperature=refit_temperature,
+                               checked_failed=checked_failed)
     else:
         u = np.sqrt(np.diag(linear.covariance))
+        checks = " (the checks above held)" if monte_carlo == "auto" and (linear.first_order or any(
+            c.source is not None and c.source.distribution != "normal" for c in linear.contributions)) else ""
         method = "law of propagation (GUM), " + ("first order" if linear.first_order
-                                                 else "exact: a linear model")
+                                                 else "exact: a linear model") + checks
         figures = {"u": u, "low": -Z_975 * u, "high": Z_975 * u, "radius": linear.radius_nt,
                    "rms": linear.field_rms_nt, "covariance": linear.covariance, "method": method, "mc": None}
     layout, radius, mc = linear.layout, figures["radius"], figures["mc"]
@@ -243,20 +299,23 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
                          "percentile_95": float(quantiles(radius[:, None], [0.95])[0, 0]),
                          "grid_field_nt": linear.grid_field_nt.tolist(),
                          "grid_temp_c": None if linear.grid_temp_c is None else linear.grid_temp_c.tolist()},
-        failed_draws=0 if mc is None else mc["failed"], stated=True if mc is None else mc["stated"],
+        failed_draws=checked_failed if mc is None else mc["failed"],
+        stated=True if mc is None else mc["stated"],
         monte_carlo=mc, linear=linear)
 
 
 def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch_draws, max_draws, why,
-                 notes, scalar_refits) -> dict:
+                 notes, scalar_refits, refit_temperature=True, checked_failed=0) -> dict:
     """The figures of the adaptive Monte Carlo (u, interval offsets, radius per grid point, ...)."""
-    refits, checked_failed = bool(scalar_refits), 0
+    refits = bool(scalar_refits)
     if isinstance(lin, ScalarGaussNewton) and scalar_refits is None:
-        holds, found, checked_failed = validate_scalar(lin, linear, sources, rng, statistical=statistical,
-                                                       ndig=ndig)
+        holds, found, bad = validate_scalar(lin, linear, sources, rng, statistical=statistical, ndig=ndig)
         notes.append(found)
-        refits = not holds
-    draws = _Draws(ds, cal, lin, linear, sources, statistical, refits)
+        refits, checked_failed = not holds, checked_failed + bad
+    draws = _Draws(ds, cal, lin, linear, sources, statistical, refits, refit_temperature)
+    if draws.scalar_refits:  # each draw a scalar refit (~1 ms): limited; the result says if it converged
+        batch_draws = min(batch_draws or SCALAR_BATCH, SCALAR_BATCH)
+        max_draws = min(max_draws, SCALAR_MAX_DRAWS)
     result = adaptive_monte_carlo(draws, rng, ndig=ndig, batch_size=batch_draws, max_draws=max_draws)
     refitted = draws.refit is not None  # else every draw is a linear map: its covariance is exact
     if not result.stated:
@@ -265,7 +324,8 @@ def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch
     return {"u": result.u if refitted else np.sqrt(np.diag(linear.covariance)),
             "low": result.low, "high": result.high, "radius": result.length_quantile,
             "rms": float(np.sqrt(np.mean(result.length_rms**2))),
-            "covariance": np.cov(result.values, rowvar=False) if refitted else linear.covariance,
+            "covariance": (np.cov(result.values, rowvar=False) if refitted and len(result.values) > 1
+                           else linear.covariance),
             "method": f"Monte Carlo (GUM S1, adaptive), {result.message}; because {'; '.join(why)}",
             "mc": {"draws": result.draws, "failed": failed, "batches": result.batches,
                    "batch_size": result.batch_size, "converged": result.converged, "ndig": ndig,

@@ -164,7 +164,33 @@ def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
             isinstance(b, dict) and isinstance(b.get("source"), str) and _is_number(b.get("contribution_nt"))
             for b in budget):
         raise DataError(f"{where}: key 'uncertainty.budget' must be a list of {{source, contribution_nt}}")
+    _check_covariance(block.get("covariance"), params, where)
+    model_error = block.get("model_error_nt")
+    if model_error is not None and (not isinstance(model_error, list) or len(model_error) != 3 or not all(
+            _is_number(v) and v >= 0 for v in model_error)):
+        raise DataError(f"{where}: key 'uncertainty.model_error_nt' must be 3 finite, non-negative numbers")
     return block
+
+
+def _check_covariance(cov, params: dict, where: str) -> None:
+    """`uncertainty.covariance` (optional: files from before it was written have none): {parameters: the
+    flat parameter labels in order, matrix: P x P, finite and symmetric}."""
+    if cov is None:
+        return
+    labels = [name + "".join(f"[{i}]" for i in idx) if np.shape(v) else name
+              for name, v in params.items() for idx in np.ndindex(*np.shape(v))]
+    if not isinstance(cov, dict) or cov.get("parameters") != labels:
+        raise DataError(f"{where}: key 'uncertainty.covariance.parameters' must list the parameters in "
+                        f"order: {', '.join(labels[:3])}, ...")
+    try:
+        matrix = np.array(cov.get("matrix"), dtype=float)
+    except (TypeError, ValueError):
+        raise DataError(f"{where}: key 'uncertainty.covariance.matrix' is not numeric") from None
+    size = len(labels)
+    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)) or \
+            not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-300):
+        raise DataError(f"{where}: key 'uncertainty.covariance.matrix' must be a finite, symmetric "
+                        f"{size}x{size} matrix")
 
 
 def _is_number(x: object) -> bool:

@@ -15,16 +15,20 @@ columns times q) and `reference_source` (a reference magnetometer's calibration 
 
 An input source is a set of input quantities q (Q of them) with covariance Sigma_q and the way they change
 the data, linearly: the references by a_ref q (a_ref (N,3,Q): sample n's reference changes by
-a_ref[n] @ q) and/or the temperatures by a_temp q (a_temp (N,Q)). The parameters then change by J q with
-J = d theta / d q (calib/linearise.py): exact for T24 and T36 and reference changes (theta = G^-1 X^T W B),
-first order otherwise (P12, the scalar fit, temperature changes); each contribution says which. Its
+a_ref[n] @ q) and/or the temperatures by a_temp q (a_temp (N,Q)); and, for a model error the calibration
+cannot follow (a term the model lacks), the true field at the grid points by a_grid q (a_grid (G,3,Q)).
+The parameters then change by J q with J = d theta / d q (calib/linearise.py): exact for T24 and T36
+and reference changes (theta = G^-1 X^T W B), first order otherwise (P12, the scalar fit, temperature
+changes); each contribution says which. Its
 covariance is J Sigma_q J^T, and the fit's own noise adds sigma^2 G^-1 ("fit (statistical)"). Sources are
 independent of each other unless they share input quantities: two calibrations whose sources name the
 same `shared` quantities (the campaign's coil matrix, its ambient) covary by J_a Sigma_q J_b^T.
 
 The calibrated field at a grid point (field, temperature) is made from the raw reading the calibration
-maps to that field (calib.uncertainty.raw_for); its error is F dtheta, F = d field / d theta, so its
-covariance is F C F^T (3x3) and the radius holding 95 % of a Gaussian error with that covariance is the
+maps to that field (calib.uncertainty.raw_for); its error is F dtheta, F = d field / d theta, less the
+sources' direct effects a_grid q on the true field there: (F J - a_grid) q per source, so its covariance
+is F C F^T from the sources without a direct effect plus (F J - a_grid) Sigma_q (F J - a_grid)^T from
+those with one (3x3), and the radius holding 95 % of a Gaussian error with that covariance is the
 expanded vector error at that point (calib.distributions.gaussian_radius).
 """
 
@@ -43,8 +47,11 @@ from calib.linearise import ParamLayout, field_jacobian, linearised
 from calib.uncertainty import raw_for
 
 STATISTICAL = "fit (statistical)"
-DISTRIBUTIONS = ("normal", "rectangular")
+# of each unit part of q: normal, rectangular (a +- tolerance), two-point (+-1 with equal chance: a state
+# that is one way or the other, as a thermal hysteresis at a point of use)
+DISTRIBUTIONS = ("normal", "rectangular", "two-point")
 Sensitivity = np.ndarray | Callable[[Dataset], np.ndarray] | None
+GridSensitivity = np.ndarray | Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,9 @@ class InputSource:
     distribution: str = "normal"  # of q = L v (L L^T = Sigma_q), v independent unit-variance entries
     origin: str = ""  # where Sigma_q comes from (a commissioning file, a datasheet, a tolerance)
     shared: str | None = None  # names the input quantities when other calibrations share them
+    # a_grid (G,3,Q), or a function of the grid's raw readings (G,3) and temperatures (G,) or None giving
+    # it: the direct effect on the true field at the grid points (a model error), beside any on the data
+    field_nt: GridSensitivity = None
 
     def sensitivities(self, ds: Dataset) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(a_ref (N,3,Q) or None, a_temp (N,Q) or None), checked against the dataset and Sigma_q."""
@@ -79,9 +89,22 @@ class InputSource:
                     raise DataError(f"source {self.name!r}: {what} sensitivity has shape {a.shape}, "
                                     f"expected {shape}")
             out.append(a)
-        if out[0] is None and out[1] is None:
-            raise DataError(f"source {self.name!r}: it changes neither the references nor the temperatures")
+        if out[0] is None and out[1] is None and self.field_nt is None:
+            raise DataError(f"source {self.name!r}: it changes neither the references, the temperatures nor "
+                            "the true field")
         return out[0], out[1]
+
+    def grid_effect(self, grid_h_nt: np.ndarray, grid_temp_c: np.ndarray | None) -> np.ndarray | None:
+        """a_grid (G,3,Q) at the grid's raw readings and temperatures, checked (None: no direct effect)."""
+        if self.field_nt is None:
+            return None
+        a = self.field_nt(grid_h_nt, grid_temp_c) if callable(self.field_nt) else self.field_nt
+        a = np.asarray(a, float)
+        q = np.atleast_2d(np.asarray(self.covariance, float)).shape[0]
+        if a.shape != (len(grid_h_nt), 3, q):
+            raise DataError(f"source {self.name!r}: field sensitivity has shape {a.shape}, expected "
+                            f"{(len(grid_h_nt), 3, q)}")
+        return a
 
 
 def matrix_source(name: str, currents_a: np.ndarray, by_quantity: np.ndarray, covariance,
@@ -149,6 +172,7 @@ class Contribution:
     method: str  # "exact (linear)" or "first order"
     jacobian: np.ndarray | None = None  # (P,Q), None for the fit's own noise
     source: InputSource | None = None
+    grid_effect: np.ndarray | None = None  # a_grid (G,3,Q): its direct effect on the true field
 
 
 @dataclass
@@ -180,6 +204,15 @@ def _field_covariance(jac: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.einsum("gip,pq,gjq->gij", jac, cov, jac, optimize=True)
 
 
+def _direct_part(f_jac: np.ndarray, jac: np.ndarray, a_grid: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(G,3,3): what a source's direct effect adds to F J Sigma J^T F^T, its field error being
+    (F J - a_grid) q: a Sigma a^T - F J Sigma a^T - (F J Sigma a^T)^T."""
+    fj = np.einsum("gip,pq->giq", f_jac, jac)
+    cross = np.einsum("giq,qr,gjr->gij", fj, cov, a_grid, optimize=True)
+    return np.einsum("giq,qr,gjr->gij", a_grid, cov, a_grid, optimize=True) - cross - \
+        np.swapaxes(cross, 1, 2)
+
+
 def propagate_linear(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *,
                      weights: np.ndarray | None = None, statistical: bool = True, lin=None) -> LinearBudget:
     """The covariance of `cal`'s parameters from `sources` (and the fit's own noise), each source's share,
@@ -195,10 +228,11 @@ def propagate_linear(ds: Dataset, cal: Calibration, sources: list[InputSource], 
         c = lin.statistical_covariance()
         contributions.append(Contribution(STATISTICAL, c, _rms(_field_covariance(f_jac, c)),
                                           "exact (linear)" if lin.exact_in_reference else "first order"))
+    direct = np.zeros((len(grid_h), 3, 3))
     for source in sources:
         a_ref, a_temp = source.sensitivities(ds)
-        q = np.atleast_2d(np.asarray(source.covariance, float)).shape[0]
-        jac = np.zeros((lin.layout.size, q))
+        sigma_q = np.atleast_2d(np.asarray(source.covariance, float))
+        jac = np.zeros((lin.layout.size, sigma_q.shape[0]))
         exact = True
         if a_ref is not None:
             jac += lin.ref_jacobian(a_ref)
@@ -206,11 +240,16 @@ def propagate_linear(ds: Dataset, cal: Calibration, sources: list[InputSource], 
         if a_temp is not None:
             jac += lin.temp_jacobian(a_temp)
             exact = False
-        c = jac @ np.atleast_2d(source.covariance) @ jac.T
-        contributions.append(Contribution(source.name, c, _rms(_field_covariance(f_jac, c)),
-                                          "exact (linear)" if exact else "first order", jac, source))
+        c = jac @ sigma_q @ jac.T
+        field_cov = _field_covariance(f_jac, c)
+        a_grid = source.grid_effect(grid_h, grid_temp)
+        if a_grid is not None:
+            extra = _direct_part(f_jac, jac, a_grid, sigma_q)
+            field_cov, direct = field_cov + extra, direct + extra
+        contributions.append(Contribution(source.name, c, _rms(field_cov),
+                                          "exact (linear)" if exact else "first order", jac, source, a_grid))
     total = sum((c.covariance for c in contributions), np.zeros((lin.layout.size,) * 2))
-    f_cov = _field_covariance(f_jac, total)
+    f_cov = _field_covariance(f_jac, total) + direct
     return LinearBudget(lin.layout, lin.layout.flatten(cal.params), total, contributions, grid_field,
                         grid_temp, grid_h, f_jac, f_cov, gaussian_radius(f_cov),
                         any(c.method == "first order" for c in contributions))

@@ -31,11 +31,15 @@ def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dic
     return verdicts
 
 
-def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
+def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) -> list[dict]:
     """Fit each of the plan's models for each DUT from the session's own dataset, the way `rig refit` and
     `rig refit-all` fit it (rig/analysis/sessionfit.py); write one calibration file per DUT and model next
-    to the session and record each fit in it."""
+    to the session and record each fit in it; the DUTs' shared inputs in the cross-covariance file beside
+    them (rig/analysis/crosscov.py). `progress(dut, model, done, total)` is told before each fit; the
+    session records it too (rig/analysis/fitprogress.py)."""
     from calib import calfile
+    from rig.analysis.crosscov import CrossCovariance
+    from rig.analysis.fitprogress import FitProgress
     from rig.analysis.sessionfit import SessionFitter
     from rig.core.paths import calibration_file
     from rig.session.reader import SessionReader
@@ -44,15 +48,20 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
     with SessionReader(session.path) as reader:
         fitter = SessionFitter.of(reader)
         datasets = [(dut, _dataset(reader, dut.name)) for dut in station.duts]
+    shared = CrossCovariance()
+    tell = FitProgress(session, len(station.duts) * len(plan.fit.models), progress)
     for dut, ds in datasets:
         if isinstance(ds, Exception):
             out.append({"dut": dut.name, "model": "-", "error": str(ds)})
             continue
         prepared = fitter.prepare(ds)
         for model in plan.fit.models:
+            tell(dut.name, model)
             entry: dict[str, Any] = {"dut": dut.name, "model": model}
             try:
-                cal = fitter.calibrate(prepared, model, robust=plan.fit.robust, software_version=__version__)
+                cal, budget = fitter.calibrate_budgeted(prepared, model, robust=plan.fit.robust,
+                                                        software_version=__version__)
+                shared.add(dut.name, model, budget)
                 path = calibration_file(session.path, dut.name, model)
             except ERRORS as exc:
                 entry["error"] = str(exc)
@@ -65,6 +74,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station) -> list[dict]:
             session.record_fit(dut.name, model, cal.to_dict(), residual_rms_nt=rms)
             entry.update(path=path, rms_nt=rms, calibration=cal, n=len(prepared.ds))
             out.append(entry)
+    tell.finished(shared)
     return out
 
 

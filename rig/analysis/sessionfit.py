@@ -71,7 +71,14 @@ class SessionFitter:
     def calibrate(self, prepared: Prepared, model: str, *, robust: bool | None = None,
                   software_version: str = "unknown", budget: bool = True, **fit_options):
         """calib.fit with the session's options, then what every session calibration carries: the lag
-        estimate, T24's linearity check, the ambient used and (with `budget`) the uncertainty budget."""
+        estimate, T24's model checks, the ambient used and (with `budget`) the uncertainty budget."""
+        return self.calibrate_budgeted(prepared, model, robust=robust, software_version=software_version,
+                                       budget=budget, **fit_options)[0]
+
+    def calibrate_budgeted(self, prepared: Prepared, model: str, *, robust: bool | None = None,
+                           software_version: str = "unknown", budget: bool = True, **fit_options):
+        """(calibration, its calib Budget or None): `calibrate`, and the budget itself for what the DUTs
+        share (rig/analysis/crosscov.py)."""
         import calib
 
         ds = prepared.ds
@@ -81,29 +88,44 @@ class SessionFitter:
             from rig.analysis.lagfit import annotate
 
             annotate(cal, prepared.lag)
-        if model == "t24":  # the model check the plan's interior temperatures are for
+        if model == "t24":  # the model checks the plan's interior temperatures and two magnitudes are for
             check_linearity(cal, ds)
+            record_checks(self.inputs, ds.source.get("dut", ""), ds, cal)
         if prepared.ambient is not None:
             cal.stats["ambient"] = prepared.ambient
-        if budget:
-            state_uncertainty(self.inputs, ds.source.get("dut", ""), ds, cal)
-        return cal
+        stated = state_uncertainty(self.inputs, ds.source.get("dut", ""), ds, cal) if budget else None
+        return cal, stated
 
 
-def state_uncertainty(inputs, dut: str, ds, cal) -> None:
+def state_uncertainty(inputs, dut: str, ds, cal):
     """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
-    budget that cannot be made is a warning in its stats, never a lost calibration."""
+    budget that cannot be made is a warning in its stats, never a lost calibration. Returns the calib
+    Budget (None without one)."""
     from calib.uncertainty import statistical_only
+    from rig.reference.budget import uncertainty_section
 
     try:
         if inputs is None:
             cal.uncertainty = statistical_only(ds, cal)
             cal.uncertainty["notes"] = ["the session's recorded plan or station cannot be read: the "
                                         "reference's own uncertainty is not in this budget"]
-        else:
-            cal.uncertainty = inputs.budget(dut, ds, cal).as_dict()
-    except (*ERRORS, ValueError, np.linalg.LinAlgError) as exc:
+            return None
+        stated = inputs.budget(dut, ds, cal)
+        cal.uncertainty = uncertainty_section(stated)
+        return stated
+    except (*ERRORS, ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
+        return None
+
+
+def record_checks(inputs, dut: str, ds, cal) -> None:
+    """T24's model checks (calib/checks.py) in the calibration's stats, the thermal direction of every
+    sample from the run's temperature history (rig/reference/modelerror.py)."""
+    from rig.reference.modelerror import record_model_checks, thermal_direction
+
+    direction = thermal_direction(ds.columns["t"], ds.temp_c) if inputs is None else \
+        inputs.thermal_direction(dut, ds)
+    record_model_checks(cal, ds, direction)
 
 
 def check_linearity(cal, ds) -> None:

@@ -34,6 +34,7 @@ COMMAND_MODULES = {
     "report": "report_cmds", "export-cal": "report_cmds", "sessions": "report_cmds",
     "push": "fleet_cmds", "fleet": "fleet_cmds", "refit-all": "fleet_cmds",
     "serve": "serve_cmds",
+    "certificate": "certificate_cmds",
 }
 
 

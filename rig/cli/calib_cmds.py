@@ -154,7 +154,10 @@ def refit(
 @click.argument("data", type=click.Path(dir_okay=False))
 @_unit_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="CSV file to write.")
-def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
+@click.option("--uncertainty", "with_uncertainty", is_flag=True,
+              help="Also write each row's expanded uncertainty from the calibration's covariance: "
+              "u_bx,u_by,u_bz (k u per axis, nT) and u_b (radius holding 95 % of the 3-D error, nT).")
+def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, with_uncertainty):
     """Calibrate every row of DATA: writes its columns plus bx,by,bz (calibrated field, nT).
 
     Reference columns bx,by,bz already in DATA are kept as ref_bx,ref_by,ref_bz. The raw unit and
@@ -180,8 +183,11 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output):
         out[new] = values
     for i, name in enumerate(csvio.REF_COLUMNS):
         out[name] = field[:, i]
+    note = ""
+    if with_uncertainty:
+        note = _uncertainty_columns(cal, ds, out, calibration)
     csvio.write_csv(output, out)
-    click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration}); "
+    click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration}){note}; "
                + equation_line(cal))
 
 
@@ -193,6 +199,30 @@ def equation_line(cal) -> str:
     tau_0 = f"; tau_0_c = {keys['tau_0_c']:g} degC" if "tau_0_c" in keys else ""
     return (f"equation: {keys['equation']}; tau = the temp column in degC as it is "
             f"(tau: {keys['tau']}){tau_0}")
+
+
+UNCERTAINTY_COLUMNS = ("u_bx", "u_by", "u_bz", "u_b")
+
+
+def _uncertainty_columns(cal, ds, out: dict, calibration: str) -> str:
+    """Each row's expanded uncertainty (calib/fielderror.py) into `out`; what the user should know."""
+    from calib.fielderror import expanded_at, parameter_covariance
+    from rig.core.errors import DataError
+
+    if cal.uncertainty is None:
+        raise DataError(f"{calibration}: states no uncertainty: --uncertainty needs a calibration with a "
+                        "budget (rig refit of a session writes one)")
+    for name in UNCERTAINTY_COLUMNS:
+        if name in out:
+            raise DataError(f"{calibration}: column {name!r} is already in the data")
+    axes, radius = expanded_at(cal, ds.h_nt, ds.temp_c)
+    for i, name in enumerate(UNCERTAINTY_COLUMNS[:3]):
+        out[name] = axes[:, i]
+    out[UNCERTAINTY_COLUMNS[3]] = radius
+    _, correlated = parameter_covariance(cal)
+    k = float(cal.uncertainty["coverage_factor"])
+    return (f"; expanded uncertainty (k = {k:g}) per row" + ("" if correlated else
+            " from each parameter's own uncertainty: the file has no covariance, correlations are lost"))
 
 
 def _fmt_with_error(value: float, err: float) -> str:

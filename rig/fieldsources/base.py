@@ -160,6 +160,11 @@ class FieldSourceConfig(DeviceConfig):
         """Why a reference magnetometer at `position_mm` cannot commission this source (None: it can)."""
         return None
 
+    def setting_readback(self, reading) -> tuple[float, ...] | None:
+        """What the device reports of its setting, recorded with every commissioning setting (coils: the
+        read-back currents the runs use); None: nothing beyond the setting."""
+        return None
+
     def fit_commissioning(self, readings, reference_position_mm) -> dict:
         """The commissioning file's section, fitted from `readings` (rig.fieldsources.commissioning.Reading);
         DeviceFault naming the axis that does not behave."""
@@ -189,7 +194,8 @@ class FieldSourceConfig(DeviceConfig):
 
     def budget_chain(self, run, dut: str, ds):
         """The budget's sources of the reference field for one DUT's data: an object whose
-        `sources(notes)` lists calib.uncertainty Sources (rig/reference/budget.py RunInputs is `run`)."""
+        `sources(notes)` lists calib.propagation InputSources (rig/reference/budget.py RunInputs is
+        `run`)."""
         raise NotImplementedError
 
     def measures_ambient(self) -> bool:

@@ -15,6 +15,7 @@ class Reading:
     setting: tuple[float, ...]  # coil currents (A) or table angles (deg)
     what: str  # the coil or table axis being driven, for messages
     measured: Any  # rig.reference.sitefield.FieldMeasurement: vector_nt, std_error_nt, n
+    readback: tuple[float, ...] | None = None  # what the device reported of its setting (coil currents)
 
 
 def arrays(readings: list[Reading]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

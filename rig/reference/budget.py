@@ -1,32 +1,31 @@
-"""The uncertainty budget of a session's calibrations: what each input the reference field and the
-temperature rest on could have been, as Monte Carlo sources for calib/uncertainty.py.
+"""The uncertainty budget of a session's calibrations: every input the reference field and the temperature
+rest on, as input quantities for calib.budgeting.budget (the law of propagation where it is exact or
+checked to hold, the adaptive Monte Carlo of GUM S1 where it is needed).
 
     run = RunInputs.of_session(reader)               # once per session (read-only)
     ds, ambient = run.refined(ds)                    # references with the run's best ambient
-    cal.uncertainty = run.budget(dut, ds, cal).as_dict()
+    cal.uncertainty = run.uncertainty(dut, ds, cal)  # the calibration file's `uncertainty:` section
 
-The inputs and how they are drawn (standard uncertainties u; a +-tolerance is a rectangular distribution):
-- fit (statistical): the DUT's own noise, redrawn with the fit's residual scatter;
-- coil matrix: the commissioning's covariance (or, declared, `constants_uncertainty_ppm` of each element's
-  column); the field at each sample changes by dM(r) I, I the sample's currents;
-- reference magnetometer: its calibration's stated uncertainty (`uncertainty.expanded / k`, else its
-  standard errors): the fields it measured (the commissioned matrix, the ambient, the site field) are off
-  by its calibration's error, B_true = T B_measured + d;
-- ambient: the uncertainty of the run's best estimate from all its measurements (start, each temperature
-  step, end; rig/reference/ambient.py), with which the fits make every reference (`RunInputs.refined`); the
-  site field of a turntable: its measurement's standard error;
-- position: each DUT anywhere within +-position_tolerance_mm of its position_mm (coils with a geometry);
-- coil geometry: every loop's size and spacing within +-geometry.tolerance_mm;
-- table axes: the commissioning's covariance of the table's seven parameters (turntable);
-- temperature: the temperature source's accuracy (+-temp_accuracy_c, else its datasheet's), the
-  DUT-to-probe gradient (+-temp_gradient_c_per_c per degC away from 25 degC) and, on a ramp, the thermal
-  lag the fit corrected for (its standard error times how fast the temperature moved).
-The grid the calibrated field is judged on: the plan's field targets at the plan's temperatures.
+The inputs (standard uncertainties; a +-tolerance is rectangular), each a line of the budget with its
+origin:
+- fit (statistical): the DUT's own noise (calib: sigma^2 G^-1);
+- the reference field's sources, which each field-source kind supplies (rig/fieldsources/<kind>/budget.py:
+  coil matrix, ambient, gradient, position, geometry, loops, current source, the commissioning's
+  non-linearity, hysteresis and drift, the coils' drift since; or a table's axes and its site field), and
+  the reference magnetometer that measured them (`reference_sources`: its calibration's covariance, else
+  its expanded uncertainty / k; a reference calibration that states no uncertainty is refused, never
+  taken as zero);
+- temperature: the temperature source's accuracy (+-temp_accuracy_c, else its datasheet's) and the
+  DUT-to-probe gradient (+-temp_gradient_c_per_c per degC away from 25 degC), rectangular; thermal lag:
+  on a ramp, the uncertainty of the lag the fit corrected for times how fast the temperature moved;
+- model: the model checks' terms and the misfit beyond the DUT's noise (rig/reference/modelerror.py).
+The grid the calibrated field is judged on: the run's field targets at its temperatures.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import functools
 import json
 import zlib
@@ -34,30 +33,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import models
+from calib.budgeting import budget as calib_budget
 from calib.calibration import Calibration
-from calib.uncertainty import Budget, Draw, Source, monte_carlo, residual_sigma_nt, statistical
-from rig.reference import chain_record
+from calib.linearise import ParamLayout
+from calib.propagation import InputSource, affine_map, reference_source, temperature_source
+from calib.uncertainty import Budget
+from rig.core.errors import DataError
+from rig.reference import chain_record, modelerror
 from rig.reference.ambient import AmbientModel
 from rig.session.events import Reason
 
 UNSTATED_TEMP_ACCURACY_C = 1.0  # a temperature source whose datasheet states no accuracy
 GRADIENT_REFERENCE_C = 25.0  # the DUT and its probe agree at room temperature
 RATE_WINDOW_S = 60.0
-
-
-def refit_like(cal: Calibration):
-    """A function fitting a dataset exactly as `cal` was (model, temperature reference, rows used, the
-    scalar fit's choices), without the robust iterations: the rows they flagged stay out."""
-    spec = models.spec(cal.model)
-    options = models.FitOptions(
-        temp_ref_c=cal.temp_ref_c,
-        field_norm_nt=cal.stats.get("field_norm_nt"),
-        temperature_terms="KA_per_c" in cal.params if cal.model == "scalar" else None,
-        balance_orientations=bool(cal.stats.get("balance_orientations", False)),
-    )
-    weights = fit_weights(cal)
-    return lambda ds: spec.fit_weighted(ds, weights, options)[0]
 
 
 def fit_weights(cal: Calibration) -> np.ndarray | None:
@@ -76,11 +64,16 @@ class RunInputs:
     reference_cal: Calibration | None  # the reference magnetometer that measured the field source
     reference_temp_accuracy_c: float = 0.0  # of its temperature source, when its calibration needs one
     points: dict[str, dict] = dataclasses.field(default_factory=dict)  # the done points: {id: {target, ...}}
+    reference_name: str | None = None
+    temperature_log: list[dict] = dataclasses.field(default_factory=list)  # the run's temperature rows
+    run_utc: dt.datetime | None = None  # when the run started (wall clock)
+    _chains: dict = dataclasses.field(default_factory=dict, repr=False)  # dut: (ds, sources, notes)
 
     @classmethod
     def of_session(cls, reader) -> RunInputs:
         chain = reader.snapshot(chain_record.SNAPSHOT) or {}
-        plan, station = chain_record.recorded_plan_and_station(reader.path, reader.info(), chain)
+        info = reader.info()
+        plan, station = chain_record.recorded_plan_and_station(reader.path, info, chain)
         site = [{"t": e.t, **e.data} for e in reader.events()
                 if e.code in (Reason.SITE_FIELD_MEASURED, Reason.SITE_FIELD_CHECKED, Reason.SITE_FIELD_DRIFT)
                 and "vector_nt" in e.data]
@@ -97,18 +90,24 @@ class RunInputs:
             accuracy, _ = temperature_accuracy_c(station, refs[name])
         points = {p["id"]: {"target": json.loads(p["target_json"]), "setpoint_c": p["setpoint_c"]}
                   for p in reader.points() if p["state"] == "done"}
-        return cls(station, plan, reader.point_references(), site, reference_cal, accuracy, points)
+        started = info.get("wall_started")
+        when = None if started is None else dt.datetime.fromtimestamp(started, dt.UTC)
+        return cls(station, plan, reader.point_references(), site, reference_cal, accuracy, points, name,
+                   reader.temperatures(), when)
 
     # --- the budget of one DUT's calibration ----------------------------------------------------------
     def budget(self, dut: str, ds, cal: Calibration, *, rng: np.random.Generator | None = None,
-               draws: int | None = None) -> Budget:
+               monte_carlo: str = "auto") -> Budget:
         rng = rng or np.random.default_rng(zlib.crc32(f"{dut}/{cal.model}".encode()))
-        sources, notes = self.sources(dut, ds, cal)
-        kwargs = {} if draws is None else {"draws": draws, "draws_per_source": max(20, draws // 3)}
-        budget = monte_carlo(ds, cal, sources, refit_like(cal), self._grid, rng=rng,
-                             reference_map=reference_map_of(ds, cal), **kwargs)
-        budget.notes = notes
-        return budget
+        sources, notes, noise = self.sources(dut, ds, cal)
+        b = calib_budget(ds, cal, sources, self._grid, rng=rng, weights=fit_weights(cal),
+                         monte_carlo=monte_carlo, noise_nt=noise)
+        b.notes = b.notes + notes
+        return b
+
+    def uncertainty(self, dut: str, ds, cal: Calibration, **kw) -> dict:
+        """The calibration file's `uncertainty:` section (`uncertainty_section`)."""
+        return uncertainty_section(self.budget(dut, ds, cal, **kw))
 
     @functools.cached_property
     def _grid(self) -> tuple[np.ndarray, np.ndarray]:
@@ -120,55 +119,101 @@ class RunInputs:
         temps = np.unique(np.round([p["setpoint_c"] for p in self.points.values()], 1))
         if len(temps) > 8:  # a ramp: its ends and evenly between
             temps = np.linspace(temps.min(), temps.max(), 5)
-        grid_f = np.repeat(fields, len(temps), axis=0)
-        grid_t = np.tile(temps, len(fields))
-        return grid_f, grid_t
+        return np.repeat(fields, len(temps), axis=0), np.tile(temps, len(fields))
 
-    def sources(self, dut: str, ds, cal: Calibration) -> tuple[list[Source], list[str]]:
+    def sources(self, dut: str, ds, cal: Calibration) -> tuple[list, list[str], np.ndarray | None]:
+        """(every input source but the fit's own noise, notes, the readings' noise for the fit's
+        statistics where the model sources take a share of its residual: modelerror.model_sources)."""
         notes: list[str] = []
-        out = [statistical(ds, residual_sigma_nt(ds, cal))]
-        chain = self.station.field_source.budget_chain(self, dut, ds)
-        out += [dataclasses.replace(s, reference_only=True) for s in chain.sources(notes)]  # fields only
-        out.append(self._temperature(dut, ds, cal, notes))
-        return out, notes
+        out = self._reference_field_sources(dut, ds, notes)
+        out += self._temperature(dut, ds, cal, notes)
+        per_step = None if self.ambient is None else self.ambient.excess_nt**2
+        model, said, noise = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds),
+                                                      fit_weights(cal), per_step)
+        return out + model, notes + said, noise
 
-    def _temperature(self, dut: str, ds, cal: Calibration, notes: list[str]) -> Source:
-        """The probe's accuracy, the DUT-to-probe gradient and, on a ramp, the uncertainty of the thermal
-        lag the fit corrected for (its standard error times how fast each sample's temperature moved)."""
+    def _reference_field_sources(self, dut: str, ds, notes: list[str]) -> list:
+        """The field source's sources for one DUT's data, made once for every model fitted to the same
+        dataset (their sensitivities are most of a budget's time)."""
+        cached = self._chains.get(dut)
+        if cached is None or cached[0] is not ds:
+            said: list[str] = []
+            sources = list(self.station.field_source.budget_chain(self, dut, ds).sources(said))
+            cached = self._chains[dut] = (ds, sources, said)
+        notes += cached[2]
+        return list(cached[1])
+
+    def _temperature(self, dut: str, ds, cal: Calibration, notes: list[str]) -> list:
+        """The probe's accuracy and the DUT-to-probe gradient (rectangular) and, on a ramp, the uncertainty
+        of the thermal lag the fit corrected for (its standard error times how fast the temperature moved)."""
         config = self.station.dut(dut)
         accuracy, stated = temperature_accuracy_c(self.station, config)
         if not stated:
             notes.append(f"{dut}: its temperature source's datasheet states no accuracy: "
                          f"+-{accuracy:g} degC assumed (state temp_accuracy_c)")
         gradient = config.temp_gradient_c_per_c
-        away = ds.temp_c - GRADIENT_REFERENCE_C
+        columns = np.column_stack([np.ones(len(ds)), ds.temp_c - GRADIENT_REFERENCE_C])
+        out = [temperature_source("temperature", columns, np.diag([accuracy**2, gradient**2]) / 3.0,
+                                  distribution="rectangular",
+                                  origin=f"+-{accuracy:g} degC, gradient +-{gradient:g} degC/degC")]
         lag = cal.stats.get("thermal_lag") or {}
         lag_se = lag.get("tau_se_s") if lag.get("applied") else None
-        rate = temperature_rate_c_per_s(ds) if lag_se else np.zeros(len(ds))
+        if lag_se:
+            out.append(temperature_source("thermal lag", -temperature_rate_c_per_s(ds)[:, None],
+                                          np.array([[lag_se**2]]), origin=f"+-{lag_se:.3g} s (1 sd)"))
+        return out
 
-        def draw(rng: np.random.Generator) -> Draw:
-            change = rng.uniform(-accuracy, accuracy) + rng.uniform(-gradient, gradient) * away
-            if lag_se:
-                change = change - rng.normal(0.0, lag_se) * rate
-            return Draw(temp_c=change)
-
-        note = f"+-{accuracy:g} degC, gradient +-{gradient:g} degC/degC"
-        return Source("temperature", draw, note + (f", thermal lag +-{lag_se:.3g} s" if lag_se else ""))
-
-    def reference_transform(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """(T, d): a draw of how far the reference magnetometer's calibration could be off, as a map from
-        what it reported to the field: B = T B_reported + d (at its mean measuring temperature, which its
-        temperature source knows to within its accuracy)."""
+    # --- the reference magnetometer ---------------------------------------------------------------------
+    def reference_sources(self, measured_nt: np.ndarray, notes: list[str]) -> list:
+        """Its calibration's error in what it measured (B' (N,3): the fields it reported that went into
+        each sample's reference), and its temperature source's accuracy where its calibration has
+        temperature terms. DataError when its calibration states no uncertainty."""
         cal = self.reference_cal
-        temp = np.mean([m["temp_c"] for m in self.site if m.get("temp_c") is not None] or [25.0])
-        u = standard_uncertainties(cal)
-        drawn = Calibration(cal.model, {k: v + rng.normal(0.0, 1.0, np.shape(v)) * u[k]
-                                        for k, v in cal.params.items()}, {}, cal.temp_ref_c)
-        off_c = rng.uniform(-self.reference_temp_accuracy_c, self.reference_temp_accuracy_c)
-        a, c = _affine(cal, temp)
-        a2, c2 = _affine(drawn, temp + off_c)
-        t = a2 @ np.linalg.inv(a)
-        return t, c2 - t @ c
+        if cal is None:
+            notes.append("reference magnetometer: its calibration is not in the session, not in the budget")
+            return []
+        if cal.uncertainty is None:
+            raise DataError(f"reference magnetometer {self.reference_name}: its calibration states no "
+                            "uncertainty (no `uncertainty:` section): a reference without one is refused")
+        temp = self.reference_temp_c()
+        out = [reference_source("reference magnetometer", measured_nt, cal, reference_covariance(cal), temp,
+                                shared="reference magnetometer",
+                                origin=f"{self.reference_name}: its calibration's covariance")]
+        if self.reference_temp_accuracy_c > 0 and temp is not None and cal.temp_ref_c is not None:
+            a0, c0 = affine_map(cal, temp)
+            a1, c1 = affine_map(cal, temp + 1.0)
+            d_t = a1 @ np.linalg.inv(a0) - np.eye(3)
+            per_c = np.asarray(measured_nt, float) @ d_t.T + (c1 - c0 - d_t @ c0)  # (N,3) per degC
+            half = self.reference_temp_accuracy_c
+            out.append(InputSource("reference temperature", np.array([[half**2 / 3]]),
+                                   ref_nt=per_c[:, :, None], distribution="rectangular",
+                                   shared="reference temperature",
+                                   origin=f"{self.reference_name}'s temperature source +-{half:g} degC"))
+        return out
+
+    def reference_temp_c(self) -> float | None:
+        """The reference's mean measuring temperature (its calibration's reference when none was read)."""
+        temps = [m["temp_c"] for m in self.site if m.get("temp_c") is not None]
+        return float(np.mean(temps)) if temps else self.reference_cal.temp_ref_c
+
+    def reference_position_mm(self) -> np.ndarray:
+        refs = {r.name: r for r in self.station.reference_magnetometers}
+        ref = refs.get(self.reference_name)
+        return np.zeros(3) if ref is None or ref.position_mm is None else np.asarray(ref.position_mm, float)
+
+    def age_days(self, commissioning) -> float:
+        """Days from the commissioning to the run (0 when the session does not say when it ran)."""
+        if self.run_utc is None:
+            return 0.0
+        return (self.run_utc - commissioning.created).total_seconds() / 86_400.0
+
+    # --- the ambient, the thermal history ---------------------------------------------------------------
+    def thermal_direction(self, dut: str, ds) -> np.ndarray:
+        """+1 heating, -1 cooling, 0 unknown for every sample, from the run's temperature log and the
+        samples themselves (rig/reference/modelerror.py)."""
+        history = [(r["t"], r["duts"][dut]) for r in self.temperature_log
+                   if r["duts"].get(dut) is not None]
+        return modelerror.thermal_direction(ds.columns["t"], ds.temp_c, history)
 
     @functools.cached_property
     def ambient(self) -> AmbientModel | None:
@@ -186,13 +231,44 @@ class RunInputs:
 
     def refined(self, ds):
         """(ds, what was done): each reference made with the run's best ambient estimate
-        (rig/reference/ambient.py)
-        instead of the value in use when its point was taken; unchanged where that cannot be done."""
+        (rig/reference/ambient.py) instead of the value in use when its point was taken; unchanged where
+        that cannot be done."""
         used = self.recorded_ambient(ds)
         if self.ambient is None or used is None:
             return ds, None
         best = self.ambient.at(ds.columns["t"])
         return dataclasses.replace(ds, ref_nt=ds.ref_nt + best - used), self.ambient.as_dict()
+
+
+def reference_covariance(cal: Calibration) -> np.ndarray:
+    """A reference calibration's parameter covariance: its budget's, else diag((expanded / k)^2)."""
+    layout = ParamLayout.of(cal.params)
+    stated = cal.uncertainty.get("covariance") or {}
+    if stated.get("parameters") == layout.labels():
+        return np.asarray(stated["matrix"], float)
+    k = float(cal.uncertainty["coverage_factor"])
+    u = layout.flatten({n: np.asarray(cal.uncertainty["expanded"][n], float) / k for n in cal.params})
+    return np.diag(u**2)
+
+
+def uncertainty_section(b: Budget) -> dict:
+    """The calibration file's `uncertainty:` section: the budget (its parameters' full covariance
+    included), and the model error a user adds at any field and temperature to what that covariance
+    gives (rig apply --uncertainty)."""
+    out = b.as_dict()
+    out["model_error_nt"] = model_error_nt(b).tolist()
+    return out
+
+
+def model_error_nt(b: Budget) -> np.ndarray:
+    """(3,): the standard uncertainty per axis of the field error no parameter carries (the model
+    sources' direct effects), RMS over the grid."""
+    total = np.zeros(3)
+    for c in b.linear.contributions:
+        if c.grid_effect is not None:
+            sigma = np.atleast_2d(c.source.covariance)
+            total += np.mean(np.einsum("giq,qr,gir->gi", c.grid_effect, sigma, c.grid_effect), axis=0)
+    return np.sqrt(total)
 
 
 def temperature_rate_c_per_s(ds, window_s: float = RATE_WINDOW_S) -> np.ndarray:
@@ -220,15 +296,6 @@ def temperature_accuracy_c(station, config) -> tuple[float, bool]:
     return (UNSTATED_TEMP_ACCURACY_C, False) if accuracy is None else (accuracy, True)
 
 
-def reference_map_of(ds, cal: Calibration):
-    """The model's parameters as a linear map of the references, where it is one (T24), else None."""
-    if cal.model != "t24":
-        return None
-    from calib.t24 import reference_map
-
-    return reference_map(ds, fit_weights(cal), cal.temp_ref_c)
-
-
 def _command(target: dict) -> tuple[float, ...]:
     """A point's stored target as the field source's command: a field vector, or (az, el)."""
     if "field_nt" in target:
@@ -237,17 +304,8 @@ def _command(target: dict) -> tuple[float, ...]:
 
 
 def standard_uncertainties(cal: Calibration) -> dict[str, np.ndarray]:
-    """A calibration's standard uncertainties: its budget's expanded / k, else its standard errors."""
-    u = cal.uncertainty
-    if u is not None:
-        k = float(u["coverage_factor"])
-        return {name: np.asarray(u["expanded"][name], float) / k for name in cal.params}
-    return {name: np.asarray(cal.std_errors.get(name, np.zeros(np.shape(v))), float)
-            for name, v in cal.params.items()}
-
-
-def _affine(cal: Calibration, temp_c: float) -> tuple[np.ndarray, np.ndarray]:
-    """(A, c) with cal.apply(h) = A h + c at `temp_c` (every model is affine in h)."""
-    h = np.vstack([np.zeros(3), np.eye(3)])
-    out = cal.apply(h, np.full(4, temp_c))
-    return (out[1:] - out[0]).T, out[0]
+    """A calibration's standard uncertainties: its budget's expanded / k (DataError without one)."""
+    if cal.uncertainty is None:
+        raise DataError("the calibration states no uncertainty")
+    k = float(cal.uncertainty["coverage_factor"])
+    return {name: np.asarray(cal.uncertainty["expanded"][name], float) / k for name in cal.params}

@@ -54,6 +54,16 @@ class SettingRecord(Strict):
     mean_nt: Vec3
     se_nt: Vec3
     n: int
+    readback: list[FiniteFloat] | None = None  # what the device reported (coil read-back currents, A)
+
+
+class CurrentReadback(Strict):
+    """The coil current source's read-back against the commanded currents, per coil: I_rb = (1 + g) I + o."""
+
+    gain_ppm: Vec3
+    offset_ma: Vec3
+    std_errors_gain_ppm: Vec3
+    std_errors_offset_ma: Vec3
 
 
 class CoilsRecord(Strict):
@@ -68,6 +78,7 @@ class CoilsRecord(Strict):
     drift_nt: FiniteFloat
     current_a: FiniteFloat
     repeats: int
+    current_readback: CurrentReadback | None = None  # files from before it was measured have none
 
 
 class TableRecord(Strict):

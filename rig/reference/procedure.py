@@ -66,8 +66,9 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
         for setting, what in design:
             try:
                 settle_at(rig, source, setting, SETTLE_S)
-                readings.append(Reading(setting, what, reader.read_mean(f"commission {what}",
-                                                                        flagged_is_fault=True)))
+                measured = reader.read_mean(f"commission {what}", flagged_is_fault=True)
+                readback = source.setting_readback(rig.field_source.read())
+                readings.append(Reading(setting, what, measured, readback))
             except DeviceError as exc:  # say what was being driven when the device failed
                 if exc.operation.startswith("commission"):
                     raise
@@ -94,7 +95,8 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
         },
         **fitted,
         "settings": [{"setting": [float(v) for v in r.setting], "mean_nt": floats(r.measured.vector_nt),
-                      "se_nt": floats(r.measured.std_error_nt), "n": r.measured.n} for r in readings],
+                      "se_nt": floats(r.measured.std_error_nt), "n": r.measured.n,
+                      **({} if r.readback is None else {"readback": floats(r.readback)})} for r in readings],
     }
     commissioning_file.save(data, target)
     return target

@@ -78,6 +78,9 @@ def load_reference_calibrations(station, station_path: str | Path, station_text:
             cal = calfile.load(path)
         except DataError as exc:
             raise refuse("calibration", str(exc)) from None
+        if cal.uncertainty is None:
+            raise refuse("calibration", f"{path}: states no uncertainty (no `uncertainty:` section): a "
+                         "reference magnetometer's calibration must state its expanded uncertainty")
         if not models.spec(cal.model).vector:
             raise refuse("calibration", f"{path}: a {cal.model} calibration gives the field only up to a "
                          f"rotation; a reference needs a vector model ({', '.join(models.VECTOR_MODELS)})")

@@ -12,7 +12,7 @@ from rig.core.errors import DataError
 from rig.core.names import collision
 from rig.core.paths import inside
 from rig.report.evaluate import analyse_dut
-from rig.report.html import ItemList, Section, Table, images_in, render_html
+from rig.report.html import ItemList, Links, Section, Table, images_in, render_html
 from rig.report.page import dut_sections, summary_table
 from rig.report.sources import ReportInputs, from_calibration, from_session
 from rig.session.schema import looks_like_session
@@ -36,6 +36,10 @@ def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
     written = [out / "report.html"]
     try:
         out.mkdir(parents=True, exist_ok=True)
+        if inputs.session is not None:  # each DUT's certificate beside the page, linked from it
+            certificates = write_certificates(inputs.session, [d.name for d in inputs.duts], out)
+            none = "none: no DUT has a calibration file beside the session"
+            sections.insert(-1, Section("Calibration certificates", [Links(certificates, none)]))
         for img in images_in(sections):
             written.append(inside(out, img.filename))
             written[-1].write_bytes(img.png)
@@ -45,6 +49,19 @@ def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
     except OSError as exc:
         raise DataError(f"{out}: cannot write the report: {exc.strerror or exc}") from None
     return written
+
+
+def write_certificates(session: Path, duts: list[str], out: Path) -> list[tuple[str, str]]:
+    """Each DUT's calibration certificate (HTML; rig certificate prints PDFs too) in `out`: (text, name)."""
+    from rig.core.paths import calibration_file
+    from rig.report.certificate import write_certificate
+
+    links = []
+    for dut in duts:
+        if any(calibration_file(session, dut, m).is_file() for m in ("t24", "t36", "p12", "scalar")):
+            page = write_certificate(session, dut, out, pdf=False)[0][0]
+            links.append((f"{dut}: calibration certificate", page.name))
+    return links
 
 
 def read_inputs(

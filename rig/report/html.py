@@ -33,9 +33,17 @@ class ItemList:
 
 
 @dataclass
+class Links:
+    """Links to files beside the page (relative names only: the page links nowhere else)."""
+
+    items: list[tuple[str, str]]  # (text, file name)
+    empty_text: str = "none"
+
+
+@dataclass
 class Section:
     title: str
-    blocks: list[str | Table | Image | ItemList] = field(default_factory=list)
+    blocks: list[str | Table | Image | ItemList | Links] = field(default_factory=list)
     level: int = 2
 
 
@@ -81,7 +89,20 @@ def _list(lst: ItemList) -> str:
     return f'<ul class="{html.escape(lst.kind)}">\n{items}\n</ul>'
 
 
-def _block(block: str | Table | Image | ItemList) -> str:
+def _links(links: Links) -> str:
+    if not links.items:
+        return f"<p>{html.escape(links.empty_text)}</p>"
+    for _, name in links.items:
+        if "/" in name or "\\" in name or ":" in name:
+            raise ValueError(f"a report links only to files beside it, not {name!r}")
+    items = "\n".join(f'<li><a href="{html.escape(name)}">{html.escape(text)}</a></li>'
+                      for text, name in links.items)
+    return f"<ul>\n{items}\n</ul>"
+
+
+def _block(block: str | Table | Image | ItemList | Links) -> str:
+    if isinstance(block, Links):
+        return _links(block)
     if isinstance(block, Table):
         return _table(block)
     if isinstance(block, Image):

@@ -62,6 +62,7 @@ class ReportInputs:
     warnings: list[str] = field(default_factory=list)
     provenance: list[tuple[str, str]] = field(default_factory=list)
     acceptance: list[dict] = field(default_factory=list)  # its verdicts (rig/analysis/acceptance.py)
+    session: Path | None = None  # the session file reported on (its DUTs' certificates are written beside)
 
 
 def utc(t: float | None) -> str:
@@ -134,7 +135,7 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
         ("report made with", f"magrig {__version__}"),
     ]
     title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
-    return ReportInputs(title, duts, steps, warnings, provenance, acceptance)
+    return ReportInputs(title, duts, steps, warnings, provenance, acceptance, session=path)
 
 
 def _session_dut(reader, name: str, fitter, recorded: dict) -> DutInput:

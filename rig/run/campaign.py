@@ -216,7 +216,8 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     record_final_state(rig, session)
     outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid, judged_model=plan.judged_model)
     if result.status == COMPLETED:
-        outcome.fits = postrun.fit_session(session, plan, rig.station)
+        outcome.fits = postrun.fit_session(session, plan, rig.station,
+                                           progress=getattr(display, "fit_progress", None))
         if plan.acceptance is not None:
             outcome.verdicts = postrun.accept_session(session, plan, rig.station, outcome.fits,
                                                          runner.live_summaries)

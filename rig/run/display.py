@@ -69,6 +69,13 @@ class _Progress:
         return f"{per_point * left:.0f} s"
 
 
+def fit_progress_line(dut: str | None, model: str | None, done: int, total: int) -> str:
+    """The post-run fits' progress (rig/analysis/fitprogress.py), one line."""
+    if dut is None:
+        return f"post-run fits: {total} of {total} done"
+    return f"post-run fits: {dut} {model} ({done + 1} of {total})"
+
+
 class LiveDisplay:
     def __init__(self, status: RunStatus, runner, console: Console | None = None):
         self.status = status
@@ -92,6 +99,12 @@ class LiveDisplay:
 
     def point_done(self, point_id: str) -> None:
         pass  # the panel refreshes itself
+
+    def fit_progress(self, dut: str | None, model: str | None, done: int, total: int) -> None:
+        """After the panel: one line, rewritten in place, while the post-run fits run."""
+        end = "\n" if dut is None else ""
+        self.live.console.file.write("\r\x1b[2K" + fit_progress_line(dut, model, done, total) + end)
+        self.live.console.file.flush()
 
     def suspended(self, prompt):
         """`prompt` wrapped so that the panel stops while the operator answers."""
@@ -123,6 +136,7 @@ class PlainLog:
         self.every_s = every_s
         self.monotonic = monotonic  # the display's own pace, injectable (tests): not the run's clock
         self._last_line: float | None = None
+        self.first_model: str | None = None
 
     def point_done(self, point_id: str) -> None:
         now = self.monotonic()
@@ -136,6 +150,12 @@ class PlainLog:
         chamber = "-" if s.chamber_c is None else f"{s.chamber_c:.2f}C"
         print(f"{point_id} done ({s.points_done + 1}/{s.points_total}) chamber={chamber} {temps} "
               f"eta={self.progress.eta_text()}", file=self.stream, flush=True)
+
+    def fit_progress(self, dut: str | None, model: str | None, done: int, total: int) -> None:
+        """A line per DUT (its first model) and at the end, while the post-run fits run."""
+        if dut is None or model == self.first_model or self.first_model is None:
+            self.first_model = self.first_model or model
+            print(fit_progress_line(dut, model, done, total), file=self.stream, flush=True)
 
     def __enter__(self):
         self.progress.eta_text()

@@ -48,6 +48,7 @@ class Kind(StrEnum):
     SITE_FIELD = "site_field"  # the ambient / site field measured by a reference magnetometer
     DECISION = "decision"  # a sequential schedule decided its next sweep (or to stop)
     NOTIFY = "notify"  # word to the operator about an event (or a stall): sent, held back or failed
+    POSTRUN = "postrun"  # the post-run fits' progress: which DUT and model, how many done
 
 
 class Reason(StrEnum):
@@ -89,6 +90,7 @@ class Reason(StrEnum):
     SAFE_STATE_FAILED = "safe_state_failed"
     STALE_LOCK = "stale_lock"
     FIT_FAILED = "fit_failed"
+    FITTING = "fitting"  # the post-run fits: a DUT's models are being fitted and budgeted
     ACCEPTED = "accepted"  # a DUT passed the plan's acceptance limits
     REJECTED = "rejected"  # ... or failed them
     LOGGED = "logged"  # a copied log record

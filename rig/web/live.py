@@ -159,10 +159,15 @@ class LiveSession:
                     "target": json.loads(current["target_json"] or "null")},
                 "eta_run_s": _eta_run_s(done, len(left), info["started"]),
                 "eta_wall_s": self._eta_wall_s(len(left)) if pid is not None else None,
+                "postrun": self._postrun() if pid is not None and not left else None,
             },
             "duts": [self._dut(d, last_temps.get(d), verdicts.get(d)) for d in duts],
             "t0": info["started"],
         }
+
+    def _postrun(self) -> str | None:
+        """What the post-run fits last recorded (rig/analysis/fitprogress.py): which DUT and model."""
+        return next((e["message"] for e in reversed(self.events) if e["kind"] == "postrun"), None)
 
     def _dut(self, name: str, temp_c, verdict: str | None) -> dict:
         """A recorded verdict, or before it (the run judges at its end) what the running fit says: its

@@ -201,6 +201,11 @@ def session_page(app, ref: SessionRef) -> str:
                            "downloads"], cal_rows, raw_cells=True)
                     if cal_rows else '<p class="muted">no calibration recorded yet</p>')
     parts.append(f"<section><h2>Calibrations</h2>{calibrations}</section>")
+    certified = sorted({dut for dut, _ in fits})
+    links = " ".join(f'<a href="{esc(ref.url("/certificate?" + urllib.parse.urlencode({"dut": d})))}">'
+                     f"{esc(d)}</a>" for d in certified)
+    parts.append("<section><h2>Calibration certificates</h2>"
+                 f"<p>{links or 'none yet (the run writes its calibrations at its end)'}</p></section>")
     sample_links = " ".join(f'<a href="{esc(_download_url(ref, SAMPLES_KIND, dut))}" download>{esc(dut)}</a>'
                             for dut in s["duts"])
     parts.append("<section><h2>Samples (CSV, as rig export writes them)</h2>"

@@ -52,7 +52,8 @@ REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src data:; bas
               "frame-ancestors 'none'")  # rig report's page: inline CSS, figures as data: URLs, no script
 STATIC = {"cockpit.js": "text/javascript; charset=utf-8", "cockpit.css": "text/css; charset=utf-8",
           "favicon.svg": "image/svg+xml"}
-SESSION_ROUTE = re.compile(r"^/s/([^/]+)/([^/]+)(/live|/events|/state|/report|/download|/action)?$")
+SESSION_ROUTE = re.compile(r"^/s/([^/]+)/([^/]+)"
+                           r"(/live|/events|/state|/report|/certificate|/download|/action|/[^/]+\.certificate\.html)?$")
 
 
 @dataclass
@@ -182,9 +183,28 @@ class Handler(BaseHTTPRequestHandler):
         if tail == "/report":
             html = self.app.reports.html(ref.path)
             return self._send(200, html, "text/html; charset=utf-8", csp=REPORT_CSP)
+        if tail == "/certificate":
+            return self._certificate(ref, query.get("dut", ""))
+        if tail.endswith(".certificate.html"):  # the report's link: <session stem>.<dut>.certificate.html
+            stem = name.removesuffix(".session") + "."
+            file = urllib.parse.unquote(tail[1:])
+            if not file.startswith(stem):
+                raise guard.Refused(404, "no such certificate")
+            return self._certificate(ref, file[len(stem):].removesuffix(".certificate.html"))
         if tail == "/download":
             return self._download(ref, query)
         raise guard.Refused(405, "use POST for actions")
+
+    def _certificate(self, ref: pages.SessionRef, dut: str) -> None:
+        """A DUT's calibration certificate (rig/report/certificate.py), made from the session as it is."""
+        from rig.core.errors import ERRORS
+        from rig.report.certificate import certificate_html
+
+        try:
+            page = certificate_html(ref.path, dut)
+        except ERRORS as exc:
+            raise guard.Refused(404, str(exc)) from None
+        self._send(200, page.encode(), "text/html; charset=utf-8", csp=REPORT_CSP)
 
     # --- access -----------------------------------------------------------------------------------
     def _check_access(self, url, query: dict[str, str]) -> None:

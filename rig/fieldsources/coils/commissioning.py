@@ -18,6 +18,7 @@ import numpy as np
 from calib.coilfit import fit_coil_matrix
 from calib.errors import FitError
 from rig.core.errors import ConfigError, DeviceFault
+from rig.fieldsources.coils.commissioned import fit_readback
 from rig.fieldsources.commissioning import Reading, arrays, drift_nt, floats, rows
 
 AXES = "xyz"
@@ -67,6 +68,7 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
     if np.any(position != 0):  # measured where the reference sits: carried to the centre
         matrix = _centre_matrix(source.geometry, matrix, position)
     se_matrix, se_ambient = fitted.std_errors()
+    readback = fit_readback(readings)
     return {
         "matrix_nt_per_a": rows(matrix), "ambient_nt": floats(fitted.ambient_nt),
         "covariance": rows(fitted.covariance),
@@ -75,6 +77,7 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
         "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
         "hysteresis_nt": _hysteresis_nt(readings), "drift_nt": drift_nt(readings),
         "current_a": float(np.max(np.abs(currents))),
+        **({} if readback is None else {"current_readback": readback}),
     }
 
 
@@ -88,6 +91,12 @@ def summary_lines(section) -> list[str]:
     out.append("  ambient (" + ", ".join(f"{v:.1f}" for v in section.ambient_nt) + ") nT; nonlinearity ("
                + ", ".join(f"{v:.0f}" for v in section.nonlinearity_ppm) + f") ppm; hysteresis "
                f"{section.hysteresis_nt:.1f} nT; drift {section.drift_nt:.1f} nT")
+    rb = section.current_readback
+    if rb is not None:
+        out.append("  current read-back against commanded: gain (" + ", ".join(
+            f"{g:+.0f} +- {e:.0f}" for g, e in zip(rb.gain_ppm, rb.std_errors_gain_ppm, strict=True))
+            + ") ppm, offset (" + ", ".join(f"{o:+.3f} +- {e:.3f}" for o, e in zip(
+                rb.offset_ma, rb.std_errors_offset_ma, strict=True)) + ") mA")
     return out
 
 

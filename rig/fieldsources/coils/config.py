@@ -20,6 +20,7 @@ from pydantic import Discriminator, Field, Tag, model_validator
 
 import rig.fieldsources.fieldsets as fieldsets
 from drivers.coils import CoilOptions
+from rig.core.configbase import Strict
 from rig.core.errors import ConfigError
 from rig.core.names import SafeName
 from rig.core.numbers import A_MAX, NT, NT_VEC, bounded
@@ -49,8 +50,23 @@ DECLARED_UNCERTAINTY_PPM = 10_000.0  # real sets differ from their design by 0.5
 
 class DeclaredGeometry(CoilGeometry):
     tolerance_mm: bounded(lo=0, hi=1000.0) = Field(
-        1.0, description="how well the loops' sizes and spacings are known (+-, mm): the budget's "
-        "'coil geometry'")
+        1.0, description="how well the loops' sizes, spacings and places are known (+-, mm): the budget's "
+        "'coil geometry' and, for each loop's place, 'coil loops'")
+    tilt_tolerance_deg: bounded(lo=0, hi=10.0) = Field(
+        0.1, description="how far each loop may lean off its drawing (+-, deg): the budget's 'coil loops'")
+    turns_tolerance_ppm: bounded(lo=0, hi=1e5) = Field(
+        1000.0, description="how far each loop's turns may be off (+-, ppm): the budget's 'coil loops'")
+
+
+class CurrentAccuracy(Strict):
+    """The coil current source's accuracy from its datasheet (+-, per axis or one value for all): what the
+    read-back currents the rig uses may be off by, the setpoint's error included (the commissioning
+    fitted the matrix against commanded currents)."""
+
+    gain_ppm: bounded(lo=0, hi=1e5) | tuple[bounded(lo=0, hi=1e5), bounded(lo=0, hi=1e5),
+                                            bounded(lo=0, hi=1e5)]
+    offset_ma: bounded(lo=0, hi=1e4) | tuple[bounded(lo=0, hi=1e4), bounded(lo=0, hi=1e4),
+                                             bounded(lo=0, hi=1e4)]
 
 
 class Coils(FieldSourceConfig, CoilOptions):
@@ -77,6 +93,15 @@ class Coils(FieldSourceConfig, CoilOptions):
         None, description="which reference magnetometer measures the ambient; default: the only one")
     ambient_drift_max_nt: NT = Field(
         DRIFT_MAX_NT, description="a measured ambient that moves more than this between steps holds the run")
+    current_accuracy: CurrentAccuracy | None = Field(
+        None, description="the current source's accuracy from its datasheet (budget: 'current source'); "
+        "measured at commissioning from its read-back instead, where the commissioning file has it")
+    constants_drift_ppm_per_year: bounded(lo=0, hi=1e5) | None = Field(
+        None, description="how fast the coil constants may drift since commissioning (+-, ppm per year): "
+        "the budget's 'coil drift since commissioning', times the commissioning's age")
+    ambient_gradient_nt_per_m: bounded(lo=0, hi=1e6) | None = Field(
+        None, description="the largest lab-field gradient dB_i/dx_j over the DUT positions (+-, nT/m): the "
+        "budget's 'ambient gradient' between the reference magnetometer and each DUT")
 
     @model_validator(mode="after")
     def _invertible(self):
@@ -193,6 +218,9 @@ class Coils(FieldSourceConfig, CoilOptions):
         if self.geometry is None and np.any(np.asarray(position_mm or (0.0, 0.0, 0.0), float) != 0):
             return "is not at the centre and field_source has no geometry to carry its readings there"
         return None
+
+    def setting_readback(self, reading) -> tuple[float, ...] | None:
+        return tuple(float(v) for v in reading.currents_a)
 
     def fit_commissioning(self, readings, reference_position_mm) -> dict:
         return commissioning.fit(self, readings, reference_position_mm)

@@ -1,15 +1,20 @@
-"""The sources of a turntable station's reference field in a calibration's budget (rig/reference/budget.py
-asks the station's field source for them): the table's axes (commissioned), the site field measured at
-home and the reference magnetometer that measured it. The field on the table is the same for every DUT."""
+"""The input quantities of a turntable station's reference field in a calibration's budget
+(rig/reference/budget.py asks the station's field source for them): the table's axes (commissioned), the
+site field measured at home and the reference magnetometer that measured it. The field on the table is the
+same for every DUT, so every source is shared by the campaign's DUTs. Each moves the field at every sample
+through its sensitivity (N,3,Q), taken by central differences of calib.tablefit.table_field_nt."""
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 
 import numpy as np
 
+from calib.propagation import InputSource
 from calib.tablefit import site_from_home, table_field_nt
-from calib.uncertainty import Draw, Source
+
+AXIS_STEPS = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3, 1e-3])  # nT, deg: central-difference steps
+HOME_STEP_NT = 1.0
 
 
 class TableChain:
@@ -35,39 +40,38 @@ class TableChain:
             out[rows] = table_field_nt(shift(key), self.angles[rows]) - table_field_nt(key, self.angles[rows])
         return out
 
-    def sources(self, notes: list[str]) -> list[Source | None]:
+    def _sensitivity(self, shift_by, steps: np.ndarray) -> np.ndarray:
+        """(N,3,Q): d field / d q_k by central differences, shift_by(params, q) giving the moved params."""
+        out = np.empty((len(self.params), 3, len(steps)))
+        for k, step in enumerate(steps):
+            q = np.zeros(len(steps))
+            q[k] = step
+            out[:, :, k] = (self._change(lambda p, q=q: shift_by(p, q))
+                            - self._change(lambda p, q=q: shift_by(p, -q))) / (2 * step)
+        return out
+
+    def sources(self, notes: list[str]) -> list[InputSource]:
         com = self.source.commissioned
-        out: list[Source | None] = []
+        out: list[InputSource] = []
         if com is not None:
-            out.append(Source("table axes", self._axes_draw, f"commissioned {com.record.created_utc}"))
+            by_axes = self._sensitivity(lambda p, q: _keep_site(p, p + q), AXIS_STEPS)
+            out.append(InputSource("table axes", com.covariance, ref_nt=by_axes, shared="table axes",
+                                   origin=f"commissioned {com.record.created_utc} ({com.path.name}): its "
+                                   "covariance"))
         else:
             notes.append("turntable not commissioned: its axes are taken as drawn (rig commission measures "
                          "them)")
         if self.home is None:
             notes.append("site field as stated in the station: its uncertainty is not known (0 taken)")
             return out
-        out.append(Source("site field", self._site_draw, "measured at the start"))
-        if self.run.reference_cal is not None:
-            out.append(Source("reference magnetometer", self._reference_draw,
-                              "its calibration's stated uncertainty"))
+        by_home = self._sensitivity(lambda p, q: _with_home(p, self.home + q), np.full(3, HOME_STEP_NT))
+        se = np.asarray(self.run.site[0]["std_error_nt"], float)
+        out.append(InputSource("site field", np.diag(se**2), ref_nt=by_home, shared="site field",
+                               origin="measured at home at the start"))
+        for source in self.run.reference_sources(np.broadcast_to(self.home, (len(self.params), 3)), notes):
+            a_home = np.asarray(source.ref_nt, float)  # (N,3,Q): the home reading's change
+            out.append(dataclasses.replace(source, ref_nt=np.einsum("nij,njq->niq", by_home, a_home)))
         return out
-
-    @functools.cached_property
-    def _axes_cholesky(self) -> np.ndarray:
-        return np.linalg.cholesky(self.source.commissioned.covariance)
-
-    def _axes_draw(self, rng: np.random.Generator) -> Draw:
-        step = self._axes_cholesky @ rng.normal(0.0, 1.0, 7)
-        return Draw(ref_nt=self._change(lambda p: _keep_site(p, p + step)))
-
-    def _site_draw(self, rng: np.random.Generator) -> Draw:
-        home = self.home + rng.normal(0.0, 1.0, 3) * np.asarray(self.run.site[0]["std_error_nt"], float)
-        return Draw(ref_nt=self._change(lambda p: _with_home(p, home)))
-
-    def _reference_draw(self, rng: np.random.Generator) -> Draw:
-        t, d = self.run.reference_transform(rng)
-        home = t @ self.home + d
-        return Draw(ref_nt=self._change(lambda p: _with_home(p, home)))
 
 
 def _keep_site(old: np.ndarray, new: np.ndarray) -> np.ndarray:

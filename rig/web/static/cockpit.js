@@ -87,6 +87,7 @@
       const eta = [];
       if (p.eta_run_s !== null) eta.push("about " + duration(p.eta_run_s) + " left on the run's clock");
       if (p.eta_wall_s !== null) eta.push(duration(p.eta_wall_s) + " at the pace seen here");
+      if (p.postrun) eta.push(p.postrun);
       setText($("eta"), eta.join("; "));
       if (p.current) {
         setText($("current"), "point " + p.current.id + " at " + num(p.current.setpoint_c, 1) + " \u00b0C");

@@ -120,6 +120,7 @@ def test_a_calibration_of_the_wrong_model_or_device_is_refused(station_dir):
         cal.model = "scalar"
         cal.params = {"A": np.eye(3), "c_nt": np.zeros(3)}
         cal.std_errors = {"A": np.zeros((3, 3)), "c_nt": np.zeros(3)}
+        cal.uncertainty = {**cal.uncertainty, "expanded": {"A": np.zeros((3, 3)), "c_nt": np.zeros(3)}}
 
     msg = calibration_error(station_dir, cal_change=scalar)
     assert "reference_magnetometers[0].calibration:" in msg and "a scalar calibration" in msg

@@ -1,0 +1,184 @@
+"""The uncertainty a calibration states, measured (issue: an uncertainty a metrologist would sign).
+
+1. coverage: independent simulated worlds (bench/coverage_worlds.py: >= 20 stations x 5 DUTs, every
+   systematic error drawn from a distribution wider than the one the station states), each commissioned
+   and run with the demo plan (T24); per DUT the calibration file as the rig wrote it. Reported: the share
+   of the true T24 parameters within their expanded uncertainty (k = 2) per group, and of the true vector
+   error at validation points (other directions and magnitudes, temperatures between the plan's, either
+   thermal direction) within the 95 % radius the file gives there (calib/fielderror.py: its covariance
+   and model error), over all points and over each DUT's worst 5 % (the points with the largest stated
+   radius: where the calibration is least certain). Goal 90-98 %.
+2. timing: every budget (T24, P12, scalar) of a 64-DUT campaign, and the demo's wall time on 64 DUTs
+   against 2 (bench/uncertainty_timing.py).
+3. certificates: the demo's DUTs (rig certificate).
+
+    .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--out DIR] [--jobs 2]
+    .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import calib  # noqa: E402
+from bench.coverage_worlds import BASE, random_world  # noqa: E402
+from bench.reference_chain import prepared, run, validation_grid  # noqa: E402
+from calib import calfile  # noqa: E402
+from calib.dataset import Dataset  # noqa: E402
+from calib.fielderror import expanded_at  # noqa: E402
+from rig.config import load_station  # noqa: E402
+from rig.core.paths import calibration_file  # noqa: E402
+from rig.devices.bench import dut_truths  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "configs" / "plans" / "demo.yaml"
+GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
+WORST_SHARE = 0.05
+
+
+def plan_t24(folder: Path) -> Path:
+    data = yaml.safe_load(DEMO.read_text())
+    data["fit"] = {"models": ["t24"], "robust": False}
+    data.pop("station", None)
+    path = folder / "plan.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def best_t24(truth, temp_ref_c: float) -> dict:
+    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields at
+    its temperatures, its mean thermal state): what its calibration measures. The truth's own S, K, b, kb
+    when it has no term beyond T24."""
+    if truth.deviations is None:
+        return {"S": truth.S, "K": truth.K, "b_nt": truth.b_nt, "kb_nt_per_c": truth.kb_nt_per_c}
+    plan = yaml.safe_load(DEMO.read_text())
+    dirs = np.asarray(plan["fields"]["directions"], float)
+    fields = plan["fields"]["magnitude_nt"] * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    temps = np.asarray(plan["temperatures"]["steps"], float)
+    f = np.tile(fields, (len(temps), 1))
+    t = np.repeat(temps, len(fields))
+    h = np.array([truth.raw_from_field(b, tc) for b, tc in zip(f, t, strict=True)])
+    cal = calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), "t24", temp_ref_c=temp_ref_c)
+    return {k: np.asarray(v, float) for k, v in cal.params.items()}
+
+
+def one_world(args) -> dict:
+    """Build, commission and run one world; the coverage figures of its DUTs (none, and why, when the
+    world could not be run)."""
+    try:
+        return _one_world(*args)
+    except Exception as exc:  # noqa: BLE001 - one world that cannot run is reported, the others count
+        return {"index": args[1], "rows": [], "error": f"{type(exc).__name__}: {exc}"}
+
+
+def _one_world(seed: int, index: int, out: str) -> dict:
+    rng = np.random.default_rng([seed, index])
+    folder = Path(out) / f"world{index:02d}"
+    folder.mkdir(parents=True, exist_ok=True)
+    reference = BASE.parent / "sim-reference-cal.yaml"
+    station = prepared(random_world(rng, index, reference), BASE.parent, folder)
+    session = run(station, plan_t24(folder), folder)
+    truths = dut_truths(load_station(station))
+    out_rows = []
+    for dut, truth in truths.items():
+        cal = calfile.load(calibration_file(session, dut, "t24"))
+        expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
+        true = best_t24(truth, cal.temp_ref_c)
+        inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
+                  for g, k in GROUPS.items()}
+        z = {g: (np.abs(cal.params[k] - true[k]) / np.maximum(expanded[k] / 2, 1e-300)).ravel().tolist()
+             for g, k in GROUPS.items()}
+        fields, temps = validation_grid(np.array([-20.0, 0.0, 25.0, 60.0]))
+        hyst = np.zeros(3) if truth.deviations is None else truth.deviations.hysteresis_offset_nt
+        state = rng.choice([-1.0, 1.0], len(fields))
+        h = np.array([truth.raw_from_field(f, t, s * hyst)
+                      for f, t, s in zip(fields, temps, state, strict=True)])
+        error = np.linalg.norm(cal.apply(h, temps) - fields, axis=1)
+        _, radius = expanded_at(cal, h, temps)
+        worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
+        out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
+                         "points": (error <= radius).tolist(),
+                         "worst": (error[worst] <= radius[worst]).tolist(),
+                         "rms_error": float(np.sqrt(np.mean(error**2))), "stated_max": float(radius.max()),
+                         "file_max": float(cal.uncertainty["expanded_vector_error_nt"]),
+                         "ratio": (error / radius).tolist()})
+    return {"index": index, "rows": out_rows}
+
+
+def coverage(worlds: int, seed: int, out: Path, jobs: int) -> None:
+    start = time.perf_counter()
+    jobs_args = [(seed, i, str(out)) for i in range(worlds)]
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            results = list(pool.map(one_world, jobs_args))
+    else:
+        results = [one_world(a) for a in jobs_args]
+    rows = [r for res in results for r in res["rows"]]
+    for res in results:
+        if res.get("error"):
+            print(f"  world {res['index']} not run: {res['error']}")
+    print(f"coverage: {len(rows)} DUTs on {worlds} worlds (seed {seed}; sessions in {out}; "
+          f"{time.perf_counter() - start:.0f} s)")
+    print("  true T24 parameters within U (k = 2):")
+    total = []
+    for g in GROUPS:
+        values = [v for r in rows for v in r["inside"][g]]
+        zs = np.array([v for r in rows for v in r["z"][g]])
+        total += values
+        print(f"    {g:3s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median "
+              f"{np.median(zs):.2f}, 95th percentile {np.quantile(zs, 0.95):.2f}")
+    print(f"    all {np.mean(total):6.1%} of {len(total)}")
+    points = [v for r in rows for v in r["points"]]
+    worst = [v for r in rows for v in r["worst"]]
+    ratio = np.array([v for r in rows for v in r["ratio"]])
+    print(f"  true vector error within the stated 95 % radius at the validation points: "
+          f"{np.mean(points):.1%} of {len(points)}; at each DUT's worst {WORST_SHARE:.0%} (largest stated "
+          f"radius): {np.mean(worst):.1%} of {len(worst)}")
+    print(f"  error / radius: median {np.median(ratio):.2f}, 95th percentile {np.quantile(ratio, 0.95):.2f}; "
+          f"per DUT: RMS true error median {np.median([r['rms_error'] for r in rows]):.1f} nT, stated "
+          f"expanded_vector_error_nt median {np.median([r['file_max'] for r in rows]):.1f} nT")
+    per_world = {}
+    for r in rows:
+        per_world.setdefault(r["world"], []).extend(r["points"])
+    shares = " ".join(f"{np.mean(v):.0%}" for _, v in sorted(per_world.items()))
+    print(f"  per world, points covered: {shares}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("part", choices=("coverage", "timing", "certificates"))
+    parser.add_argument("--worlds", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=24)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
+    args = parser.parse_args()
+    out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
+    out.mkdir(parents=True, exist_ok=True)
+    if args.part == "coverage":
+        coverage(args.worlds, args.seed, out, args.jobs)
+    elif args.part == "timing":
+        from bench.uncertainty_timing import timing
+
+        timing(out, args.before)
+    else:
+        from bench.uncertainty_timing import certificates
+
+        certificates(out)
+    if args.out is None and args.part != "certificates":
+        shutil.rmtree(out, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,37 @@
+"""CLI: rig certificate (a calibration certificate per DUT, rig/report/certificate.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("certificate")
+@click.argument("session", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--dut", "duts", multiple=True,
+              help="The DUT to certify (repeat for several; default: every DUT with a calibration).")
+@click.option("-o", "--output-dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("certificates"), show_default=True, help="Folder for the certificates.")
+@click.option("--pdf/--no-pdf", default=True, show_default=True, help="Print each to PDF too.")
+def certificate_cmd(session: Path, duts: tuple[str, ...], output_dir: Path, pdf: bool) -> None:
+    """Write the calibration certificate of a session's DUT: identification, method, conditions, results
+    with expanded uncertainty, traceability, model checks, software (ISO/IEC 17025 7.8)."""
+    from rig.core.errors import DataError
+    from rig.report.certificate import write_certificate
+    from rig.session.reader import SessionReader
+    from rig.session.schema import looks_like_session
+
+    if not session.is_file() or not looks_like_session(session):
+        raise DataError(f"{session}: not a session file")
+    if not duts:
+        with SessionReader(session) as reader:
+            duts = tuple(reader.duts())
+    for dut in duts:
+        written, said = write_certificate(session, dut, output_dir, pdf=pdf)
+        click.echo(f"wrote {written[0]}" + (f" and {written[1].name}" if len(written) > 1 else f"; {said}"))
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to the `rig` group."""
+    group.add_command(certificate_cmd)

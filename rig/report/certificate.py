@@ -1,0 +1,265 @@
+"""A calibration certificate per DUT, from its session and its calibration files: one self-contained HTML
+page (rig/report/html.py), printed to PDF from the same page (rig/report/pdf.py).
+
+    paths = write_certificate(SESSION, "dut3", out_dir)       # [html, pdf or nothing], and a message
+    html_text = certificate_html(SESSION, "dut3")             # the cockpit serves it as is
+
+What it states, following ISO/IEC 17025:2017 7.8.2 (every report) and 7.8.4 (calibration certificates),
+each as a section of its own (ITEMS, the order of the page): the certificate's unique identification and
+page count (a title, an id, "page x of y" when printed); the calibration laboratory: the station, its
+operator, where the devices were simulated; the item calibrated: the DUT, its type and identity as it
+reported itself, its position; the method and the plan (the model, the fit, the temperatures and fields,
+the plan text's sha256); the dates of the calibration and of issue; the conditions (temperature range,
+field range, ambient); the results with their expanded uncertainty and coverage factor, the field error's
+95 % radius and the budget's every line with its origin; the traceability chain (the reference
+magnetometer, its calibration and that file's sha256, the commissioning file and its sha256 and age); the
+model checks; the software version and the session file's sha256; and the statement that the results
+relate only to the item calibrated.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calib import calfile
+from calib.digest import sha256_text
+from rig.core.errors import DataError, SessionError
+from rig.core.paths import calibration_file, inside
+from rig.report.html import ItemList, Section, Table, render_html
+
+ITEMS = ("Identification", "Calibration laboratory", "Item calibrated", "Method and plan", "Dates",
+         "Conditions", "Results", "Uncertainty budget", "Traceability", "Model checks", "Software",
+         "Statement")
+
+
+def _utc(t: float | None) -> str:
+    return "-" if t is None else dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def _fig(x, spec: str = ".6g") -> str:
+    return "-" if x is None else format(float(x), spec)
+
+
+def _gather(session: Path, dut: str) -> dict:
+    """Everything the certificate states, read from the session and the calibration files beside it."""
+    from rig.reference import chain_record
+    from rig.session.reader import SessionReader
+
+    with SessionReader(session) as reader:
+        if dut not in reader.duts():
+            raise SessionError(f"{session}: no DUT named {dut!r} (DUTs: {', '.join(reader.duts())})")
+        info, chain = reader.info(), reader.snapshot(chain_record.SNAPSHOT) or {}
+        identity = reader.snapshot(dut) or {}
+        ds = reader.dataset(dut)
+        sha = reader.sha256
+        points = [p for p in reader.points() if p["state"] == "done"]
+        verdicts = [r for r in reader.acceptance() if r["dut"] == dut]
+    plan, station = chain_record.recorded_plan_and_station(session, info, chain)
+    cals = {}
+    for model in plan.fit.models:
+        path = calibration_file(session, dut, model)
+        if path.is_file():
+            cals[model] = (path, calfile.load(path))
+    if not cals:
+        raise DataError(f"{session}: DUT {dut} has no calibration file beside the session (the run's "
+                        "post-run fits write them): nothing to certify")
+    return {"session": session, "dut": dut, "info": info, "chain": chain, "identity": identity, "ds": ds,
+            "sha256": sha, "plan": plan, "station": station, "cals": cals, "verdicts": verdicts,
+            "setpoints_c": sorted({round(p["setpoint_c"], 2) for p in points}),
+            "targets": len({p["target_json"] for p in points}), "points": len(points)}
+
+
+def certificate_sections(session: str | Path, dut: str) -> tuple[str, list[Section]]:
+    """(title, sections) of the certificate of `dut` in `session`."""
+    g = _gather(Path(session), dut)
+    info, station, plan = g["info"], g["station"], g["plan"]
+    config = station.dut(dut)
+    number = f"{Path(session).name.removesuffix('.session')}/{dut}"
+    issued = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+    simulated = [k for k, v in (info.get("simulated") or {}).items() if v]
+    sections = [
+        Section("Identification", [Table(["item", "value"], [
+            ["certificate", number], ["title", "Calibration certificate of a three-axis magnetometer"],
+            ["pages", "every page is numbered, page x of y (the printed PDF)"]])]),
+        Section("Calibration laboratory", [Table(["item", "value"], [
+            ["station", f"{station.name} ({info.get('station_path') or 'path not recorded'})"],
+            ["field source", f"{station.field_source.described} ({station.field_source.name})"],
+            ["operator", info.get("operator") or "-"],
+            ["simulated devices", ", ".join(simulated) or "none: every device real"]])]),
+        Section("Item calibrated", [Table(["item", "value"], [
+            ["DUT", dut], ["type", config.type],
+            ["identity as reported", json.dumps(g["identity"], sort_keys=True, default=str)[:600] or "-"],
+            ["position (mm)", str(tuple(config.position_mm or (0.0, 0.0, 0.0)))],
+            ["temperature source", config.temp_source or "-"]])]),
+        _method(plan, info, g),
+        Section("Dates", [Table(["item", "value"], [
+            ["calibration", f"{_utc(info.get('wall_started'))} to {_utc(info.get('wall_ended'))}"],
+            ["issue of this certificate", issued]])]),
+        _conditions(g),
+        *_results(g),
+        _traceability(g),
+        _checks(g),
+        Section("Software", [Table(["item", "value"], [
+            ["run by", f"magrig {info.get('software_version')}"],
+            ["calibrations fitted by", ", ".join(sorted({c.software_version
+                                                         for _, c in g["cals"].values()}))],
+            ["session file", f"{Path(session).name}, sha256 {g['sha256']}"]])]),
+        Section("Statement", [
+            "The results relate only to the item calibrated, under the conditions stated. The expanded "
+            "uncertainties are the standard uncertainties times the coverage factor k stated with them, for "
+            "a coverage probability of about 95 %, evaluated as JCGM 100 (GUM) and JCGM 101 (Supplement 1) "
+            "describe; the budget states how.",
+            *[f"Acceptance against the plan's limits: {v['verdict']} ({v['model']})" for v in g["verdicts"]],
+            "Approved by: ______________________  (name, function, signature)"]),
+    ]
+    return f"Calibration certificate {number}", sections
+
+
+def _method(plan, info, g) -> Section:
+    temps = plan.temperatures
+    models = ", ".join(m.upper() for m in g["cals"])
+    return Section("Method and plan", [Table(["item", "value"], [
+        ["method", "the DUT's raw readings against the reference field of the station's field source at each "
+                   "temperature of the plan; least-squares fit of the model; uncertainty by the law of "
+                   "propagation (GUM) where exact, the adaptive Monte Carlo of GUM S1 where needed"],
+        ["models", models],
+        ["plan", f"{plan.name} ({info.get('plan_path') or 'path not recorded'}), sha256 "
+                 f"{sha256_text(info['plan_text'])}"],
+        ["temperatures", f"{getattr(temps, 'mode', None) or 'steps'}: " + (
+            ", ".join(f"{t:g}" for t in g["setpoints_c"]) if len(g["setpoints_c"]) <= 12 else
+            f"{len(g['setpoints_c'])} set points, {min(g['setpoints_c']):g} .. {max(g['setpoints_c']):g}")
+         + " degC"],
+        ["fields", f"{plan.fields.kind}: {g['targets']} targets; {g['points']} points taken"],
+        ["samples per point", str(plan.samples_per_point)]])])
+
+
+def _conditions(g) -> Section:
+    ds = g["ds"]
+    norms = np.linalg.norm(ds.ref_nt, axis=1)
+    ambient = next((c.stats.get("ambient") for _, c in g["cals"].values() if c.stats.get("ambient")), None)
+    rows = [["DUT temperature", f"{ds.temp_c.min():.2f} .. {ds.temp_c.max():.2f} degC"],
+            ["field magnitude", f"{norms.min():.0f} .. {norms.max():.0f} nT"],
+            ["samples", f"{len(ds)} ({ds.source.get('rows_rejected', 0)} flagged and left out)"]]
+    if ambient:
+        drift = ", drifting" if ambient.get("drift") else ""
+        rows.append(["ambient (measured)", ", ".join(f"{v:.1f}" for v in ambient["value_nt"]) + " nT, "
+                     f"{ambient['measurements']} measurements{drift}"])
+    return Section("Conditions", [Table(["item", "value"], rows)])
+
+
+def _results(g) -> list[Section]:
+    rows, budgets = [], []
+    for model, (path, cal) in g["cals"].items():
+        u = cal.uncertainty or {}
+        k = u.get("coverage_factor")
+        expanded = u.get("expanded") or {}
+        for name, value in cal.params.items():
+            flat, big_u = np.ravel(value), np.ravel(expanded.get(name, np.full(np.shape(value), np.nan)))
+            for idx, v in enumerate(flat):
+                label = name + (f"[{idx}]" if flat.size > 1 else "")
+                rows.append([model.upper(), label, _fig(v), _fig(big_u[idx], ".3g"), _fig(k, "g")])
+        lines = [[b["source"], _fig(b["contribution_nt"], ".3g"), b.get("method", ""), b.get("note", "")]
+                 for b in u.get("budget", [])]
+        largest = _fig(u.get("expanded_vector_error_nt"), ".4g")
+        budgets += [f"{model.upper()} ({path.name}): the calibrated field's 95 % error radius, largest over "
+                    f"the plan's fields and temperatures: {largest} nT; "
+                    f"combined standard uncertainty (RMS) {_fig(u.get('combined_standard_nt'), '.4g')} nT; "
+                    f"method: {u.get('method', 'not stated')}",
+                    Table(["source", "contribution (nT, standard)", "propagation", "origin"], lines,
+                          caption=f"{model.upper()} budget"),
+                    ItemList(list(u.get("notes", [])), empty_text="no notes")]
+    results = Section("Results", [
+        "Parameters with their expanded uncertainty U = k u (coverage probability about 95 %); temperatures "
+        "in degC, fields in nT (the calibration files hold the full covariance).",
+        Table(["model", "parameter", "value", "U (expanded)", "k"], rows)])
+    return [results, Section("Uncertainty budget", budgets)]
+
+
+def _traceability(g) -> Section:
+    chain, station = g["chain"], g["station"]
+    com = chain.get("commissioning")
+    rows = []
+    cals = chain.get("reference_calibrations") or {}
+    record = None if com is None else _commissioning_record(com)
+    for name, data in cals.items():
+        ref = next((r for r in station.reference_magnetometers if r.name == name), None)
+        measured = record["reference_magnetometer"] if record else {}
+        sha = (measured["calibration_sha256"] if measured.get("name") == name
+               else sha256_text(json.dumps(data, sort_keys=True)))
+        u = data.get("uncertainty") or {}
+        kind, file = (ref.type, ref.calibration) if ref else ("?", "?")
+        rows.append([f"reference magnetometer {name}",
+                     f"{kind}, calibration {file} (sha256 {sha}); its {data.get('model', '?').upper()} "
+                     f"calibration of {data.get('created_utc', '?')} states U (k = "
+                     f"{u.get('coverage_factor', '?')}) on every parameter"])
+    if not cals:
+        rows.append(["reference magnetometer", "none recorded: the field source's stated values only"])
+    if com is not None:
+        rows.append(["commissioning", f"{com.get('path')} (sha256 {com.get('sha256')}), written "
+                     f"{record['created_utc'] if record else '?'} with reference "
+                     f"{record['reference_magnetometer']['name'] if record else '?'}"])
+    else:
+        rows.append(["commissioning", "none: the field source as declared"])
+    return Section("Traceability", [Table(["link", "what"], rows)])
+
+
+def _commissioning_record(com: dict) -> dict | None:
+    import yaml
+
+    try:
+        return yaml.safe_load(com.get("text") or "")
+    except yaml.YAMLError:
+        return None
+
+
+def _checks(g) -> Section:
+    rows = []
+    for model, (_, cal) in g["cals"].items():
+        for c in cal.stats.get("model_checks") or []:
+            rows.append([model.upper(), c["name"], c["verdict"], _fig(c.get("p"), ".2g"),
+                         _fig(c.get("magnitude_nt"), ".3g"), c["message"]])
+    blocks = [Table(["model", "check", "verdict", "p", "size (nT)", "finding"], rows)] if rows else \
+        ["no model checks recorded (a calibration of a model other than T24, or one from before they were)"]
+    return Section("Model checks", blocks)
+
+
+def certificate_html(session: str | Path, dut: str) -> str:
+    title, sections = certificate_sections(session, dut)
+    return render_html(title, sections, subtitle=f"issued by magrig from {Path(session).name}") \
+        .replace("</style>", PRINT_CSS + "</style>", 1)
+
+
+PRINT_CSS = """
+td, th { text-align: left; vertical-align: top; }
+@page { size: A4; margin: 16mm 14mm 18mm;
+        @bottom-right { content: "page " counter(page) " of " counter(pages); font-size: 9pt; } }
+@media print { body { margin: 0; max-width: none; font-size: 10pt; } h2 { break-after: avoid; } }
+"""
+
+
+def certificate_file(out_dir: str | Path, session: str | Path, dut: str, suffix: str) -> Path:
+    stem = Path(session).name.removesuffix(".session")
+    return inside(out_dir, f"{stem}.{dut}.certificate.{suffix}")
+
+
+def write_certificate(session: str | Path, dut: str, out_dir: str | Path, *, pdf: bool = True
+                      ) -> tuple[list[Path], str]:
+    """([the HTML file, the PDF when one could be printed], what happened to the PDF)."""
+    from rig.report.pdf import print_pdf
+
+    out = Path(out_dir)
+    page = certificate_file(out, session, dut, "html")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        page.write_text(certificate_html(session, dut), encoding="utf-8")
+    except OSError as exc:
+        raise DataError(f"{out}: cannot write the certificate: {exc.strerror or exc}") from None
+    if not pdf:
+        return [page], "PDF not asked for"
+    target = certificate_file(out, session, dut, "pdf")
+    said = print_pdf(page, target)
+    return ([page, target] if target.is_file() else [page]), said

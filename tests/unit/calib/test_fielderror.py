@@ -1,0 +1,74 @@
+"""A calibration file's uncertainty at any reading (calib/fielderror.py): the parameters' covariance and
+the model error, the file's exact round trip, old files, and a malformed covariance refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib
+from calib import calfile, synthetic
+from calib.budgeting import budget
+from calib.calibration import Calibration
+from calib.errors import DataError
+from calib.fielderror import expanded_at, field_covariance, parameter_covariance
+from calib.propagation import matrix_source, offset_source
+
+
+def _calibrated(seed: int = 1):
+    ds, _ = synthetic.t24_dataset(np.random.default_rng(seed), temps_c=(-20.0, 20.0, 60.0),
+                                  samples_per_point=2)
+    cal = calib.fit(ds, "t24")
+    currents = ds.ref_nt / 10_000.0
+    sources = [matrix_source("coil matrix", currents, np.eye(9).reshape(9, 3, 3), np.eye(9) * 0.5**2),
+               offset_source("ambient", len(ds), np.eye(3) * 3.0**2)]
+    fields = 50_000.0 * synthetic.coil_directions()
+    grid = (np.repeat(fields, 2, axis=0), np.tile([-20.0, 60.0], len(fields)))
+    b = budget(ds, cal, sources, grid, rng=np.random.default_rng(seed))
+    cal.uncertainty = {**b.as_dict(), "model_error_nt": [4.0, 5.0, 6.0]}
+    return cal, b
+
+
+def test_the_field_uncertainty_at_the_grid_is_the_budgets_plus_the_model_error(tmp_path):
+    cal, b = _calibrated()
+    h = b.linear.grid_h_nt
+    cov = field_covariance(cal, h, b.linear.grid_temp_c)
+    np.testing.assert_allclose(cov - np.diag([16.0, 25.0, 36.0]), b.linear.field_covariance, rtol=1e-6,
+                               atol=1e-9 * np.max(b.linear.field_covariance))
+    axes, radius = expanded_at(cal, h, b.linear.grid_temp_c)
+    np.testing.assert_allclose(axes, 2.0 * np.sqrt(np.einsum("gii->gi", cov)), rtol=1e-12)
+    # the 3-D radius lies between the largest axis's 1.96 sigma and the isotropic 2.80 sigma of it
+    top = np.sqrt(np.max(np.linalg.eigvalsh(cov), axis=1))
+    assert np.all(radius >= 1.95 * top) and np.all(radius <= 2.81 * top)
+
+
+def test_the_file_round_trips_the_covariance_exactly_and_old_files_load(tmp_path):
+    cal, _ = _calibrated(2)
+    path = tmp_path / "cal.yaml"
+    calfile.save(cal, path)
+    back = calfile.load(path)
+    assert np.array_equal(np.asarray(back.uncertainty["covariance"]["matrix"]),
+                          np.asarray(cal.uncertainty["covariance"]["matrix"]))
+    assert back.uncertainty["model_error_nt"] == [4.0, 5.0, 6.0]
+    old = cal.to_dict()
+    del old["uncertainty"]["covariance"], old["uncertainty"]["model_error_nt"]
+    legacy = Calibration.from_dict(old)
+    cov, correlated = parameter_covariance(legacy)
+    assert not correlated and np.allclose(np.diag(cov), np.concatenate(
+        [np.ravel(np.asarray(legacy.uncertainty["expanded"][k]) / 2) for k in legacy.params]) ** 2)
+    expanded_at(legacy, np.array([[30_000.0, 0.0, 40_000.0]]), np.array([25.0]))  # usable, uncorrelated
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda c: c.update(parameters=c["parameters"][::-1]), "must list the parameters in order"),
+    (lambda c: c.update(matrix=np.eye(3).tolist()), "symmetric 24x24"),
+    (lambda c: c["matrix"][0].__setitem__(1, 5.0), "symmetric 24x24"),
+])
+def test_a_malformed_covariance_is_refused_in_one_line(change, message):
+    cal, _ = _calibrated(3)
+    data = cal.to_dict()
+    change(data["uncertainty"]["covariance"])
+    with pytest.raises(DataError, match=message) as info:
+        Calibration.from_dict(data, where="cal.yaml")
+    said = str(info.value)
+    assert said.startswith("cal.yaml: key 'uncertainty.covariance.") and "\n" not in said

@@ -1,0 +1,198 @@
+"""The budget's sources on data whose answer is known: each loop's place, lean and turns against the
+simulator's own Biot-Savart, what the commissioning's settings show (non-linearity, hysteresis, the
+read-back's error, drift between repeats), the thermal direction, the misfit beyond the noise within
+points and the offset's wander between steps."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from calib.dataset import Dataset
+from drivers.sim.coilfield import CoilGeometry as SimGeometry
+from drivers.sim.coilfield import LoopErrors, coil_matrix_at
+from rig.fieldsources.coils import commissioned
+from rig.fieldsources.coils.config import DeclaredGeometry
+from rig.fieldsources.coils.loops import PER_LOOP, loop_sensitivity, matrix_with_loops
+from rig.reference.modelerror import _misfit, thermal_direction, within_point_noise
+from rig.reference.wander import WANDER_FACTOR, wander_source
+
+CENTRE = np.array([[50480.0, 264.0, 0.0], [0.0, 49510.0, -263.0], [0.0, 0.0, 50310.0]])
+GEOMETRY = DeclaredGeometry(shape="square", size_m=(0.4, 0.4, 0.4), spacing_m=(0.2178, 0.2178, 0.2178))
+
+
+def test_each_loop_off_its_drawing_matches_the_simulators_biot_savart():
+    """The rig's closed forms, loop by loop, against drivers/sim/coilfield.py's numerical integration."""
+    rng = np.random.default_rng(1)
+    deviations = np.zeros((3, 2, PER_LOOP))
+    deviations[..., :3] = rng.uniform(-0.7, 0.7, (3, 2, 3))
+    deviations[..., 3] = rng.uniform(-0.15, 0.15, (3, 2))
+    deviations[..., 4] = rng.uniform(-1800, 1800, (3, 2))
+    loops = {j: LoopErrors(turns_error_ppm=tuple(deviations[j, :, 4]),
+                           offset_m=tuple(tuple(v / 1000.0) for v in deviations[j, :, :3]),
+                           tilt_deg=tuple(deviations[j, :, 3])) for j in range(3)}
+    sim = SimGeometry("square", GEOMETRY.size_m, GEOMETRY.spacing_m)
+    for position_mm in ([70.0, 0.0, 0.0], [0.0, -50.0, 30.0], [40.0, 40.0, -40.0]):
+        point = np.asarray(position_mm) / 1000.0
+        ours = matrix_with_loops(CENTRE, "square", GEOMETRY.size_m, GEOMETRY.spacing_m, point, deviations)
+        theirs = coil_matrix_at(CENTRE, sim, point, loops)
+        ideal = coil_matrix_at(CENTRE, sim, point)
+        np.testing.assert_allclose(ours, theirs, rtol=0, atol=0.02)  # nT/A: quadrature accuracy
+        assert np.max(np.abs(theirs - ideal)) > 5.0  # the loops do move the field there (>5 nT/A)
+    np.testing.assert_allclose(matrix_with_loops(CENTRE, "square", GEOMETRY.size_m, GEOMETRY.spacing_m,
+                                                 np.zeros(3), deviations), CENTRE, rtol=1e-12, atol=1e-9)
+
+
+def test_the_loop_sensitivity_predicts_a_small_deviation():
+    deviation = np.zeros((3, 2, PER_LOOP))
+    deviation[1, 0] = [0.3, -0.2, 0.1, 0.05, 500.0]
+    deviation[2, 1] = [-0.1, 0.4, 0.0, -0.08, -800.0]
+    point = np.array([60.0, -30.0, 20.0])
+    moved = matrix_with_loops(CENTRE, "square", GEOMETRY.size_m, GEOMETRY.spacing_m, point / 1000, deviation)
+    base = matrix_with_loops(CENTRE, "square", GEOMETRY.size_m, GEOMETRY.spacing_m, point / 1000,
+                             np.zeros_like(deviation))
+    predicted = np.tensordot(deviation.ravel(), loop_sensitivity(CENTRE, GEOMETRY, point), axes=1)
+    np.testing.assert_allclose(base + predicted, moved, rtol=0, atol=1e-2 * np.max(np.abs(moved - base)))
+
+
+def _settings(readings, currents, readback=None):
+    return [SimpleNamespace(setting=tuple(c), mean_nt=tuple(r),
+                            readback=None if readback is None else tuple(readback[k]))
+            for k, (c, r) in enumerate(zip(currents, readings, strict=True))]
+
+
+def _design(level: float = 1.2, repeats: int = 2) -> np.ndarray:
+    one = [np.zeros(3)]
+    for j in range(3):
+        for share in (0.5, 1.0, 0.5, 0.0, -0.5, -1.0, -0.5, 0.0):
+            c = np.zeros(3)
+            c[j] = share * level
+            one.append(c)
+    for signs in np.ndindex(2, 2, 2):
+        one.append(0.5 * level * (1 - 2 * np.array(signs)))
+    return np.array(one * repeats)
+
+
+def test_the_commissioning_settings_show_the_coils_non_linearity_and_hysteresis():
+    rng = np.random.default_rng(2)
+    currents = _design()
+    ambient = np.array([16000.0, -300.0, 43000.0])
+    quad = np.array([[30.0, 0.0, 0.0], [0.0, -20.0, 0.0], [0.0, 0.0, 0.0]])  # nT/A^2: coil x, y bend
+    h_true = np.array([[0.0, 0.0, 12.0], [8.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # coil j's step, axis i
+    s = commissioned.directions(currents)
+    noise = 1.0
+    readings = currents @ CENTRE.T + ambient + (currents**2) @ quad.T + 0.5 * s @ h_true + \
+        rng.normal(0, noise, (len(currents), 3))
+    c, sigma, absorbed = commissioned.nonlinearity(_settings(readings, currents))
+    np.testing.assert_allclose(c[:, :3], quad, atol=5 * np.sqrt(np.max(np.diag(sigma))))
+    h, cov = commissioned.hysteresis(_settings(readings, currents))
+    np.testing.assert_allclose(h, h_true, atol=6 * noise)
+    assert np.all(np.diag(cov) >= h.ravel() ** 2)  # u^2 + b^2 (index coil * 3 + axis): never below b^2
+    # the run's error at other currents: the quadratic term less what the linear fit absorbed
+    run = np.array([[0.8, 0.0, 0.0], [-0.8, 0.0, 0.0], [0.0, 0.4, 0.0]])
+    a = commissioned.nonlinearity_sensitivity(run, absorbed)
+    predicted = np.einsum("niq,q->ni", a, c.ravel())
+    true_bend = (run**2) @ quad.T
+    c_true = np.vstack([quad.T, np.zeros((3, 3))])  # (6 terms, 3 axes)
+    linear_part = np.column_stack([run, np.ones(len(run))]) @ (absorbed @ c_true)
+    np.testing.assert_allclose(predicted, true_bend - linear_part, atol=2.0)
+
+
+def test_the_read_back_error_and_the_drift_between_repeats():
+    rng = np.random.default_rng(3)
+    currents = _design()
+    readback = currents * (1 + np.array([230e-6, -260e-6, 220e-6])) + np.array([0.15e-3, -0.1e-3, 0.2e-3]) + \
+        rng.normal(0, 0.1e-3, currents.shape)
+    readings = currents @ CENTRE.T + rng.normal(0, 1.0, currents.shape)
+    fit = commissioned.fit_readback(_settings(readings, currents, readback))
+    np.testing.assert_allclose(fit["gain_ppm"], [230, -260, 220], atol=5 * max(fit["std_errors_gain_ppm"]))
+    np.testing.assert_allclose(fit["offset_ma"], [0.15, -0.1, 0.2], atol=5 * max(fit["std_errors_offset_ma"]))
+    assert commissioned.fit_readback(_settings(readings, currents)) is None  # no read-backs recorded
+    still = commissioned.repeat_drift(_settings(readings, currents), 2)
+    drifted = readings.copy()
+    half = len(currents) // 2
+    drifted[half:] += currents[half:] @ np.diag([0.0, 0.0, 30.0]).T  # coil z's constant moved by 30 nT/A
+    moved = commissioned.repeat_drift(_settings(drifted, currents), 2)
+    assert moved[8] == pytest.approx(30.0**2 / 2, rel=0.2)  # the variance of two values 30 apart
+    assert np.all(still < 0.01 * moved[8]) and moved[0] < 0.01 * moved[8]  # noise alone: next to nothing
+
+
+def test_the_thermal_direction_follows_the_history_through_a_play():
+    t = np.arange(10.0)
+    temps = np.array([22.0, 10.0, -20.0, -20.2, -19.8, 0.0, 0.3, 25.0, 60.0, 59.5])
+    history = [(-5.0, 22.0), (-3.0, 22.1)]
+    d = thermal_direction(t, temps, history)
+    np.testing.assert_array_equal(d, [0, -1, -1, -1, -1, 1, 1, 1, 1, 1])  # 0.5 degC back is within the play
+
+
+def _stepped(rng, noise: float, wander: float, excess: float = 0.0, step_nt: float = 30.0):
+    """Four steps x 40 points x 5 samples of residuals: white noise, an offset per step (`step_nt`), a
+    random walk point to point of `wander` nT, and a point-to-point misfit of `excess` nT."""
+    steps, points, samples = 4, 40, 5
+    rows, labels, groups, times = [], [], [], []
+    t = 0.0
+    for k in range(steps):
+        level = rng.normal(0, step_nt, 3)
+        for p in range(points):
+            level = level + rng.normal(0, wander, 3)
+            misfit = rng.normal(0, excess, 3)
+            for _ in range(samples):
+                rows.append(level + misfit + rng.normal(0, noise, 3))
+                labels.append(f"T{k}-F{p}")
+                groups.append(f"T{k}")
+                times.append(t)
+                t += 1.0
+            t += 10.0
+        t += 3600.0
+    resid = np.array(rows)
+    n = len(resid)
+    ds = Dataset(np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), group=np.array(groups, object),
+                 columns={"point": np.array(labels, object), "t": np.array(times)})
+    return ds, resid
+
+
+def test_the_misfit_beyond_the_noise_within_points_is_found_and_noise_alone_is_not():
+    rng = np.random.default_rng(4)
+    ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=0.0, step_nt=0.0)
+    resid = resid - resid.mean(axis=0)
+    notes: list[str] = []
+    quiet = _misfit(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
+    assert np.all(np.diag(quiet.covariance) < 3.0**2)  # noise only: no excess (or within its scatter)
+    ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=40.0, step_nt=0.0)
+    resid = resid - resid.mean(axis=0)
+    noisy = _misfit(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
+    np.testing.assert_allclose(np.sqrt(np.diag(noisy.covariance)), 40.0, rtol=0.3)
+    noise, dof = within_point_noise(resid, ds.columns["point"])
+    np.testing.assert_allclose(noise, 30.0, rtol=0.1)
+
+
+def test_the_offset_wander_between_points_sets_each_steps_offset():
+    rng = np.random.default_rng(5)
+    ds, resid = _stepped(rng, noise=30.0, wander=25.0)
+    noise, _ = within_point_noise(resid, ds.columns["point"])
+    source, said, variance = wander_source(ds, resid, noise)
+    # a random walk of 25 nT per point: consecutive point means differ by 25 nT, Allan variance 312 nT^2
+    assert np.mean(variance) == pytest.approx(WANDER_FACTOR * 25.0**2 / 2, rel=0.45)
+    assert source.covariance.shape == (12, 12) and "Allan deviation" in said
+    quiet_ds, quiet = _stepped(rng, noise=30.0, wander=0.0)
+    _, _, small = wander_source(quiet_ds, quiet, within_point_noise(quiet, quiet_ds.columns["point"])[0])
+    assert np.all(small < 0.3 * variance)
+
+
+def test_an_error_shared_by_a_points_samples_weighs_as_n_times_its_variance():
+    """Five samples a point sharing an error of 20 nT weigh in a fit like a white noise of variance
+    30^2 + 5 x 20^2: the statistics take that; without a shared error they take the residual's RMS."""
+    from rig.reference.modelerror import _clustered_noise
+
+    rng = np.random.default_rng(6)
+    ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=20.0, step_nt=0.0)
+    notes: list[str] = []
+    rms = np.sqrt(np.mean(resid**2, axis=0))
+    taken = _clustered_noise(resid, ds.columns["point"], rms, notes)
+    np.testing.assert_allclose(taken, np.sqrt(30.0**2 + 5 * 20.0**2), rtol=0.15)
+    assert notes and "share an error" in notes[0]
+    ds, white = _stepped(rng, noise=30.0, wander=0.0, excess=0.0, step_nt=0.0)
+    rms = np.sqrt(np.mean(white**2, axis=0))
+    assert np.array_equal(_clustered_noise(white, ds.columns["point"], rms, []), rms)
