@@ -130,6 +130,9 @@ def _plan_with_acceptance(tmp_path, name: str, acceptance: dict):
     path = small_plan(tmp_path, name=name, steps=(20, 30), samples=2, dwell_s=30)
     plan = yaml.safe_load(path.read_text())
     plan["fields"] = {"kind": "fibonacci", "n": 24, "magnitude_nt": 50000}
+    # stable as the plan's defaults judge it: a looser wait leaves a DUT short of an end, which
+    # acceptance fails (its data would not cover the plan's range)
+    plan["temperatures"]["stability"] = {"band_c": 0.5, "rate_c_per_min": 0.1, "dwell_s": 120}
     plan["acceptance"] = acceptance
     path.write_text(yaml.safe_dump(plan, sort_keys=False))
     return path
