@@ -89,9 +89,10 @@ def wait_until(clock: Clock, read: Callable[[], R], settled: Callable[[R], bool]
         reading = read()
         if settled(reading):
             return reading
-        if clock.now() >= deadline:
+        left = deadline - clock.now()
+        if left <= 0:
             raise timed_out(reading)
-        clock.sleep(poll_s)
+        clock.sleep(min(poll_s, left))  # the last look at the deadline itself, not a poll past it
 
 
 def make_all_safe(devices: Iterable[Device]) -> list[str]:

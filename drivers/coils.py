@@ -2,7 +2,7 @@
 
 Construct (the station YAML maps onto these keywords; `transport` is a ModbusTransport):
 
-    CoilController(transport, *, name, clock, max_current_a, poll_s=0.01)
+    CoilController(transport, *, name, clock, max_current_a, poll_s=0.05)
 
 connect() checks the identity registers (model must start with "MAGRIG-HC3") and that max_current_a
 does not exceed the controller's rating; set(currents_a) writes the three setpoints in one request, then
@@ -99,7 +99,7 @@ class CoilController(Device):
         name: str,
         clock: Clock | None = None,
         max_current_a: float,
-        poll_s: float = 0.01,
+        poll_s: float = 0.05,  # 20 Hz: a read-back settles in tenths of a second; a poll is a round trip
         readback_accuracy_ppm: float = READBACK_ACCURACY_PPM,
         readback_accuracy_ma: float = READBACK_ACCURACY_MA,
     ):

@@ -67,8 +67,9 @@ def test_a_ramp_on_the_lab_completes_with_its_lag_corrected_fits(tmp_path):
 
 
 def test_a_plan_designed_from_the_thermal_commissioning_covers_its_range_at_the_duts(tmp_path):
-    source = write(tmp_path, "seq", {"mode": "sequential", "range_c": [10, 40], "rate_c_per_min": 1.5,
-                                     "checks_c": [25]}, stop_when=LOOSE, acceptance={})
+    source = write(tmp_path, "seq", {"mode": "sequential", "range_c": [20, 32], "rate_c_per_min": 1.5,
+                                     "checks_c": [26], "fields_per_sweep": 6}, stop_when=LOOSE,
+                   acceptance={})
     campaign = load_campaign(source, LAB)
     inputs = design_inputs(campaign.plan, campaign.station)
     assert {d.origin for d in inputs.planning.duts.values()} == {"thermal commissioning"}
@@ -79,12 +80,12 @@ def test_a_plan_designed_from_the_thermal_commissioning_covers_its_range_at_the_
     path = tmp_path / "designed.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     ends = [leg["to_c"] for leg in data["temperatures"]["legs"] if not leg.get("check")]
-    assert min(ends) < 10.0 and max(ends) > 40.0  # the air goes past each end by the places' offsets
+    assert min(ends) < 20.0 and max(ends) > 32.0  # the air goes past each end by the places' offsets
     _, outcome, fitted = completed_with_fits(tmp_path, str(path))
     assert all(v.passed for v in outcome.verdicts), [v.line() for v in outcome.verdicts]  # coverage judged
     for dut, cal in fitted.items():
         low, high = cal.stats["temperature_range_c"]
-        assert low <= 10.5 and high >= 39.5, (dut, low, high)
+        assert low <= 20.5 and high >= 31.5, (dut, low, high)
 
 
 def test_a_sequential_plan_on_the_lab_completes_at_its_targets(tmp_path):

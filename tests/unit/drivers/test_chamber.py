@@ -20,13 +20,15 @@ from drivers.watlow import WatlowF4, WatlowF4T
 LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
 
 
-def transport(port: int, clock, *, rtu: bool = False) -> ModbusTransport:
+# a reply is waited for 2 s: a loaded machine may take tenths of a second to answer on loopback; a test of
+# the timeout itself gives its own
+def transport(port: int, clock, *, rtu: bool = False, timeout_s: float = 2.0) -> ModbusTransport:
     where = (
         {"serial_port": f"socket://127.0.0.1:{port}", "baudrate": 115200}
         if rtu
         else {"host": "127.0.0.1", "port": port}
     )
-    return ModbusTransport(name="chamber", timeout_s=0.2, clock=clock, **where)
+    return ModbusTransport(name="chamber", timeout_s=timeout_s, clock=clock, **where)
 
 
 @pytest.fixture
@@ -39,8 +41,8 @@ def world(clock):
     return World(clock, air_c=22.0, ramp_c_per_min=3.0)
 
 
-def f4t(port, clock, **kw):
-    return WatlowF4T(transport(port, clock), name="chamber", clock=clock, **LIMITS, **kw)
+def f4t(port, clock, timeout_s: float = 2.0, **kw):
+    return WatlowF4T(transport(port, clock, timeout_s=timeout_s), name="chamber", clock=clock, **LIMITS, **kw)
 
 
 # --- transcripts ----------------------------------------------------------------------------------
@@ -285,7 +287,7 @@ def test_controller_refuses_out_of_range_setpoint(world, clock):
 
 def test_timeout_names_device_and_operation(world, clock):
     with ChamberSim(world, "f4t") as sim:
-        chamber = f4t(sim.port, clock)
+        chamber = f4t(sim.port, clock, timeout_s=0.2)
         chamber.read()
         sim.silence(3)
         with pytest.raises(DeviceTimeout) as err:

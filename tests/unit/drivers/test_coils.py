@@ -26,7 +26,7 @@ def world(clock):
 
 
 def controller(port: int, clock, max_current_a: float = 1.0) -> CoilController:
-    link = ModbusTransport(name="coils", host="127.0.0.1", port=port, timeout_s=0.2, clock=clock)
+    link = ModbusTransport(name="coils", host="127.0.0.1", port=port, timeout_s=2.0, clock=clock)
     return CoilController(link, name="coils", clock=clock, max_current_a=max_current_a)
 
 

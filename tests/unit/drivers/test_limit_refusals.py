@@ -31,7 +31,7 @@ def clock():
 
 
 def link(name: str, port: int, clock) -> ModbusTransport:
-    return ModbusTransport(name=name, host="127.0.0.1", port=port, timeout_s=0.2, clock=clock)
+    return ModbusTransport(name=name, host="127.0.0.1", port=port, timeout_s=2.0, clock=clock)
 
 
 @pytest.mark.parametrize("call, value, limits", [

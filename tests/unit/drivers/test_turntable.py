@@ -29,7 +29,7 @@ def table(port: int, clock, *, rtu: bool = False) -> Turntable:
         if rtu
         else {"host": "127.0.0.1", "port": port}
     )
-    link = ModbusTransport(name="turntable", timeout_s=0.2, clock=clock, **where)
+    link = ModbusTransport(name="turntable", timeout_s=2.0, clock=clock, **where)
     return Turntable(
         link, name="turntable", clock=clock, az_limits_deg=(-180.0, 180.0), el_limits_deg=(-90.0, 90.0)
     )
