@@ -56,8 +56,8 @@ def linearity_failures(data: Mapping[str, Dataset]) -> dict[str, dict]:
     for dut, ds in data.items():
         check = temperature_linearity(ds)
         if check.verdict == "fails":
-            out[dut] = {"statistic": check.statistic, "dof": check.dof, "p": check.p,
-                        "magnitude_nt": check.magnitude_nt}
+            out[dut] = {"statistic": float(check.statistic), "dof": int(check.dof), "p": float(check.p),
+                        "magnitude_nt": float(check.magnitude_nt)}  # plain values: the decision is JSON
     return out
 
 
