@@ -8,8 +8,9 @@ p < 1e-3 per check only where also larger than half the noise, which pure noise 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
-import pytest
 
 import calib
 from calib.checks import FIELD, HYSTERESIS, TEMPERATURE
@@ -137,6 +138,7 @@ def test_a_failing_linearity_check_adds_interior_temperatures_instead_of_finishi
     assert not decision.stop and decision.new_leg
     assert decision.leg.kind == CHECK and decision.leg.to_c == -5.0  # the nearer added one, from -30
     assert found["check"] == TEMPERATURE and set(found["failed"]) == {"d0"}
+    assert json.loads(json.dumps(found)) == found  # recorded with the decision as JSON
     assert found["failed"]["d0"]["p"] < 1e-3 and found["added_c"] == [-5.0, 45.0]
     assert added.added_c == [-5.0, 45.0] and added.chamber(CHAMBER).checks_c == (-5.0, 20.0, 45.0)
     assert "linearity in temperature fails (d0 p" in decision.reason
@@ -148,9 +150,8 @@ def test_a_failing_linearity_check_adds_interior_temperatures_instead_of_finishi
     assert decision.stop and found["added_c"] == [] and "none more" in decision.reason
 
 
-@pytest.mark.parametrize("bound", [0])
-def test_max_added_checks_zero_adds_none(bound):
+def test_max_added_checks_zero_adds_none():
     decide = _finished()
-    decision, found = decide_with_checks(AddedChecks(bound), CHAMBER, decide,
+    decision, found = decide_with_checks(AddedChecks(0), CHAMBER, decide,
                                          lambda: {"d0": dataset(9, curve_nt_per_c2=0.03)})
     assert decision.stop and found["added_c"] == []
