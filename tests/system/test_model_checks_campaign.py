@@ -23,6 +23,7 @@ from rig.cli import main
 from rig.config import load_plan
 from rig.core.paths import calibration_file
 from rig.reference.loading import load_campaign
+from rig.report.certificate import certificate_html
 from rig.run.campaign import run_campaign
 from rig.run.summary import calibration_rows
 from rig.session.reader import SessionReader
@@ -102,6 +103,8 @@ def test_the_model_checks_decide_acceptance_and_the_judged_model(tmp_path, capsy
     text = re.sub(r"\s+", " ", unescape(re.sub(r"<[^>]+>", " ", html)))
     assert "the run's T36 calibration (judged instead of the plan's T24: T36 validated better" in text
     assert "T36 chosen" in text  # the temperature model's row among the model checks
+    certificate = certificate_html(session, "mmc0")
+    assert "T36 (checks.mmc0.t36.yaml)" in certificate and "PASS (t36)" in certificate
     capsys.readouterr()
 
     # the same fits judged without the model checks: both pass
