@@ -140,3 +140,15 @@ def _stay_options(budget: int) -> list[int]:
         k *= 2
     return out
 
+
+
+def interior_temperatures(range_c: tuple[float, float], checks_c: Sequence[float], count: int) -> list[float]:
+    """Up to `count` interior temperatures to add to the model check: the midpoints of the largest gaps
+    between the range's ends and the check temperatures so far (every gap as large as the largest, so a
+    symmetric set stays symmetric), to a tenth of a degree. [] when count < 1."""
+    lo, hi = sorted(range_c)
+    at = sorted({lo, hi, *(c for c in checks_c if lo < c < hi)})
+    gaps = [(b - a, 0.5 * (a + b)) for a, b in zip(at, at[1:], strict=False)]
+    largest = max(g for g, _ in gaps)
+    mids = [round(m, 1) for g, m in gaps if g >= largest * (1 - 1e-9)]
+    return [m for m in mids if m not in at][:max(count, 0)]

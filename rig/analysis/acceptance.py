@@ -18,7 +18,14 @@ Criteria (each only when the plan gives it; names as they appear in `failed`):
                        `temperature_range_c`, at the element where the lag was corrected) reach both ends of
                        the plan's range within the plan's stability band; a calibration that would
                        extrapolate over part of the range fails
-A DUT whose model could not be fitted fails with criterion "fit".
+    model checks       with `model_checks` (the default): a check of the DUT's T24 calibration
+                       (calib/checks.py: linearity in temperature, thermal hysteresis, linearity in the
+                       field) that fails and that the judged model does not capture fails the DUT, named
+                       with its statistic and p; only T36, judged because it validated better
+                       (rig/analysis/tempchoice.py), captures a failed linearity in temperature. A check
+                       the data could not run is "not run": said in the verdict line, never a failure
+A DUT whose model could not be fitted fails with criterion "fit". Its judged model is the plan's, or T36
+where the plan judges T24 and T36 was chosen (rig/analysis/judged.py `judged_for_dut`).
 """
 
 from __future__ import annotations
@@ -48,6 +55,7 @@ class Verdict:
     notes: list[str] = field(default_factory=list)
     dut_type: str = ""
     samples: int = 0
+    not_run: list[str] = field(default_factory=list)  # the model checks the data could not run
 
     @property
     def passed(self) -> bool:
@@ -58,8 +66,12 @@ class Verdict:
         return PASS if self.passed else FAIL
 
     def line(self) -> str:
-        """`mmc0 PASS` or `mmc0 FAIL (heldout_rms 212 nT > 150, bounds.b_nt)`."""
-        return f"{self.dut} {self.verdict}" + (f" ({', '.join(self.failed)})" if self.failed else "")
+        """`mmc0 PASS` or `mmc0 FAIL (heldout_rms 212 nT > 150, bounds.b_nt)`, and the model checks not run:
+        `mmc0 PASS (model checks not run: thermal hysteresis)`."""
+        said = list(self.failed)
+        if self.not_run:
+            said.append(f"model checks not run: {', '.join(self.not_run)}")
+        return f"{self.dut} {self.verdict}" + (f" ({', '.join(said)})" if said else "")
 
 
 def _finite(x: float | None) -> float | None:
@@ -101,6 +113,29 @@ def coverage_problem(cal, range_c: tuple[float, float] | None, band_c: float | N
         return None
     return (f"coverage {low:.2f} .. {high:.2f} degC at the DUT does not reach the plan's {lo:g} .. {hi:g} "
             f"degC within {band_c:g}")
+
+
+def model_check_findings(t24_stats: dict | None, judged_model: str) -> tuple[list[str], list[str]]:
+    """(failures, checks not run) of a DUT's T24 model checks (its calibration's stats) for the model its
+    verdict judges: a failed check fails the DUT unless that model captures it (T36, chosen, captures a
+    failed linearity in temperature; nothing captures a hysteresis or a field non-linearity)."""
+    from calib.checks import TEMPERATURE
+    from rig.analysis.judged import chosen_temperature_model
+
+    checks = (t24_stats or {}).get("model_checks")
+    if not checks:
+        return [], ["all (no T24 model checks recorded)"]
+    captured = {TEMPERATURE} if judged_model == "t36" and chosen_temperature_model(
+        {"stats": t24_stats}) == "t36" else set()
+    failures, not_run = [], []
+    for check in checks:
+        name = str(check.get("name"))
+        if check.get("verdict") == "not testable":
+            not_run.append(name)
+        elif check.get("verdict") == "fails" and name not in captured:
+            failures.append(f"{name} fails (statistic {check['statistic']:.4g} on {check['dof']} dof; p "
+                            f"{check['p']:.2g}; {check['magnitude_nt']:.3g} nT)")
+    return failures, not_run
 
 
 def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, float] | None = None,
@@ -148,12 +183,15 @@ def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, fl
 def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict]:
     """One verdict per DUT of the station, on the plan's acceptance model (the first fitted model unless
     `acceptance.model` names another)."""
+    from rig.analysis.judged import judged_for_dut
     from rig.session.reader import each_dataset
 
     acceptance = plan.acceptance
-    model = plan.judged_model
     out = []
     for dut, ds in each_dataset(session_path, station.duts):
+        fitted = {f["model"]: f["calibration"] for f in fits
+                  if f["dut"] == dut.name and f.get("calibration") is not None}
+        model = judged_for_dut(plan.judged_model, fitted)
         v = Verdict(dut.name, model, dut_type=dut.device_type)
         entry = next((f for f in fits if f["dut"] == dut.name and f["model"] == model), None)
         if entry is None or entry.get("calibration") is None:
@@ -168,6 +206,12 @@ def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict
             v.failed, v.figures, v.notes = judge(acceptance, ds, entry["calibration"], robust=plan.fit.robust,
                                                  range_c=plan.temperatures.covered_c(),
                                                  band_c=plan.temperatures.band_c())
+            if acceptance.model_checks:
+                t24 = fitted.get("t24")
+                failures, v.not_run = model_check_findings(None if t24 is None else t24.stats, model)
+                v.failed += failures
+                if v.not_run:
+                    v.notes.append(f"model checks not run: {', '.join(v.not_run)}")
         except ERRORS as exc:
             v.failed.append("fit")
             v.notes.append(str(exc))

@@ -2,7 +2,8 @@
 display uses: `rig run`'s summary, `rig sessions`, the cockpit, the report and the C header read them
 here, so they give one answer.
 
-    model, fits = judged_fits(reader)      # the plan's judged model, each DUT's last recorded fit of it
+    model, fits = judged_fits(reader)      # the plan's judged model, each DUT's last recorded judged fit
+    judged_for_dut("t24", {"t24": cal24, "t36": cal36})   # "t36" when T24's temperature check chose it
     q = quality(cal.stats, cal.uncertainty)
     q.rms_nt, q.expanded_nt, q.exceeds, q.dominant   # residual, stated uncertainty, flag, what dominates
 
@@ -91,6 +92,28 @@ def dominant_phrase(uncertainty: dict | None) -> str | None:
 
 
 # --- a session's judged calibration ------------------------------------------------------------------
+def _stats_of(cal: object) -> dict:
+    stats = cal.get("stats") if isinstance(cal, dict) else getattr(cal, "stats", None)
+    return stats if isinstance(stats, dict) else {}
+
+
+def chosen_temperature_model(t24: object) -> str | None:
+    """What a T24 calibration's temperature-model choice chose ("t24" or "t36"; rig/analysis/tempchoice.py),
+    None when none was made (its linearity in temperature did not fail)."""
+    choice = _stats_of(t24).get("temperature_model")
+    return choice.get("model") if isinstance(choice, dict) else None
+
+
+def judged_for_dut(plan_model: str | None, calibrations: dict[str, object]) -> str | None:
+    """One DUT's judged model among its calibrations ({model: Calibration or its dict}): the plan's, except
+    T36 where the plan judges T24, T24's linearity in temperature failed and T36 validated better on
+    held-out blocks of the session's own data."""
+    if plan_model == "t24" and "t36" in calibrations and \
+            chosen_temperature_model(calibrations.get("t24")) == "t36":
+        return "t36"
+    return plan_model
+
+
 def judged_model(info: dict, models_recorded: list[str]) -> str | None:
     """The model the session's recorded plan judges (rig.config.Plan.judged_model); for a plan that can no
     longer be read, the first model recorded."""
@@ -104,34 +127,48 @@ def judged_model(info: dict, models_recorded: list[str]) -> str | None:
 
 
 def judged_fits(reader) -> tuple[str | None, dict[str, dict]]:
-    """(judged model, {DUT: its last recorded fit of that model, `calibration` parsed}) of a session."""
+    """(the plan's judged model, {DUT: its last recorded fit of its judged model (judged_for_dut; the fit's
+    `model` says which), `calibration` parsed}) of a session."""
     fits = reader.fits()
     model = judged_model(reader.info(), list(dict.fromkeys(f["model"] for f in fits)))
-    out: dict[str, dict] = {}
+    last: dict[str, dict[str, dict]] = {}
     for fit in fits:
-        if fit["model"] != model:
-            continue
         try:
             calibration = json.loads(fit["calibration_json"])
         except (ValueError, TypeError):
             calibration = {}
-        out[fit["dut"]] = {**fit, "calibration": calibration if isinstance(calibration, dict) else {}}
+        last.setdefault(fit["dut"], {})[fit["model"]] = {
+            **fit, "calibration": calibration if isinstance(calibration, dict) else {}}
+    out: dict[str, dict] = {}
+    for dut, by_model in last.items():
+        chosen = judged_for_dut(model, {m: f["calibration"] for m, f in by_model.items()})
+        if chosen in by_model:
+            out[dut] = by_model[chosen]
     return model, out
 
 
 def judged_cell(model: str | None, fits: dict[str, dict]) -> str:
     """The judged calibration's residual in one cell: `t24 RMS: mmc0 29.0, serial0 17.4 nT`, or the largest
-    of many DUTs; flagged DUTs named after `RMS > U:`."""
+    of many DUTs; a DUT judged on another model than the plan's (T36 chosen) named with it; flagged DUTs
+    named after `RMS > U:`."""
     if model is None or not fits:
         return "no fit" if model is None else f"no {model} fit"
     rms = {dut: fit.get("residual_rms_nt") for dut, fit in fits.items()}
     known = {d: r for d, r in rms.items() if r is not None}
+
+    def named(dut: str) -> str:
+        other = fits[dut].get("model", model)
+        return dut if other == model else f"{dut} ({other})"
+
     if not known:
         text = f"{model} (no residual)"
     elif len(known) <= MAX_NAMED_DUTS:
-        text = f"{model} RMS: " + ", ".join(f"{d} {r:.1f}" for d, r in known.items()) + " nT"
+        text = f"{model} RMS: " + ", ".join(f"{named(d)} {r:.1f}" for d, r in known.items()) + " nT"
     else:
         worst = max(known, key=known.get)
-        text = f"{model} RMS: largest {known[worst]:.1f} nT ({worst}) of {len(known)} DUTs"
+        text = f"{model} RMS: largest {known[worst]:.1f} nT ({named(worst)}) of {len(known)} DUTs"
+        others = sorted({str(f.get("model")) for f in fits.values()} - {model})
+        if others:
+            text += f"; {sum(f.get('model') != model for f in fits.values())} judged on {', '.join(others)}"
     flagged = [d for d, fit in fits.items() if quality_of(fit["calibration"]).exceeds]
     return text + (f" [RMS > U: {', '.join(flagged)}]" if flagged else "")

@@ -71,7 +71,8 @@ class SessionFitter:
     def calibrate(self, prepared: Prepared, model: str, *, robust: bool | None = None,
                   software_version: str = "unknown", budget: bool = True, **fit_options):
         """calib.fit with the session's options, then what every session calibration carries: the lag
-        estimate, T24's model checks, the ambient used and (with `budget`) the uncertainty budget."""
+        estimate, T24's model checks (and, where its linearity in temperature fails, the choice of T24 or
+        T36: rig/analysis/tempchoice.py), the ambient used and (with `budget`) the uncertainty budget."""
         return self.calibrate_budgeted(prepared, model, robust=robust, software_version=software_version,
                                        budget=budget, **fit_options)[0]
 
@@ -89,8 +90,11 @@ class SessionFitter:
 
             annotate(cal, prepared.lag)
         if model == "t24":  # the model checks the plan's interior temperatures and two magnitudes are for
+            from rig.analysis.tempchoice import record_temperature_model
+
             check_linearity(cal, ds)
             record_checks(self.inputs, ds.source.get("dut", ""), ds, cal)
+            record_temperature_model(cal, ds)  # where its linearity in temperature fails: T24 or T36
         if prepared.ambient is not None:
             cal.stats["ambient"] = prepared.ambient
         stated = state_uncertainty(self.inputs, ds.source.get("dut", ""), ds, cal) if budget else None

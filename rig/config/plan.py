@@ -47,6 +47,9 @@ class Acceptance(Strict):
     max_std_error: dict[str, bounded(gt=0)] = Field({}, description="largest standard error per parameter")
     bounds: dict[str, tuple[bounded(), bounded()]] = Field({}, description="[low, high] of every element")
     max_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="thermal lag (ramp data only)")
+    model_checks: bool = Field(
+        True, description="fail a DUT whose T24 model check (linearity in temperature, thermal hysteresis, "
+        "linearity in the field) fails where the judged model does not capture it")
 
     def check_against(self, models: list[str]) -> None:
         """The judged model is fitted, the parameters named are its own, each bound is low <= high."""

@@ -207,6 +207,9 @@ class SequentialTemperatures(Strict):
     check_sweeps: Count(100) = 1
     fields_per_sweep: Count(10_000) | None = Field(None, description="default: all the plan's fields")
     max_duration_h: bounded(gt=0, hi=24 * 56.0) = 24.0
+    max_added_checks: Count(20, 0) = Field(
+        2, description="interior temperatures the run may add when T24's linearity in temperature fails on "
+        "its data (0: none)")
     stability: Stability = Stability()
 
     moving: ClassVar[bool] = True

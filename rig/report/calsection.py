@@ -131,6 +131,10 @@ def check_blocks(cal) -> list:
     if isinstance(lag, dict):
         rows.append(["thermal lag", "applied" if lag.get("applied") else "not applied",
                      str(lag.get("message", ""))])
+    tm = stats.get("temperature_model")  # T24 or T36, chosen where T24's linearity in temperature failed
+    if isinstance(tm, dict):
+        rows.append(["temperature model", str(tm.get("model", "?")).upper() + " chosen",
+                     f"{tm.get('why', '')}. {tm.get('message', '')}"])
     choice = stats.get("validation")
     if isinstance(choice, dict):
         rows.append(["variant", str(choice.get("chosen", "?")), str(choice.get("method", ""))])

@@ -60,7 +60,7 @@ def _gather(session: Path, dut: str) -> dict:
         verdicts = [r for r in reader.acceptance() if r["dut"] == dut]
     plan, station = chain_record.recorded_plan_and_station(session, info, chain)
     cals = {}
-    for model in plan.fit.models:
+    for model in dict.fromkeys([*plan.fit.models, "t36"]):  # and a T36 added where T24's linearity failed
         path = calibration_file(session, dut, model)
         if path.is_file():
             cals[model] = (path, calfile.load(path))

@@ -234,6 +234,8 @@ def header_notes(cal) -> list[str]:
         notes.append("WARNING: " + q.exceeds_text())
     if q.dominant:
         notes.append(f"largest uncertainty contribution: {q.dominant}")
+    if isinstance(choice := cal.stats.get("temperature_model"), dict):  # rig/analysis/tempchoice.py
+        notes.append(f"temperature model chosen by held-out validation: {choice.get('message', '?')}")
     return notes
 
 

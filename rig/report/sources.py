@@ -17,6 +17,7 @@ import numpy as np
 from calib.digest import sha256_file as sha256_of
 from calib.digest import sha256_text
 from rig import __version__
+from rig.analysis.judged import judged_for_dut
 from rig.core.errors import DataError, SessionError
 from rig.session.events import Event, Kind, Reason
 
@@ -145,7 +146,8 @@ def _session_dut(reader, name: str, fitter, recorded: dict) -> DutInput:
     ds = fitter.prepare(reader.dataset(name)).ds
     _, rows = reader.sample_rows(name)
     flagged, flagged_rows = collect_flags((r["flags"], r["point"]) for r in rows if r["flags"])
-    judged = plan.judged_model if plan is not None else next(iter(recorded), None)
+    planned = plan.judged_model if plan is not None else next(iter(recorded), None)
+    judged = judged_for_dut(planned, {m: r.calibration for m, r in recorded.items()})  # T36 where chosen
     shown = recorded.get(judged)
     compare = tuple(plan.fit.models) if plan is not None else None
     robust = plan.fit.robust if plan is not None else True
@@ -153,7 +155,10 @@ def _session_dut(reader, name: str, fitter, recorded: dict) -> DutInput:
                  compare_models=compare, compare_robust=robust)
     if shown is not None:
         what = f"the run's {judged.upper()} calibration"
-        d.origin = f"{what} (the model the plan judges): {shown.file_text()}"
+        why = ("the model the plan judges" if judged == planned else
+               f"judged instead of the plan's {planned.upper()}: {judged.upper()} validated better on "
+               "held-out blocks of this session's data")
+        d.origin = f"{what} ({why}): {shown.file_text()}"
         d.uncertainty, d.uncertainty_of = shown.calibration.uncertainty, what
         d.others = [r for m, r in recorded.items() if m != judged]
     return d

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.analysis.judged import quality_of
+from rig.analysis.judged import judged_for_dut, quality_of
 from rig.core.errors import ERRORS
 from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
 
 CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, k=2)", "check")
-LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models); "
+LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models; T36 for a "
+          "DUT whose T24 failed its linearity in temperature and whose T36 validated better); "
           "uncertainty: the calibrated field's expanded error (95 %); check: RMS > U where the residual "
           "exceeds it")
 
@@ -57,19 +58,28 @@ def judged_model(outcome) -> str | None:
     return getattr(outcome, "judged_model", None)
 
 
+def judged_models(outcome) -> dict[str, str | None]:
+    """{DUT: its judged model} (rig/analysis/judged.py `judged_for_dut`: the plan's, or T36 where chosen)."""
+    fitted: dict[str, dict] = {}
+    for f in outcome.fits:
+        if f.get("calibration") is not None:
+            fitted.setdefault(f["dut"], {})[f["model"]] = f["calibration"]
+    return {dut: judged_for_dut(judged_model(outcome), cals) for dut, cals in fitted.items()}
+
+
 def calibration_rows(outcome) -> list[list[str]]:
     """One row per fit: the judged model marked (the one the plan judges: acceptance.model, else the first
     of fit.models), the residual beside the stated uncertainty, and the check (`RMS > U` where the
     residual is the larger)."""
     rows = []
-    judged = judged_model(outcome)
+    judged = judged_models(outcome)
     for f in outcome.fits:
         cal = f.get("calibration")
         q = quality_of(cal) if cal is not None else None
         rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
         check = ("not fitted" if q is None else "-" if q.expanded_nt is None
                  else "RMS > U" if q.exceeds else "ok")
-        model = f["model"] + (" (judged)" if f["model"] == judged else "")
+        model = f["model"] + (" (judged)" if f["model"] == judged.get(f["dut"]) else "")
         rows.append([f["dut"], model, str(f.get("n", "-")), rms, "-" if q is None else q.uncertainty_text(),
                      check])
     return rows
@@ -83,19 +93,19 @@ def calibration_files(outcome) -> list[str]:
 
 def calibration_notes(outcome) -> list[str]:
     """Under the table: what dominates each judged calibration's uncertainty, and every flagged fit."""
-    judged = judged_model(outcome)
+    judged = judged_models(outcome)
     lines, dominant = [], {}
     for f in outcome.fits:
         cal = f.get("calibration")
         if cal is None:
             continue
         q = quality_of(cal)
-        if f["model"] == judged and q.dominant:
-            dominant.setdefault(q.dominant, []).append(f["dut"])
+        if f["model"] == judged.get(f["dut"]) and q.dominant:
+            dominant.setdefault((q.dominant, f["model"]), []).append(f["dut"])
         if q.exceeds:
             lines.append(f"{f['dut']} {f['model']}: {q.exceeds_text()}")
-    shared = [f"uncertainty of {', '.join(duts)} {judged}: largest contribution {phrase}"
-              for phrase, duts in dominant.items()]
+    shared = [f"uncertainty of {', '.join(duts)} {model}: largest contribution {phrase}"
+              for (phrase, model), duts in dominant.items()]
     return [LEGEND, *shared, *lines]
 
 

@@ -14,6 +14,8 @@ air is. CollectPoint of a sweep's last point calls `decide` with the point's row
 3. calib/sequential.py `next_leg`: stop (every DUT meets its targets, the model check's temperatures are
    done and every DUT's data covers both ends of the range; or max_duration_h is reached), stay at the
    current leg's temperature (an end until every DUT has come close enough to it), or start the next leg;
+   after a leg, T24's linearity in temperature on the data so far: where it fails, interior temperatures
+   are added as check legs instead of finishing (rig/schedules/sequential_checks.py);
 4. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag in use);
 5. the sweep's fields: `fields_per_sweep` of the plan's fields, picked one by one for the largest drop
    in the variance of the worst DUT's worst parameter (calib/design.py `gain_for`), at the temperature
@@ -44,6 +46,7 @@ from rig.engine.commands import Task
 from rig.schedules.check import field_targets
 from rig.schedules.moving_tasks import RampMode
 from rig.schedules.sequential import SequentialSchedule
+from rig.schedules.sequential_checks import AddedChecks, decide_with_checks
 from rig.schedules.sequential_estimates import AirLog, Estimate, adopted, affine_sigma_nt
 from rig.session.events import Kind, Reason
 from rig.session.rows import Decision
@@ -85,6 +88,7 @@ class Measured:
     lag_s: float | None
     lag_se_s: float | None
     covered_c: tuple[float, float] | None = None  # its lowest and highest element temperature so far
+    element_temps_c: np.ndarray | None = None  # every row's, for the model check
 
 
 def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measured:
@@ -113,7 +117,7 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measur
     if math.isfinite(status.worst_ratio):
         sigma = max(acc.solve().stats["sigma_nt"].values())
     return Measured(acc.gram[:8, :8].copy(), sigma, status.worst_ratio, float(corrected[-1]), lag, lag_se,
-                    (float(np.min(corrected)), float(np.max(corrected))))
+                    (float(np.min(corrected)), float(np.max(corrected))), np.asarray(corrected, float))
 
 
 class SequentialMode(RampMode):
@@ -131,6 +135,7 @@ class SequentialMode(RampMode):
             for d in self.schedule.priors or []}
         self.air = AirLog()
         self.reached: dict[str, tuple[float, float]] = {}  # each DUT's lowest and highest element so far
+        self.added = AddedChecks(self.temps.max_added_checks)  # interior temperatures the model check added
         self.rows = {dut: _Rows() for dut in runner.rig.duts}
         self.pending: list[RampPoint] = []
         self.stop_message: tuple[str, Reason] | None = None
@@ -154,6 +159,9 @@ class SequentialMode(RampMode):
             reached = [d["reached_c"] for d in decisions if d.get("reached_c")]
             if reached:
                 self.reached = {dut: (float(lo), float(hi)) for dut, (lo, hi) in reached[-1].items()}
+            added = [d["added_checks_c"] for d in decisions if d.get("added_checks_c")]
+            if added:
+                self.added.added_c = [float(c) for c in added[-1]]
             for dut, rows in self.rows.items():
                 try:
                     ds = reader.dataset(dut)
@@ -228,9 +236,16 @@ class SequentialMode(RampMode):
         legs = self._legs_done()
         rate = self._rate()
         pace = self._pace()
-        decision = next_leg(state, legs, duts, self.schedule.chamber(rate), pace, self.targets,
-                            max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios,
-                            covered_c=self.reached if len(self.reached) == len(measured) else None)
+        decision, found = decide_with_checks(
+            self.added, self.schedule.chamber(rate),
+            lambda chamber: next_leg(state, legs, duts, chamber, pace, self.targets,
+                                     max_duration_s=self.schedule.max_duration_s(), ratios_now=ratios,
+                                     covered_c=self.reached if len(self.reached) == len(measured) else None),
+            lambda: self._datasets(measured))
+        if found is not None:
+            info["model_check"] = found
+        if self.added.added_c:
+            info["added_checks_c"] = list(self.added.added_c)
         if decision.stop:
             return {"stop": True, "code": Reason.TARGETS_MET.value, "reason": decision.reason, **info}, []
         leg = decision.leg
@@ -246,6 +261,17 @@ class SequentialMode(RampMode):
             reason += f" (re-planned: {', '.join(replanned[:4])} measured anew)"
         return self._sweep_data(point, number, sweep, from_c, leg.to_c, rate_c, picks, reason,
                                 {**info, "worst_dut": worst, "kind": leg.kind})
+
+    def _datasets(self, measured: dict[str, Measured]) -> dict:
+        """Each DUT's data so far at its element's temperatures (for the model check)."""
+        from calib.dataset import Dataset
+
+        out = {}
+        for dut, m in measured.items():
+            _, h, _, ref = self.rows[dut].arrays()
+            if m.element_temps_c is not None and len(h):
+                out[dut] = Dataset(h, m.element_temps_c, ref)
+        return out
 
     def _noise(self, dut: str, m: Measured) -> float | None:
         """The DUT's noise per fitted sample: its T24 fit's, else the last sweep's affine residual, else
@@ -294,7 +320,7 @@ class SequentialMode(RampMode):
 
     def _legs_done(self) -> list[Leg]:
         """The legs so far (from the points, all taken by now), each with its sweeps."""
-        checks = set(self.temps.checks())
+        checks = {*self.temps.checks(), *self.added.added_c}
         legs: dict[int, Leg] = {}
         for p in self.runner.points:
             legs[p.leg] = Leg(p.leg_end_c, max(p.sweep, legs[p.leg].sweeps if p.leg in legs else 0),

@@ -193,7 +193,8 @@ def session_page(app, ref: SessionRef) -> str:
                  f'<span class="bad">RMS &gt; U: {esc(q.exceeds_text())}</span>' if q.exceeds else "ok")
         fitted = str(recorded.get("created_utc") or "-") + (
             f" (simulated clock {_utc(fit['t'])})" if sim_clock else "")
-        cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_model else "")),
+        judged_here = judged[dut]["model"] if dut in judged else judged_model  # T36 where it was chosen
+        cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_here else "")),
                          esc(stats.get("n_used", "-")), esc(_fmt(fit["residual_rms_nt"])),
                          esc(q.uncertainty_text()), check, esc(q.dominant or "-"), esc(fitted), links])
     calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, k=2)",
