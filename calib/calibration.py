@@ -187,10 +187,16 @@ def _check_covariance(cov, params: dict, where: str) -> None:
     except (TypeError, ValueError):
         raise DataError(f"{where}: key 'uncertainty.covariance.matrix' is not numeric") from None
     size = len(labels)
-    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)) or \
-            not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-300):
+    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)) or not _symmetric(matrix):
         raise DataError(f"{where}: key 'uncertainty.covariance.matrix' must be a finite, symmetric "
                         f"{size}x{size} matrix")
+
+
+def _symmetric(matrix: np.ndarray) -> bool:
+    """Symmetric to rounding, on the scale of each element's own variances (sqrt(c_ii c_jj)): parameters
+    in units far apart (1e-8 /degC beside 1e5 nT) must not make one element's rounding look large."""
+    scale = np.sqrt(np.outer(np.abs(np.diag(matrix)), np.abs(np.diag(matrix))))
+    return bool(np.all(np.abs(matrix - matrix.T) <= 1e-9 * scale + 1e-300))
 
 
 def _is_number(x: object) -> bool:

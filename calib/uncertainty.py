@@ -99,8 +99,9 @@ class Budget:
             out["interval"] = {k: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
                                for k, (lo, hi) in self.interval.items()}
         if self.covariance is not None:
+            cov = np.asarray(self.covariance, float)
             out["covariance"] = {"parameters": list(self.parameter_labels),
-                                 "matrix": np.asarray(self.covariance, float).tolist()}
+                                 "matrix": ((cov + cov.T) / 2).tolist()}  # symmetric as written
         if self.vector_error_nt is not None:
             out["vector_error_nt"] = dict(self.vector_error_nt)
         if self.monte_carlo is not None:

@@ -60,6 +60,13 @@ class SessionTables:
         rows = [r for r in self.tables.get("snapshots", []) if r["device"] == device]
         return json.loads(max(rows, key=lambda r: r["id"])["describe_json"]) if rows else None
 
+    def temperatures(self) -> list[dict]:
+        """The run's temperature log as SessionReader.temperatures gives it ([] in a copy without one)."""
+        rows = sorted(self.tables.get("temperatures", []), key=lambda r: r["id"])
+        return [{"row": r["id"], "t": r["t"], "setpoint_c": r.get("setpoint_c"),
+                 "closed_loop_c": r.get("closed_loop_c"), "air_c": r.get("air_c"),
+                 "duts": json.loads(r.get("duts_json") or "{}")} for r in rows]
+
     def point_references(self) -> dict[str, dict]:
         out = {}
         for p in self.points():
@@ -98,7 +105,7 @@ def refit_db(url: str, uid: str, model: str, software_version: str) -> list[dict
         try:
             meta, points, samples = session_rows(conn, uid)
             tables = {"points": points, "samples": samples,
-                      **session_tables(conn, uid, ("session", "events", "snapshots"))}
+                      **session_tables(conn, uid, ("session", "events", "snapshots", "temperatures"))}
         except Exception:
             _CONNECTIONS.pop(url, None).close()  # a broken connection is not reused
             raise
