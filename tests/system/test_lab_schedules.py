@@ -69,7 +69,7 @@ def test_a_ramp_on_the_lab_completes_with_its_lag_corrected_fits(tmp_path):
 def test_a_plan_designed_from_the_thermal_commissioning_covers_its_range_at_the_duts(tmp_path):
     source = write(tmp_path, "seq", {"mode": "sequential", "range_c": [20, 32], "rate_c_per_min": 1.5,
                                      "checks_c": [26], "fields_per_sweep": 6}, stop_when=LOOSE,
-                   acceptance={})
+                   acceptance={"model_checks": False})  # the lab's DUTs are curved: coverage is judged here
     campaign = load_campaign(source, LAB)
     inputs = design_inputs(campaign.plan, campaign.station)
     assert {d.origin for d in inputs.planning.duts.values()} == {"thermal commissioning"}

@@ -21,16 +21,17 @@ TARGETS = {"S": 1e-3, "K": 1e-4, "b": 25.0, "kb": 1.5}
 DIRECTIONS = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
               [1, 1, 1], [-1, -1, 1], [1, -1, -1], [-1, 1, -1]]
 SAMPLES = 4
+SHORT_H = 0.6  # a resume test's campaign: stopped by its duration, well after its abort or kill
 
 
-def seq_plan(tmp_path, name: str = "seq") -> str:
+def seq_plan(tmp_path, name: str = "seq", hours: float = 2.0) -> str:
     """A narrow sequential campaign: 18 .. 26 degC, a check at 22, 6 of 10 directions a sweep; nothing known
     of the DUTs before the run (it characterises them on its first leg), each end held until every DUT is
     within a quarter degree of it (settle_s makes a sweep a minute of the campaign clock: few points)."""
     plan = {
         "name": name,
         "temperatures": {"mode": "sequential", "range_c": [18, 26], "rate_c_per_min": 1.0, "checks_c": [22],
-                         "fields_per_sweep": 6, "max_duration_h": 2},
+                         "fields_per_sweep": 6, "max_duration_h": hours},
         "fields": {"kind": "directions", "magnitude_nt": 50000, "directions": DIRECTIONS},
         "samples_per_point": SAMPLES,
         "settle_s": 5.0,
@@ -121,7 +122,7 @@ class _AbortAfter:
 
 @pytest.mark.parametrize("extra", [0, 3], ids=["at-a-sweep-end", "mid-sweep"])
 def test_abort_anywhere_then_resume_takes_every_point_once(tmp_path, extra):
-    campaign = load_campaign(seq_plan(tmp_path), SIM_STATION)
+    campaign = load_campaign(seq_plan(tmp_path, hours=SHORT_H), SIM_STATION)
     session = tmp_path / "a.session"
     hook = _AbortAfter(decided=4, extra=extra)
     first = run_campaign(campaign=campaign, session_path=session, display_factory=hook)
@@ -141,7 +142,7 @@ def test_abort_anywhere_then_resume_takes_every_point_once(tmp_path, extra):
 
 
 def test_kill_9_during_a_sequential_campaign_then_resume(tmp_path):
-    plan = seq_plan(tmp_path, "k")
+    plan = seq_plan(tmp_path, "k", hours=SHORT_H)
     session = tmp_path / "k.session"
     killed_at(session, plan, SIM_STATION, "decision:3")
     before = session_counts(session)

@@ -189,8 +189,11 @@ def test_the_configs_readme_describes_the_demo_as_it_is():
 
 def test_rig_design_prints_its_targets_with_units(tmp_path, capsys):
     out = tmp_path / "designed.yaml"
-    # lab-example states its DUTs' noise and lags (duts[].expect): a design needs measured or stated ones
-    plan, station = CONFIGS / "plans" / "sequential-campaign.yaml", CONFIGS / "stations" / "lab-example.yaml"
+    # sim-4 with its DUTs' noise and lags stated (duts[].expect): a design needs measured or stated ones
+    plan, station = CONFIGS / "plans" / "sequential-campaign.yaml", tmp_path / "stated.yaml"
+    text = (CONFIGS / "stations" / "sim-4.yaml").read_text()
+    stated = "expect: {noise_nt: 40, thermal_lag_s: 400}, temp_source: tmp"
+    station.write_text(text.replace("temp_source: tmp", stated))
     assert main(["design", str(plan), "--station", str(station), "-o", str(out)]) == 0
     text = capsys.readouterr().out
     targets = re.search(r"targets (.*):\n", text).group(1)
