@@ -82,7 +82,8 @@ def _world(on: bool):
 def worlds(tmp_path_factory):
     """{"off": (session, inputs, datasets, what the post-run fits told), "on": ...}: each world
     commissioned and run once for every test worker (the first to come makes them, under a lock)."""
-    shared = tmp_path_factory.getbasetemp().parent / "uncertainty-worlds"
+    base = tmp_path_factory.getbasetemp()  # this run's: a worker's is popen-gwN inside it
+    shared = (base.parent if base.name.startswith("popen-gw") else base) / "uncertainty-worlds"
     shared.mkdir(exist_ok=True)
     out = {}
     with (shared / "lock").open("w") as lock:
