@@ -145,7 +145,11 @@ class RampMode:
 # --- stop when good enough ------------------------------------------------------------------------------
 class StopWhen:
     """An on_point callback: after the last point of a sweep (or temperature step), stop the run once
-    every DUT's live T24 fit meets the plan's `stop_when` targets (calib/targets.py)."""
+    every DUT's live T24 fit meets the plan's `stop_when` targets (calib/targets.py); on a designed plan,
+    whose ends are held until every DUT is close to them, also not before every DUT's temperature has come
+    within the plan's band of both ends of its range (else the calibration would extrapolate, and
+    acceptance fails it: precision reached early is no reason to leave an end unvisited). A ramp cannot
+    promise that: its DUTs lag the air; acceptance judges what it covered."""
 
     def __init__(self, runner, *, settle_at_start: bool = True):
         self.runner = runner
@@ -154,11 +158,27 @@ class StopWhen:
         points = runner.points
         self.group_ends = {p.id for p, nxt in zip(points, [*points[1:], None], strict=True)
                            if nxt is None or nxt.temp_index != p.temp_index}
+        temperatures = runner.plan.temperatures
+        self.range_c = temperatures.covered_c() if getattr(temperatures, "mode", None) == "designed" else None
+        self.band_c = temperatures.band_c()
+        self.seen_c: dict[str, tuple[float, float]] = {}  # each DUT's lowest and highest temperature
+
+    def _short_of_range(self) -> list[str]:
+        """The DUTs whose temperatures have not yet come within band_c of both ends of the range."""
+        for dut, temp in self.runner.status.dut_temps_c.items():
+            low, high = self.seen_c.get(dut, (temp, temp))
+            self.seen_c[dut] = (min(low, temp), max(high, temp))
+        if self.range_c is None:
+            return []
+        lo, hi = self.range_c
+        return [dut for dut, (low, high) in self.seen_c.items()
+                if low > lo + self.band_c or high < hi - self.band_c]
 
     def __call__(self, point_id: str) -> None:
         from calib.targets import check_targets
 
-        if point_id not in self.group_ends:
+        short = self._short_of_range()
+        if point_id not in self.group_ends or short:
             return
         targets = self.runner.plan.stop_when
         statuses = {dut: check_targets(live.acc, targets) for dut, live in self.runner.live.items()}
