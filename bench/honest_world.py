@@ -7,7 +7,10 @@ whether the rig says so when it is not.
    with no prior (sim-lab re-commissioned without --thermal: nothing measured, and the station states
    no `duts[].expect`). The step, ramp and designed plans run on sim-lab as shipped (its commissioning
    has a `thermal:` section). Per plan: the chamber time (the session's simulated start to end: the
-   run's whole chamber time), each DUT's held-out vector error and the rig's verdicts.
+   run's whole chamber time), each DUT's held-out vector error and the rig's verdicts. Beside them, as
+   bench/design.py does: the plan `rig design` makes from the step session when the sequential plan's
+   stop_when is 0.7 x the standard errors the step plan is predicted to reach (its own targets are some
+   4 x tighter than the step plan's precision on sim-lab), so that it is compared at equal precision.
 2. silent: random worlds (bench/coverage_worlds.py random_world: DUT deviations at 0.3..2 x sim-lab's
    sizes, slow noise, places off the air, loops, current source, ambient, chamber), 5 DUTs each, a step
    plan each (full-campaign.yaml, 10 samples per point, T24). A DUT whose held-out error is over twice its
@@ -60,6 +63,7 @@ GRID = reference_chain.validation_grid(np.array(yaml.safe_load(STEP.read_text())
 CHECKS = {"linearity in temperature": "T", "thermal hysteresis": "H", "linearity in the field": "F"}
 SAID = {"holds": "ok", "fails": "FAIL", "not testable": "n/t"}
 QUICK_SAMPLES = 0.2
+AIMED, MARGIN = "designed-0.7", 0.7  # also: the designed plan aimed at 0.7 x the step plan's precision
 SILENT_SAMPLES = 10
 
 
@@ -104,12 +108,15 @@ def evaluate(session: Path, station_path: Path) -> dict[str, DutFigures]:
         verdicts = {row["dut"]: row for row in reader.acceptance()}
     out = {}
     for dut, truth in dut_truths(load_station(station_path)).items():
+        row = verdicts.get(dut)
+        said = "-" if row is None else row["verdict"] + (f" ({row['failed']})" if row["failed"] else "")
+        if dut not in fits:  # no judged calibration: nothing to apply, and the rig says it failed
+            out[dut] = DutFigures(float("nan"), None, {}, said if row else "FAIL (no judged fit)")
+            continue
         record = fits[dut]["calibration"]
         h = np.array([truth.raw_from_field(f, t) for f, t in zip(fields, temps, strict=True)])
         error = np.linalg.norm(Calibration.from_dict(record).apply(h, temps) - fields, axis=1)
         checks = {c["name"]: c["verdict"] for c in record.get("stats", {}).get("model_checks") or []}
-        row = verdicts.get(dut)
-        said = "-" if row is None else row["verdict"] + (f" ({row['failed']})" if row["failed"] else "")
         out[dut] = DutFigures(float(np.sqrt(np.mean(error**2))), quality_of(record).expanded_nt, checks, said)
     return out
 
@@ -138,7 +145,8 @@ def schedules(out: Path, quick: bool, jobs: int) -> None:
              for name, source in (("step", "full-campaign"), ("ramp", "ramp-campaign"),
                                   ("sequential", "sequential-campaign"))}
     no_prior = _no_prior_station(out)
-    stations = {"step": STATION, "ramp": STATION, "designed": STATION, "sequential": no_prior}
+    stations = {"step": STATION, "ramp": STATION, "designed": STATION, "sequential": no_prior,
+                AIMED: STATION}
     print(f"1. schedules on {STATION.name} (sessions in {out})"
           + (f"; quick: every plan's samples per point x {QUICK_SAMPLES:g}" if quick else ""))
     with ProcessPoolExecutor(jobs) as pool:
@@ -147,7 +155,14 @@ def schedules(out: Path, quick: bool, jobs: int) -> None:
         step_session = running["step"].result()
         plans["designed"], _ = design.designed(plans["sequential"], STATION, out, step_session)
         running["designed"] = pool.submit(_run, (plans["designed"], STATION, out, "designed"))
-        sessions = {name: running[name].result() for name in ("step", "ramp", "designed", "sequential")}
+        targets = design.step_targets(STATION, MARGIN, step_session)
+        print(f"  {AIMED}: stop_when " + ", ".join(f"{k} {v:g}" for k, v in targets.items())
+              + f" ({MARGIN:g} x the step plan's predicted standard errors)")
+        (out / AIMED).mkdir(exist_ok=True)
+        plans[AIMED], _ = design.designed(design.with_targets(plans["sequential"], targets, out, AIMED),
+                                          STATION, out / AIMED, step_session)
+        running[AIMED] = pool.submit(_run, (plans[AIMED], STATION, out, AIMED))
+        sessions = {name: future.result() for name, future in running.items()}
     hours = {name: design.chamber_hours(s) for name, s in sessions.items()}
     figures = {name: evaluate(s, stations[name]) for name, s in sessions.items()}
     verdicts = {}
