@@ -33,11 +33,11 @@ def write(tmp_path, name: str, temperatures: dict, **extra) -> str:
     return str(path)
 
 
-def completed_with_fits(tmp_path, plan_path: str):
+def completed_with_fits(tmp_path, plan_path: str, station=LAB):
     session = tmp_path / "s.session"
-    outcome = run_campaign(campaign=load_campaign(plan_path, LAB), session_path=session)
+    outcome = run_campaign(campaign=load_campaign(plan_path, station), session_path=session)
     assert outcome.result.status == "completed", outcome.result.reason
-    duts = {d.name for d in load_station(LAB).duts}
+    duts = {d.name for d in load_station(station).duts}
     fitted = {f["dut"]: calfile.load(f["path"]) for f in outcome.fits if "path" in f}
     assert set(fitted) == duts, outcome.fits
     return session, outcome, fitted
@@ -70,7 +70,8 @@ def test_a_plan_designed_from_the_thermal_commissioning_covers_its_range_at_the_
     source = write(tmp_path, "seq", {"mode": "sequential", "range_c": [20, 32], "rate_c_per_min": 1.5,
                                      "checks_c": [26], "fields_per_sweep": 6}, stop_when=LOOSE,
                    acceptance={"model_checks": False})  # the lab's DUTs are curved: coverage is judged here
-    campaign = load_campaign(source, LAB)
+    station = lab_with(tmp_path, ("dut1", "dut3"))  # places 0.39 degC colder and 0.36 warmer than the air
+    campaign = load_campaign(source, station)
     inputs = design_inputs(campaign.plan, campaign.station)
     assert {d.origin for d in inputs.planning.duts.values()} == {"thermal commissioning"}
     designed = design_plan(campaign.plan, campaign.station, inputs)
@@ -81,11 +82,25 @@ def test_a_plan_designed_from_the_thermal_commissioning_covers_its_range_at_the_
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     ends = [leg["to_c"] for leg in data["temperatures"]["legs"] if not leg.get("check")]
     assert min(ends) < 20.0 and max(ends) > 32.0  # the air goes past each end by the places' offsets
-    _, outcome, fitted = completed_with_fits(tmp_path, str(path))
+    _, outcome, fitted = completed_with_fits(tmp_path, str(path), station)
     assert all(v.passed for v in outcome.verdicts), [v.line() for v in outcome.verdicts]  # coverage judged
     for dut, cal in fitted.items():
         low, high = cal.stats["temperature_range_c"]
         assert low <= 20.5 and high >= 31.5, (dut, low, high)
+
+
+def lab_with(tmp_path, keep: tuple[str, ...]) -> str:
+    """sim-lab with only these DUTs (and their probes and simulated truths): every deviation still on."""
+    data = yaml.safe_load(LAB.read_text())
+    data["duts"] = [d for d in data["duts"] if d["name"] in keep]
+    data["temperature_sensors"] = [t for t in data["temperature_sensors"] if t["beside"] in keep]
+    data["sim"]["duts"] = {k: v for k, v in data["sim"]["duts"].items() if k in keep or k.startswith("ref")}
+    data["field_source"]["commissioning"] = str(LAB.parent / data["field_source"]["commissioning"])
+    for ref in data["reference_magnetometers"]:
+        ref["calibration"] = str(LAB.parent / ref["calibration"])
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(path)
 
 
 def test_a_sequential_plan_on_the_lab_completes_at_its_targets(tmp_path):
@@ -95,7 +110,8 @@ def test_a_sequential_plan_on_the_lab_completes_at_its_targets(tmp_path):
     data = yaml.safe_load(open(plan))
     data["settle_s"] = 5.0  # a sweep is a minute of the campaign clock: few points
     open(plan, "w").write(yaml.safe_dump(data, sort_keys=False))
-    session, outcome, _ = completed_with_fits(tmp_path, plan)
+    station = lab_with(tmp_path, ("dut1", "dut5"))  # its fastest and slowest places: the run measures both
+    session, outcome, _ = completed_with_fits(tmp_path, plan, station)
     assert outcome.result.code == "targets_met", outcome.result.reason
     decisions = [json.loads(d[0]) for d in query(session, "SELECT decision_json FROM decisions ORDER BY seq")]
     assert decisions[-1]["stop"] and all(d["estimates"] for d in decisions)
