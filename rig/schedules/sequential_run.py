@@ -54,6 +54,7 @@ from rig.session.rows import Decision
 log = logging.getLogger("magrig.seqrun")
 
 MIN_LAG_ROWS = 200  # fewer rows than this: the lag is not estimated yet
+LAG_REFIT_GROWTH = 1.25  # within a leg, the lag is fitted again once the rows grew by this factor
 
 
 @dataclass
@@ -65,6 +66,9 @@ class _Rows:
     temp: list = field(default_factory=list)
     ref: list = field(default_factory=list)
     direction: str = "auto"  # the lag model found first (calib/lag.py); kept after, as fitting both is slow
+    lag: tuple[float, float | None] | None = None  # the last identifiable (tau, its se)
+    lag_rows: int = 0  # the rows it was fitted on
+    lag_leg: int | None = None  # the leg it was fitted in
 
     def extend(self, t, h, temp, ref) -> None:
         self.t.extend(np.asarray(t, float).tolist())
@@ -91,10 +95,16 @@ class Measured:
     element_temps_c: np.ndarray | None = None  # every row's, for the model check
 
 
-def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measured:
+def _lag_fit_due(rows: _Rows, n: int, leg: int | None) -> bool:
+    """A lag fit searches a grid of T24 fits over every row: it is made after every leg and whenever the
+    rows grew by LAG_REFIT_GROWTH; in between, the last lag is applied to the new rows."""
+    return rows.lag is None or leg != rows.lag_leg or n >= LAG_REFIT_GROWTH * rows.lag_rows
+
+
+def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int | None = None) -> Measured:
     """Gram, noise, worst target ratio and element temperature of one DUT from its rows so far."""
     from calib.gram import GramAccumulator
-    from calib.lag import estimate_lag
+    from calib.lag import element_temperature, estimate_lag
     from calib.targets import check_targets
 
     t, h, temp, ref = rows.arrays()
@@ -102,7 +112,10 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measur
     if len(t) == 0:
         return Measured(acc.gram[:8, :8].copy(), None, math.inf, None, None, None)
     corrected, lag, lag_se = temp, None, None
-    if len(t) >= MIN_LAG_ROWS:
+    if len(t) >= MIN_LAG_ROWS and not _lag_fit_due(rows, len(t), leg):
+        lag, lag_se = rows.lag
+        corrected = element_temperature(t, temp, lag, rows.direction)
+    elif len(t) >= MIN_LAG_ROWS:
         try:
             res = estimate_lag(t, h, temp, ref, direction=rows.direction)
         except ERRORS as exc:
@@ -111,6 +124,7 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float) -> Measur
             if res.identifiable:
                 corrected, lag, lag_se = res.temp_element_c, res.tau_s, res.tau_se_s
                 rows.direction = res.direction
+                rows.lag, rows.lag_rows, rows.lag_leg = (lag, lag_se), len(t), leg
     acc.add(h, corrected, ref)
     status = check_targets(acc, targets)
     sigma = None
@@ -200,7 +214,8 @@ class SequentialMode(RampMode):
         return self.runner.rig.clock.now() - self.started_s
 
     def _next(self, point: RampPoint) -> tuple[dict, list[RampPoint]]:
-        measured = {dut: measure(rows, self.targets, self.temp_ref_c) for dut, rows in self.rows.items()}
+        targets, ref_c = self.targets, self.temp_ref_c
+        measured = {d: measure(rows, targets, ref_c, point.leg) for d, rows in self.rows.items()}
         ratios = {dut: m.ratio for dut, m in measured.items()}
         noise = {dut: self._noise(dut, m) for dut, m in measured.items()}
         replanned = self._estimate(noise)
