@@ -67,8 +67,8 @@ class _Rows:
     ref: list = field(default_factory=list)
     direction: str = "auto"  # the lag model found first (calib/lag.py); kept after, as fitting both is slow
     lag: tuple[float, float | None] | None = None  # the last identifiable (tau, its se)
-    lag_rows: int = 0  # the rows it was fitted on
-    lag_leg: int | None = None  # the leg it was fitted in
+    lag_rows: int = 0  # the rows of the last lag fit
+    lag_leg: int | None = None  # the leg of the last lag fit
 
     def extend(self, t, h, temp, ref) -> None:
         self.t.extend(np.asarray(t, float).tolist())
@@ -95,12 +95,6 @@ class Measured:
     element_temps_c: np.ndarray | None = None  # every row's, for the model check
 
 
-def _lag_fit_due(rows: _Rows, n: int, leg: int | None) -> bool:
-    """A lag fit searches a grid of T24 fits over every row: it is made after every leg and whenever the
-    rows grew by LAG_REFIT_GROWTH; in between, the last lag is applied to the new rows."""
-    return rows.lag is None or leg != rows.lag_leg or n >= LAG_REFIT_GROWTH * rows.lag_rows
-
-
 def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int | None = None) -> Measured:
     """Gram, noise, worst target ratio and element temperature of one DUT from its rows so far."""
     from calib.gram import GramAccumulator
@@ -112,10 +106,15 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int 
     if len(t) == 0:
         return Measured(acc.gram[:8, :8].copy(), None, math.inf, None, None, None)
     corrected, lag, lag_se = temp, None, None
-    if len(t) >= MIN_LAG_ROWS and not _lag_fit_due(rows, len(t), leg):
-        lag, lag_se = rows.lag
-        corrected = element_temperature(t, temp, lag, rows.direction)
+    # a lag fit is a grid of T24 fits over every row: made in each new leg and once the rows grew by
+    # LAG_REFIT_GROWTH; in between, the last lag found (if any) is applied to the new rows
+    due = leg != rows.lag_leg or len(t) >= LAG_REFIT_GROWTH * rows.lag_rows
+    if len(t) >= MIN_LAG_ROWS and not due:
+        if rows.lag is not None:
+            lag, lag_se = rows.lag
+            corrected = element_temperature(t, temp, lag, rows.direction)
     elif len(t) >= MIN_LAG_ROWS:
+        rows.lag_rows, rows.lag_leg = len(t), leg
         try:
             res = estimate_lag(t, h, temp, ref, direction=rows.direction)
         except ERRORS as exc:
@@ -124,7 +123,7 @@ def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int 
             if res.identifiable:
                 corrected, lag, lag_se = res.temp_element_c, res.tau_s, res.tau_se_s
                 rows.direction = res.direction
-                rows.lag, rows.lag_rows, rows.lag_leg = (lag, lag_se), len(t), leg
+                rows.lag = (lag, lag_se)
     acc.add(h, corrected, ref)
     status = check_targets(acc, targets)
     sigma = None
