@@ -24,15 +24,55 @@ PARAM_NAMES = ["b", "kb", "S1", "S2", "S3", "K1", "K2", "K3"]
 GROUP_OF_PARAM = ["offset b", "offset drift kb", "S", "S", "S", "K", "K", "K"]
 
 
-class GramAccumulator:
-    """Sums for a T24 fit. add() chunks, merge() accumulators, solve() at any time (cheap: 8x8 algebra)."""
+class SumsAccumulator:
+    """What every streaming least-squares accumulator shares: the Gram of [x, B] centred at a fixed
+    temperature, merging, and a solve through the model's scaled system (`_system`)."""
+
+    SIZE = 0  # regressors per axis + the three right-hand sides
+    NAME = ""  # in messages: "Gram sums", "T36 sums"
 
     def __init__(self, temp_ref_c: float = 25.0):
         self.temp_ref_c = float(temp_ref_c)
-        self.gram = np.zeros((11, 11))
+        self.gram = np.zeros((self.SIZE, self.SIZE))
         self.n = 0
         self.temp_min_c = np.inf
         self.temp_max_c = -np.inf
+
+    def _system(self):
+        raise NotImplementedError
+
+    def merge(self, other):
+        """Add another accumulator's sums into this one (same reference temperature required)."""
+        if other.temp_ref_c != self.temp_ref_c:
+            raise FitError(f"cannot merge {self.NAME} centred at {other.temp_ref_c} degC into sums centred "
+                           f"at {self.temp_ref_c} degC")
+        self.gram += other.gram
+        self.n += other.n
+        self.temp_min_c = min(self.temp_min_c, other.temp_min_c)
+        self.temp_max_c = max(self.temp_max_c, other.temp_max_c)
+        return self
+
+    def identifiability(self) -> str | None:
+        """None when a fit can be made, else a sentence saying what cannot be identified and why."""
+        try:
+            self._system()
+        except FitError as err:
+            return str(err)
+        return None
+
+    def solve(self) -> Calibration:
+        """The calibration from the sums so far, or FitError naming the parameters the data cannot fix."""
+        return self._system().calibration()
+
+
+class GramAccumulator(SumsAccumulator):
+    """Sums for a T24 fit. add() chunks, merge() accumulators, solve() at any time (cheap: 8x8 algebra)."""
+
+    SIZE = 11
+    NAME = "Gram sums"
+
+    def _system(self):
+        return _ScaledSystem(self)
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
         """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""
@@ -52,32 +92,6 @@ class GramAccumulator:
         self.n += n_used  # rows with zero weight (flagged outliers) do not count
         self.temp_min_c = min(self.temp_min_c, t_min)
         self.temp_max_c = max(self.temp_max_c, t_max)
-
-    def merge(self, other: GramAccumulator) -> GramAccumulator:
-        """Add another accumulator's sums into this one (same reference temperature required)."""
-        if other.temp_ref_c != self.temp_ref_c:
-            raise FitError(
-                f"cannot merge Gram sums centred at {other.temp_ref_c} degC into sums centred at "
-                f"{self.temp_ref_c} degC"
-            )
-        self.gram += other.gram
-        self.n += other.n
-        self.temp_min_c = min(self.temp_min_c, other.temp_min_c)
-        self.temp_max_c = max(self.temp_max_c, other.temp_max_c)
-        return self
-
-    def identifiability(self) -> str | None:
-        """None when a T24 fit can be made, else a sentence saying what cannot be identified and why."""
-        try:
-            _ScaledSystem(self)
-        except FitError as err:
-            return str(err)
-        return None
-
-    def solve(self) -> Calibration:
-        """T24 calibration from the sums so far, or FitError naming the parameters the data cannot fix."""
-        return _ScaledSystem(self).calibration()
-
 
 class _ScaledSystem:
     """The normal equations with columns scaled to unit diagonal, checked for identifiability."""

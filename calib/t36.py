@@ -20,7 +20,7 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError, FitError
-from calib.gram import MIN_TEMP_SPAN_C, RCOND_SINGULAR, RCOND_WARN
+from calib.gram import MIN_TEMP_SPAN_C, RCOND_SINGULAR, RCOND_WARN, SumsAccumulator
 from calib.nested import MIN_CURVATURE_SHARE
 from calib.stats import default_temp_ref_c
 
@@ -40,15 +40,14 @@ def regressors(h_nt, temp_c, temp_ref_c: float) -> np.ndarray:
     return np.column_stack([np.ones(len(h)), t, t2, h, t[:, None] * h, t2[:, None] * h])
 
 
-class T36Accumulator:
+class T36Accumulator(SumsAccumulator):
     """Sums for a T36 fit: add() chunks, merge() accumulators, solve() at any time (12x12 algebra)."""
 
-    def __init__(self, temp_ref_c: float = 25.0):
-        self.temp_ref_c = float(temp_ref_c)
-        self.gram = np.zeros((N_PARAMS + 3, N_PARAMS + 3))
-        self.n = 0
-        self.temp_min_c = np.inf
-        self.temp_max_c = -np.inf
+    SIZE = N_PARAMS + 3
+    NAME = "T36 sums"
+
+    def _system(self):
+        return _ScaledSystem(self)
 
     def add(self, h_nt, temp_c, ref_nt, weights=None) -> None:
         """Add samples: h (N,3) raw nT, temp_c (N,) or scalar degC, ref_nt (N,3) nT, optional weights (N,)."""
@@ -68,28 +67,6 @@ class T36Accumulator:
         self.n += int(used.sum())
         self.temp_min_c = min(self.temp_min_c, float(t[used].min()))
         self.temp_max_c = max(self.temp_max_c, float(t[used].max()))
-
-    def merge(self, other: T36Accumulator) -> T36Accumulator:
-        """Add another accumulator's sums into this one (same reference temperature required)."""
-        if other.temp_ref_c != self.temp_ref_c:
-            raise FitError(f"cannot merge T36 sums centred at {other.temp_ref_c} degC into sums centred at "
-                           f"{self.temp_ref_c} degC")
-        self.gram += other.gram
-        self.n += other.n
-        self.temp_min_c = min(self.temp_min_c, other.temp_min_c)
-        self.temp_max_c = max(self.temp_max_c, other.temp_max_c)
-        return self
-
-    def identifiability(self) -> str | None:
-        """None when a T36 fit can be made, else a sentence saying what cannot be identified and why."""
-        try:
-            _ScaledSystem(self)
-        except FitError as err:
-            return str(err)
-        return None
-
-    def solve(self) -> Calibration:
-        return _ScaledSystem(self).calibration()
 
 
 def curvature_share(gram: np.ndarray, temp_min_c: float, temp_max_c: float, temp_ref_c: float) -> float:
