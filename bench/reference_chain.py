@@ -152,7 +152,7 @@ def with_chain_errors(base: dict, source: Path) -> dict:
     data = copy.deepcopy(base)
     data["name"] = f"{base['name']}-chain-errors"
     sim = yaml.safe_load(source.read_text())["sim"]
-    data["sim"].update({key: copy.deepcopy(sim[key]) for key in CHAIN_ERRORS})
+    data["sim"].update({key: copy.deepcopy(sim[key]) for key in CHAIN_ERRORS if key in sim})
     return data
 
 

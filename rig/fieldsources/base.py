@@ -140,6 +140,11 @@ class FieldSourceConfig(DeviceConfig):
         """The device setting the measurement is taken at (the field source's own field off / home)."""
         raise NotImplementedError
 
+    def own_field_nt(self, readback, readback_se, position_mm) -> tuple[np.ndarray, np.ndarray] | None:
+        """(field, standard error) nT the source itself still makes at `position_mm` at its measurement
+        setting, from the mean read-back there and its standard error (`setting_readback`); None: none."""
+        return None
+
     def drift_max_nt(self) -> float:
         """How far the measured value may move between temperature steps before the run holds."""
         return DRIFT_MAX_NT

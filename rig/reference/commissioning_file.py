@@ -79,6 +79,9 @@ class CoilsRecord(Strict):
     current_a: FiniteFloat
     repeats: int
     current_readback: CurrentReadback | None = None  # files from before it was measured have none
+    fitted_to: Literal["commanded", "readback"] = Field(
+        "commanded", description="the currents the matrix and ambient were fitted against (older files: "
+        "the commanded ones)")
 
 
 class TableRecord(Strict):

@@ -31,7 +31,7 @@ from rig.core.yamlload import load_model, locate_in_text, read_text
 from rig.devices.build import open_rig
 from rig.fieldsources.commissioning import Reading, floats
 from rig.reference import commissioning_file
-from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, settle_at
+from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, readback_mean, settle_at
 
 SETTLE_S = 0.5
 
@@ -67,8 +67,8 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
             try:
                 settle_at(rig, source, setting, SETTLE_S)
                 measured = reader.read_mean(f"commission {what}", flagged_is_fault=True)
-                readback = source.setting_readback(rig.field_source.read())
-                readings.append(Reading(setting, what, measured, readback))
+                readback = readback_mean(rig, source)
+                readings.append(Reading(setting, what, measured, None if readback is None else readback[0]))
             except DeviceError as exc:  # say what was being driven when the device failed
                 if exc.operation.startswith("commission"):
                     raise

@@ -4,7 +4,9 @@ With the reference at the centre (or anywhere, when the coils' geometry carries 
 centre), the coils are driven through a designed set of currents, repeated `repeats` times:
     0; each coil +I/2, +I, +I/2, 0, -I/2, -I, -I/2, 0 (up and down: hysteresis; two levels: linearity);
     each pair of coils at 0.7 I in the four sign combinations; all three at I/2 in the eight;
-and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py). The zero setting,
+and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py) against the currents
+the supply reports (its read-back, averaged), as every run's references use them: the read-back's gain
+and offset errors then cancel between the commissioning and the run. The zero setting,
 visited again and again, shows the drift; each level approached from both sides, the hysteresis.
 A coil that does not respond, or a field that is not linear in its current, is a fault named by its axis.
 """
@@ -58,6 +60,10 @@ def design(source, current_a: float | None, repeats: int) -> list[tuple[tuple[fl
 def fit(source, readings: list[Reading], reference_position_mm) -> dict:
     """The commissioning file's `coils:` section."""
     currents, means, se = arrays(readings)
+    readbacks = [r.readback for r in readings]
+    fitted_to = "commanded"
+    if all(r is not None for r in readbacks):  # what flowed as the supply reports it: what the run uses
+        currents, fitted_to = np.array(readbacks, float), "readback"
     try:
         fitted = fit_coil_matrix(currents, means, se)
     except FitError as exc:
@@ -76,7 +82,7 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
         "residual_rms_nt": floats(fitted.residual_rms_nt),
         "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
         "hysteresis_nt": _hysteresis_nt(readings), "drift_nt": drift_nt(readings),
-        "current_a": float(np.max(np.abs(currents))),
+        "current_a": float(np.max(np.abs(currents))), "fitted_to": fitted_to,
         **({} if readback is None else {"current_readback": readback}),
     }
 

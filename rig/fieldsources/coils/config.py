@@ -200,6 +200,14 @@ class Coils(FieldSourceConfig, CoilOptions):
     def measurement_setting(self) -> tuple[float, ...]:
         return (0.0, 0.0, 0.0)  # every coil at 0 A: what is left is the ambient
 
+    def own_field_nt(self, readback, readback_se, position_mm):
+        """The field of the read-back currents at 0 A (a supply's offset, its noise averaged): the run's
+        references are the field of the read-back currents plus the ambient, so the ambient is measured
+        without it, as the commissioning's ambient is."""
+        matrix = self.matrices_at({"here": position_mm})["here"]
+        se = np.sqrt(np.square(matrix) @ np.square(np.asarray(readback_se, float)))
+        return matrix @ np.asarray(readback, float), se
+
     def drift_max_nt(self) -> float:
         return self.ambient_drift_max_nt
 
