@@ -165,6 +165,16 @@ class FieldSourceConfig(DeviceConfig):
         """Why a reference magnetometer at `position_mm` cannot commission this source (None: it can)."""
         return None
 
+    def commissioning_place_problem(self, position_mm) -> str | None:
+        """Why the reference cannot commission this source at one more place `position_mm` (None: it can)."""
+        return f"cannot be used: {self.described} is commissioned at one place only"
+
+    def commissioning_with_place(self, section: dict, readings, position_mm, created_utc: str,
+                                 settings: list[dict], reference_tolerance_mm: float) -> dict:
+        """The commissioning file's section with one more place of the reference measured (`readings`
+        there; `settings` their records) and what all its places show fitted again."""
+        raise NotImplementedError
+
     def setting_readback(self, reading) -> tuple[float, ...] | None:
         """What the device reports of its setting, recorded with every commissioning setting (coils: the
         read-back currents the runs use); None: nothing beyond the setting."""

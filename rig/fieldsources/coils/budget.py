@@ -51,7 +51,7 @@ class CoilChain:
         self.position = np.zeros(3) if config.position_mm is None else np.asarray(config.position_mm, float)
         self.tolerance_mm = config.position_tolerance_mm
         self.centre = np.asarray(self.source.constants, float)
-        self.matrix = self._matrix_at(self.centre, self.position)
+        self.matrix = self.source.matrices_at({dut: tuple(self.position)})[dut]  # as the run made its refs
         self.ambient = self._ambient_of(run, ds)
         self.currents = np.linalg.solve(self.matrix, (ds.ref_nt - self.ambient).T).T
         self.measured = self.source.needs_measurement() and bool(run.site)
@@ -220,7 +220,15 @@ class CoilChain:
                                      _rectangular(np.full(6, geometry.tolerance_mm / 1000.0)),
                                      distribution="rectangular", shared="coil geometry",
                                      origin=f"sizes and spacings +-{geometry.tolerance_mm:g} mm"))
-        if np.any(self.position):
+        com = self.source.commissioned
+        loops = None if com is None else com.record.coils.loops
+        if np.any(self.position) and loops is not None:
+            out.append(matrix_source(
+                "coil loops", self.currents, loop_sensitivity(self.centre, geometry, self.position),
+                np.asarray(loops.covariance, float), shared="coil loops",
+                origin=f"each of the 6 loops' place, lean and turns fitted to the matrices at the centre and "
+                f"{len(com.record.coils.places)} place(s) ({com.path.name}): their covariance"))
+        elif np.any(self.position):
             half = np.tile([geometry.tolerance_mm] * 3 + [geometry.tilt_tolerance_deg,
                                                           geometry.turns_tolerance_ppm], 6)
             keep = half > 0
