@@ -85,7 +85,7 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
     readback = fit_readback(readings)
     return {
         "matrix_nt_per_a": rows(matrix), "ambient_nt": floats(fitted.ambient_nt),
-        "covariance": rows(fitted.covariance),
+        "covariance": rows(_symmetric(fitted.covariance)),
         "std_errors_matrix_nt_per_a": rows(se_matrix), "std_errors_ambient_nt": floats(se_ambient),
         "residual_rms_nt": floats(fitted.residual_rms_nt),
         "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
@@ -100,7 +100,8 @@ def fit_place(source, readings: list[Reading], position_mm, created_utc: str, se
     fitted, _, _ = _fitted(source, readings)
     return {"position_mm": floats(position_mm), "created_utc": created_utc,
             "matrix_nt_per_a": rows(fitted.matrix_nt_per_a), "ambient_nt": floats(fitted.ambient_nt),
-            "covariance": rows(fitted.covariance), "residual_rms_nt": floats(fitted.residual_rms_nt),
+            "covariance": rows(_symmetric(fitted.covariance)),
+            "residual_rms_nt": floats(fitted.residual_rms_nt),
             "settings": settings}
 
 
@@ -202,6 +203,12 @@ def _hysteresis_nt(readings: list[Reading]) -> float:
                     worst = max(worst, float(gap))
                 break
     return worst
+
+
+def _symmetric(cov) -> np.ndarray:
+    """A covariance written exactly symmetric (the solver's rounding is not; the file's check is exact)."""
+    cov = np.asarray(cov, float)
+    return 0.5 * (cov + cov.T)
 
 
 def _fmt_a(setting) -> str:
