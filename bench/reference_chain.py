@@ -52,6 +52,7 @@ from rig.config import load_station
 from rig.devices.bench import dut_truths, true_position_m, world_field
 from rig.reference import budget
 from rig.reference.loading import load_campaign
+from rig.reference.places import commission_place
 from rig.reference.procedure import commission
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader
@@ -62,12 +63,13 @@ PLAN = REPO / "configs" / "plans" / "demo.yaml"
 SIM_CLOCK_START = 1_767_225_600.0  # drivers.clock.SimClock's start: the simulated ambient drifts from here
 GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 CHAIN_ERRORS = ("coil_loops", "current_source")  # the world's keys --chain-errors-from copies
+PLACES_MM = [(s * 70.0 * e).tolist() for e in np.eye(3) for s in (1, -1)]  # besides the centre
 
 
 # --- a station ready to run: its files beside it, commissioned ------------------------------------------
 def prepared(station_data: dict, source_dir: Path, out: Path) -> Path:
-    """Write the station into `out` (its reference calibrations copied), commission it there, and point
-    it at its commissioning file."""
+    """Write the station into `out` (its reference calibrations copied), commission it there (the reference
+    at the centre, then at +-70 mm on each axis: the loops), and point it at its commissioning file."""
     data = copy.deepcopy(station_data)
     for ref in data.get("reference_magnetometers", []):
         cal = Path(ref["calibration"])
@@ -78,6 +80,8 @@ def prepared(station_data: dict, source_dir: Path, out: Path) -> Path:
     path = out / f"{data['name']}.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     com = commission(path, out)
+    for place in PLACES_MM:  # the loops, measured: the reference moved to each place in turn
+        commission_place(path, out, place)
     data["field_source"]["commissioning"] = com.name
     data["field_source"]["max_age_days"] = 1.0
     path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -152,7 +156,7 @@ def with_chain_errors(base: dict, source: Path) -> dict:
     data = copy.deepcopy(base)
     data["name"] = f"{base['name']}-chain-errors"
     sim = yaml.safe_load(source.read_text())["sim"]
-    data["sim"].update({key: copy.deepcopy(sim[key]) for key in CHAIN_ERRORS})
+    data["sim"].update({key: copy.deepcopy(sim[key]) for key in CHAIN_ERRORS if key in sim})
     return data
 
 
@@ -302,7 +306,8 @@ def main() -> None:
     added = ""
     if args.chain_errors_from is not None:
         base = with_chain_errors(base, args.chain_errors_from)
-        added = f" with {', '.join(CHAIN_ERRORS)} of {args.chain_errors_from.name}"
+        keys = [k for k in CHAIN_ERRORS if k in yaml.safe_load(args.chain_errors_from.read_text())["sim"]]
+        added = f" with {', '.join(keys)} of {args.chain_errors_from.name}"
     print(f"reference chain on {args.station.name}{added}, plan {args.plan.name} (sessions in {out})")
     print("1. held-out vector error against the simulator's truth, nT (same readings, three references)")
     part1 = out / "three"

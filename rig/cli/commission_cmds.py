@@ -30,8 +30,11 @@ def register(group: click.Group) -> None:
     @click.option("--thermal-step", "thermal_step_c", type=click.FloatRange(1.0, 50.0), default=None,
                   help="The step of the chamber's set point, degC (default 15; down when up leaves the "
                   "limits).")
+    @click.option("--position", "position", default=None, metavar="X,Y,Z",
+                  help="The reference moved to this place (mm): measured there and added to the file written "
+                  "at its own place, and each coil loop fitted to every place (run once per place).")
     def commission_cmd(station_path: Path, out_dir: Path, repeats: int, current_a: float | None,
-                       thermal: bool, thermal_step_c: float | None) -> None:
+                       thermal: bool, thermal_step_c: float | None, position: str | None) -> None:
         """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
         reference magnetometer and write the commissioning file a station names in
         `field_source: {commissioning: FILE}`; with --thermal also the chamber and each DUT position."""
@@ -41,8 +44,18 @@ def register(group: click.Group) -> None:
 
         set_terminate_handler(_terminate)  # every exit leaves the coils safe (commission's finally)
         out_dir.mkdir(parents=True, exist_ok=True)
-        path = commission(station_path, out_dir, repeats=repeats, current_a=current_a, thermal=thermal,
-                          thermal_step_c=thermal_step_c)
+        if position is not None:
+            from rig.core.errors import ConfigError
+            from rig.reference.places import commission_place, parse_position
+
+            if thermal:
+                raise ConfigError("rig commission: --thermal is measured with the reference at its own place "
+                                  "(without --position)")
+            path = commission_place(station_path, out_dir, parse_position(position), repeats=repeats,
+                                    current_a=current_a)
+        else:
+            path = commission(station_path, out_dir, repeats=repeats, current_a=current_a, thermal=thermal,
+                              thermal_step_c=thermal_step_c)
         com = read(path)
         click.echo(f"wrote {path}")
         click.echo(com.summary())

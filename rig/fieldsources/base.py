@@ -140,6 +140,11 @@ class FieldSourceConfig(DeviceConfig):
         """The device setting the measurement is taken at (the field source's own field off / home)."""
         raise NotImplementedError
 
+    def own_field_nt(self, readback, readback_se, position_mm) -> tuple[np.ndarray, np.ndarray] | None:
+        """(field, standard error) nT the source itself still makes at `position_mm` at its measurement
+        setting, from the mean read-back there and its standard error (`setting_readback`); None: none."""
+        return None
+
     def drift_max_nt(self) -> float:
         """How far the measured value may move between temperature steps before the run holds."""
         return DRIFT_MAX_NT
@@ -159,6 +164,16 @@ class FieldSourceConfig(DeviceConfig):
     def commissioning_reference_problem(self, position_mm) -> str | None:
         """Why a reference magnetometer at `position_mm` cannot commission this source (None: it can)."""
         return None
+
+    def commissioning_place_problem(self, position_mm) -> str | None:
+        """Why the reference cannot commission this source at one more place `position_mm` (None: it can)."""
+        return f"cannot be used: {self.described} is commissioned at one place only"
+
+    def commissioning_with_place(self, section: dict, readings, position_mm, created_utc: str,
+                                 settings: list[dict], reference_tolerance_mm: float) -> dict:
+        """The commissioning file's section with one more place of the reference measured (`readings`
+        there; `settings` their records) and what all its places show fitted again."""
+        raise NotImplementedError
 
     def setting_readback(self, reading) -> tuple[float, ...] | None:
         """What the device reports of its setting, recorded with every commissioning setting (coils: the

@@ -66,6 +66,31 @@ class CurrentReadback(Strict):
     std_errors_offset_ma: Vec3
 
 
+class PlaceRecord(Strict):
+    """The coil matrix as measured with the reference at one more place (`rig commission --position`)."""
+
+    position_mm: Vec3
+    created_utc: str
+    matrix_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC] = Field(description="as measured there (not carried)")
+    ambient_nt: NT_VEC
+    covariance: list[list[FiniteFloat]] = Field(description="12x12: the matrix row by row, then the ambient")
+    residual_rms_nt: Vec3
+    settings: list[SettingRecord]
+
+
+class LoopsRecord(Strict):
+    """Each loop off its drawing, fitted to the matrices at every place (rig/fieldsources/coils/loopfit.py):
+    [axis][loop + side, - side][shift x, y, z mm, tilt deg, turns ppm], their 30x30 covariance, and the
+    quantities the places leave unidentified (their tolerance stays)."""
+
+    deviations: list[list[list[FiniteFloat]]]
+    covariance: list[list[FiniteFloat]]
+    reference_offset_mm: Vec3
+    unidentified: list[str]
+    chi2: FiniteFloat
+    dof: int
+
+
 class CoilsRecord(Strict):
     matrix_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC]
     ambient_nt: NT_VEC
@@ -79,6 +104,11 @@ class CoilsRecord(Strict):
     current_a: FiniteFloat
     repeats: int
     current_readback: CurrentReadback | None = None  # files from before it was measured have none
+    fitted_to: Literal["commanded", "readback"] = Field(
+        "commanded", description="the currents the matrix and ambient were fitted against (older files: "
+        "the commanded ones)")
+    places: list[PlaceRecord] = Field(default_factory=list, description="further places of the reference")
+    loops: LoopsRecord | None = None  # fitted once there are places off the centre
 
 
 class TableRecord(Strict):
@@ -256,12 +286,21 @@ def read(path: Path, text: str | None = None) -> Commissioning:
     if problem is not None:
         raise refuse((key, *problem[0]), problem[1])
     size = kind.commissioning_covariance_size
-    cov = np.asarray(section.covariance, float)
-    if cov.shape != (size, size):
-        raise refuse((key, "covariance"), f"must be {size}x{size}, got {'x'.join(map(str, cov.shape))}")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
-        raise refuse((key, "covariance"), "is not positive definite (not a covariance)")
+    _check_covariance(section.covariance, size, (key, "covariance"), refuse)
+    for i, place in enumerate(getattr(section, "places", [])):
+        _check_covariance(place.covariance, size, (key, "places", i, "covariance"), refuse)
+    loops = getattr(section, "loops", None)
+    if loops is not None:
+        _check_covariance(loops.covariance, 30, (key, "loops", "covariance"), refuse)
     return Commissioning(Path(path), text, record)
+
+
+def _check_covariance(matrix, size: int, key: KeyPath, refuse) -> None:
+    cov = np.asarray(matrix, float)
+    if cov.shape != (size, size):
+        raise refuse(key, f"must be {size}x{size}, got {'x'.join(map(str, cov.shape))}")
+    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
+        raise refuse(key, "is not positive definite (not a covariance)")
 
 
 def load_for_station(station, station_path: str | Path, station_text: str, *,

@@ -31,7 +31,7 @@ from rig.core.yamlload import load_model, locate_in_text, read_text
 from rig.devices.build import open_rig
 from rig.fieldsources.commissioning import Reading, floats
 from rig.reference import commissioning_file
-from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, settle_at
+from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, readback_mean, settle_at
 
 SETTLE_S = 0.5
 
@@ -45,7 +45,7 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
     text = read_text(station_path)
     station = load_model(Station, station_path, text)
     source = station.field_source
-    ref_config = _reference_of(station, station_path, text)
+    ref_config = reference_of(station, station_path, text)
     calibrations = load_reference_calibrations(station, station_path, text)
     target = inside(out_dir, f"{station.name}.commissioning.yaml")
     design = source.commissioning_design(current_a, repeats)
@@ -62,17 +62,7 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
             on_rig(rig)
         reader = ReferenceReader(rig, ref_config, calibrations[ref_config.name])
         identity = rig.built.devices[ref_config.name].describe()
-        readings = []
-        for setting, what in design:
-            try:
-                settle_at(rig, source, setting, SETTLE_S)
-                measured = reader.read_mean(f"commission {what}", flagged_is_fault=True)
-                readback = source.setting_readback(rig.field_source.read())
-                readings.append(Reading(setting, what, measured, readback))
-            except DeviceError as exc:  # say what was being driven when the device failed
-                if exc.operation.startswith("commission"):
-                    raise
-                raise type(exc)(exc.device, f"commission {what}: {exc.operation}", exc.detail) from None
+        readings = drive(rig, source, reader, design)
         if thermal:
             thermal_section = measure_thermal(rig, station, step_c=step_c, start_air_c=start_air_c)
     finally:
@@ -94,15 +84,36 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
             "position_mm": [float(v) for v in (ref_config.position_mm or (0.0, 0.0, 0.0))],
         },
         **fitted,
-        "settings": [{"setting": [float(v) for v in r.setting], "mean_nt": floats(r.measured.vector_nt),
-                      "se_nt": floats(r.measured.std_error_nt), "n": r.measured.n,
-                      **({} if r.readback is None else {"readback": floats(r.readback)})} for r in readings],
+        "settings": setting_records(readings),
     }
     commissioning_file.save(data, target)
     return target
 
 
-def _reference_of(station, station_path, text):
+def drive(rig, source, reader, design) -> list[Reading]:
+    """Each setting of the design in turn, settled: the reference's mean reading and the read-back there."""
+    readings = []
+    for setting, what in design:
+        try:
+            settle_at(rig, source, setting, SETTLE_S)
+            measured = reader.read_mean(f"commission {what}", flagged_is_fault=True)
+            readback = readback_mean(rig, source)
+            readings.append(Reading(setting, what, measured, None if readback is None else readback[0]))
+        except DeviceError as exc:  # say what was being driven when the device failed
+            if exc.operation.startswith("commission"):
+                raise
+            raise type(exc)(exc.device, f"commission {what}: {exc.operation}", exc.detail) from None
+    return readings
+
+
+def setting_records(readings: list[Reading]) -> list[dict]:
+    """The file's record of every setting: commanded, the reference's mean and standard error, read-back."""
+    return [{"setting": [float(v) for v in r.setting], "mean_nt": floats(r.measured.vector_nt),
+             "se_nt": floats(r.measured.std_error_nt), "n": r.measured.n,
+             **({} if r.readback is None else {"readback": floats(r.readback)})} for r in readings]
+
+
+def reference_of(station, station_path, text):
     """The reference magnetometer that commissions the field source, where it can."""
     refs = {r.name: r for r in station.reference_magnetometers}
     source = station.field_source

@@ -35,6 +35,7 @@ from rig.engine.commands import FAILED, Hold
 from rig.session.events import Kind, Reason, code_of, device_of
 
 MIN_GOOD_SAMPLES = 2  # a standard error needs two readings
+READBACK_READS = 30  # read-backs averaged at a setting: their own noise, not the source's, is then small
 SIGNIFICANT = 3.0  # a re-measured field replaces the one in use when they differ by this many standard errors
 
 
@@ -46,11 +47,21 @@ class FieldMeasurement:
     std_error_nt: np.ndarray
     n: int
     temp_c: float | None
+    source_field_nt: np.ndarray | None = None  # the field source's own field, taken out of vector_nt
 
     def as_data(self) -> dict:
-        return {"vector_nt": [round(float(v), 3) for v in self.vector_nt],
-                "std_error_nt": [round(float(v), 3) for v in self.std_error_nt], "n": self.n,
-                "temp_c": None if self.temp_c is None else round(self.temp_c, 3)}
+        out = {"vector_nt": [round(float(v), 3) for v in self.vector_nt],
+               "std_error_nt": [round(float(v), 3) for v in self.std_error_nt], "n": self.n,
+               "temp_c": None if self.temp_c is None else round(self.temp_c, 3)}
+        if self.source_field_nt is not None:
+            out["source_field_nt"] = [round(float(v), 3) for v in self.source_field_nt]
+        return out
+
+    def without(self, field_nt, se_nt) -> FieldMeasurement:
+        """This measurement with a known field (and its standard error) taken out."""
+        se = np.sqrt(np.square(self.std_error_nt) + np.square(se_nt))
+        field = np.asarray(field_nt, float)
+        return FieldMeasurement(self.vector_nt - field, se, self.n, self.temp_c, field)
 
 
 def _fmt(v) -> str:
@@ -142,6 +153,18 @@ class ReferenceReader:
         return FieldMeasurement(field.mean(axis=0), se, len(field), mean_temp)
 
 
+def readback_mean(rig, source, reads: int = READBACK_READS
+                  ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """(mean, standard error) of what the field source reports of its setting over `reads` reads (coil
+    read-back currents); None when it reports nothing beyond the setting."""
+    values = [source.setting_readback(rig.field_source.read()) for _ in range(reads)]
+    if any(v is None for v in values):
+        return None
+    values = np.array(values, float)
+    se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros(values.shape[1])
+    return tuple(float(v) for v in values.mean(axis=0)), tuple(float(v) for v in se)
+
+
 def settle_at(rig, source, setting, settle_s: float) -> None:
     """Drive the field source to `setting` (currents or table angles) and let it settle."""
     mover = rig.field_source
@@ -174,9 +197,14 @@ class SiteFieldMonitor:
 
     def measure(self) -> FieldMeasurement:
         """Field source to its measurement setting, settled; then the mean of `samples` calibrated
-        readings."""
+        readings, less the field the source still makes there as its read-back says (a coil supply's
+        offset flows at 0 A): the run's references add the field of the read-back currents to it."""
         settle_at(self.rig, self.source, self.source.measurement_setting(), self.settle_s)
-        return self.reader.read_mean("measure the " + self.source.measured_name)
+        m = self.reader.read_mean("measure the " + self.source.measured_name)
+        readback = readback_mean(self.rig, self.source)
+        where = self.reader.config.position_mm
+        own = None if readback is None else self.source.own_field_nt(*readback, where)
+        return m if own is None else m.without(*own)
 
     def measure_at_start(self, log_event: Callable, plan_name: str, points) -> FieldMeasurement:
         """The value every reference of the run uses: measured, recorded, and the plan's limits checked

@@ -143,7 +143,6 @@ def _budget(inputs, dut, ds, **kw):
 
 
 MEASURED = {  # source: what the "on" world turned on, and the least its line must grow by (nT)
-    "current source": "gain and read-back errors of the current source",
     "coil non-linearity": "a coil off linear by 8e-4 per ampere",
     "model checks (temperature, hysteresis)": "quadratic temperature terms and a thermal hysteresis",
     "thermal hysteresis state": "a thermal hysteresis of the offset",
@@ -171,6 +170,25 @@ def test_a_source_turned_on_in_the_simulator_moves_its_line_and_the_uncertainty_
             assert b.combined_standard_nt**2 == pytest.approx(without.combined_standard_nt**2 + on["on"] ** 2,
                                                               rel=1e-9)
     assert on["on"] > 5.0 and on["on"] > 2.0 * on["off"], (source, MEASURED[source], on)
+
+
+def test_the_current_source_errors_cancel_where_the_chain_is_referred_to_its_readback(worlds):
+    """The "on" world's supply delivers (1 + g) I + o and reports that times (1 + r): the commissioning
+    measures its read-back against the commanded currents, the matrix is fitted against the read-back and
+    every ambient measurement has the read-back currents' field (the offset's, at 0 A) taken out, so the
+    errors cancel: no budget line, a note that says why."""
+    _, inputs, data, _ = worlds["on"]
+    _, b = _budget(inputs, "dut1", data["dut1"])
+    assert "current source" not in _lines(b)
+    assert any("read-back" in n and "cancel" in n for n in b.notes)
+    com = inputs.station.field_source.commissioned
+    assert com.record.coils.fitted_to == "readback"
+    rb = com.record.coils.current_readback
+    np.testing.assert_allclose(rb.gain_ppm, [300 + 200, -250 - 300, 200 + 150], atol=30)
+    np.testing.assert_allclose(rb.offset_ma, [0.3, -0.2, 0.25], atol=0.03)
+    offset_field = com.matrix_nt_per_a @ np.array([0.3e-3, -0.2e-3, 0.25e-3])
+    for m in inputs.site:
+        np.testing.assert_allclose(m["source_field_nt"], offset_field, atol=3.0)
 
 
 def test_the_line_holds_under_the_monte_carlo_too(worlds):

@@ -11,8 +11,10 @@ ambient, from the sample's currents I, and every source below moves it linearly 
   (`ambient_gradient_nt_per_m`);
 - position, coil geometry, coil loops: the DUT's place, the loops' sizes and spacings, and each loop's place,
   lean and turns (rig/fieldsources/coils/loops.py), within their tolerances (rectangular);
-- current source: its read-back's gain and offset error, measured at commissioning against the commanded
-  currents the matrix was fitted to, else `current_accuracy` from its datasheet (rectangular);
+- current source: none where the matrix and the measured ambient are both referred to the read-back
+  currents the run uses (their gain and offset errors cancel); else its read-back's gain and offset error,
+  measured at commissioning against the commanded currents the matrix was fitted to, else
+  `current_accuracy` from its datasheet (rectangular);
 - coil non-linearity, coil hysteresis, coil drift between repeats: as the commissioning's settings show them
   (rig/fieldsources/coils/commissioned.py);
 - coil drift since commissioning: the commissioning's age times `constants_drift_ppm_per_year`.
@@ -49,7 +51,7 @@ class CoilChain:
         self.position = np.zeros(3) if config.position_mm is None else np.asarray(config.position_mm, float)
         self.tolerance_mm = config.position_tolerance_mm
         self.centre = np.asarray(self.source.constants, float)
-        self.matrix = self._matrix_at(self.centre, self.position)
+        self.matrix = self.source.matrices_at({dut: tuple(self.position)})[dut]  # as the run made its refs
         self.ambient = self._ambient_of(run, ds)
         self.currents = np.linalg.solve(self.matrix, (ds.ref_nt - self.ambient).T).T
         self.measured = self.source.needs_measurement() and bool(run.site)
@@ -218,7 +220,15 @@ class CoilChain:
                                      _rectangular(np.full(6, geometry.tolerance_mm / 1000.0)),
                                      distribution="rectangular", shared="coil geometry",
                                      origin=f"sizes and spacings +-{geometry.tolerance_mm:g} mm"))
-        if np.any(self.position):
+        com = self.source.commissioned
+        loops = None if com is None else com.record.coils.loops
+        if np.any(self.position) and loops is not None:
+            out.append(matrix_source(
+                "coil loops", self.currents, loop_sensitivity(self.centre, geometry, self.position),
+                np.asarray(loops.covariance, float), shared="coil loops",
+                origin=f"each of the 6 loops' place, lean and turns fitted to the matrices at the centre and "
+                f"{len(com.record.coils.places)} place(s) ({com.path.name}): their covariance"))
+        elif np.any(self.position):
             half = np.tile([geometry.tolerance_mm] * 3 + [geometry.tilt_tolerance_deg,
                                                           geometry.turns_tolerance_ppm], 6)
             keep = half > 0
@@ -238,6 +248,11 @@ class CoilChain:
         offsets = np.einsum("ij,nj->nij", self.matrix, np.ones_like(self.currents)) * 1e-3  # per mA
         a = np.concatenate([self._columns(1e-6), offsets], axis=2)  # (N,3,6): per ppm, per mA
         measured = None if com is None else com.record.coils.current_readback
+        if self._referred_to_readback(com):
+            notes.append("current source: the commissioned matrix and the run's ambient are both referred "
+                         "to its read-back currents, so the read-back's gain and offset errors cancel; its "
+                         "noise is in the fit's residual")
+            return []
         if measured is not None:
             sigma = commissioned.readback_covariance(measured.model_dump())
             return [InputSource("current source", sigma, ref_nt=a, shared="current source",
@@ -252,6 +267,13 @@ class CoilChain:
         return [InputSource("current source", _rectangular(half), ref_nt=a, distribution="rectangular",
                             shared="current source", origin="datasheet: gain +-" + _fmt(stated.gain_ppm)
                             + " ppm, offset +-" + _fmt(stated.offset_ma) + " mA")]
+
+    def _referred_to_readback(self, com) -> bool:
+        """Whether the matrix was fitted against read-back currents and every ambient measurement of the
+        run had the read-back currents' field taken out (a stated ambient: none measured)."""
+        if com is None or com.record.coils.fitted_to != "readback":
+            return False
+        return not self.measured or all("source_field_nt" in m for m in self.run.site)
 
     def _commissioned(self, com, notes: list[str]) -> list[InputSource]:
         """What the commissioning's settings show beyond the matrix, and its age."""

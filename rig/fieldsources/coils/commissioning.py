@@ -4,7 +4,9 @@ With the reference at the centre (or anywhere, when the coils' geometry carries 
 centre), the coils are driven through a designed set of currents, repeated `repeats` times:
     0; each coil +I/2, +I, +I/2, 0, -I/2, -I, -I/2, 0 (up and down: hysteresis; two levels: linearity);
     each pair of coils at 0.7 I in the four sign combinations; all three at I/2 in the eight;
-and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py). The zero setting,
+and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py) against the currents
+the supply reports (its read-back, averaged), as every run's references use them: the read-back's gain
+and offset errors then cancel between the commissioning and the run. The zero setting,
 visited again and again, shows the drift; each level approached from both sides, the hysteresis.
 A coil that does not respond, or a field that is not linear in its current, is a fault named by its axis.
 """
@@ -19,6 +21,7 @@ from calib.coilfit import fit_coil_matrix
 from calib.errors import FitError
 from rig.core.errors import ConfigError, DeviceFault
 from rig.fieldsources.coils.commissioned import fit_readback
+from rig.fieldsources.coils.loopfit import Place, fit_loops, quantity_names
 from rig.fieldsources.commissioning import Reading, arrays, drift_nt, floats, rows
 
 AXES = "xyz"
@@ -55,14 +58,25 @@ def design(source, current_a: float | None, repeats: int) -> list[tuple[tuple[fl
     return one * repeats
 
 
-def fit(source, readings: list[Reading], reference_position_mm) -> dict:
-    """The commissioning file's `coils:` section."""
+def _fitted(source, readings: list[Reading]):
+    """(the coil fit, the currents it was fitted against, which): against the read-backs where every
+    setting has one (what flowed as the supply reports it: what the run uses), else the commanded ones."""
     currents, means, se = arrays(readings)
+    readbacks = [r.readback for r in readings]
+    fitted_to = "commanded"
+    if all(r is not None for r in readbacks):
+        currents, fitted_to = np.array(readbacks, float), "readback"
     try:
         fitted = fit_coil_matrix(currents, means, se)
     except FitError as exc:
         raise DeviceFault(source.name, f"commission coil {exc.axis or 'xyz'}", str(exc)) from None
     _check_response(source, fitted, currents)
+    return fitted, currents, fitted_to
+
+
+def fit(source, readings: list[Reading], reference_position_mm) -> dict:
+    """The commissioning file's `coils:` section."""
+    fitted, currents, fitted_to = _fitted(source, readings)
     matrix = fitted.matrix_nt_per_a
     position = np.asarray(reference_position_mm or (0.0, 0.0, 0.0), float)
     if np.any(position != 0):  # measured where the reference sits: carried to the centre
@@ -71,14 +85,59 @@ def fit(source, readings: list[Reading], reference_position_mm) -> dict:
     readback = fit_readback(readings)
     return {
         "matrix_nt_per_a": rows(matrix), "ambient_nt": floats(fitted.ambient_nt),
-        "covariance": rows(fitted.covariance),
+        "covariance": rows(_symmetric(fitted.covariance)),
         "std_errors_matrix_nt_per_a": rows(se_matrix), "std_errors_ambient_nt": floats(se_ambient),
         "residual_rms_nt": floats(fitted.residual_rms_nt),
         "nonlinearity_ppm": floats(1e6 * fitted.nonlinearity),
         "hysteresis_nt": _hysteresis_nt(readings), "drift_nt": drift_nt(readings),
-        "current_a": float(np.max(np.abs(currents))),
+        "current_a": float(np.max(np.abs(currents))), "fitted_to": fitted_to,
         **({} if readback is None else {"current_readback": readback}),
     }
+
+
+def fit_place(source, readings: list[Reading], position_mm, created_utc: str, settings: list[dict]) -> dict:
+    """One more place's record (`coils.places[]`): the matrix as measured there, not carried anywhere."""
+    fitted, _, _ = _fitted(source, readings)
+    return {"position_mm": floats(position_mm), "created_utc": created_utc,
+            "matrix_nt_per_a": rows(fitted.matrix_nt_per_a), "ambient_nt": floats(fitted.ambient_nt),
+            "covariance": rows(_symmetric(fitted.covariance)),
+            "residual_rms_nt": floats(fitted.residual_rms_nt),
+            "settings": settings}
+
+
+def with_loops(source, coils: dict, reference_tolerance_mm: float) -> dict:
+    """The `coils:` section with its loops fitted to the centre's matrix and every place's."""
+    centre = np.asarray(coils["matrix_nt_per_a"], float)
+    places = [Place(np.asarray(p["position_mm"], float), np.asarray(p["matrix_nt_per_a"], float),
+                    np.asarray(p["covariance"], float)[:9, :9]) for p in coils["places"]]
+    fitted = fit_loops(centre, np.asarray(coils["covariance"], float)[:9, :9], source.geometry, places,
+                       reference_tolerance_mm)
+    cov = 0.5 * (fitted.covariance + fitted.covariance.T)
+    return {**coils, "loops": {
+        "deviations": fitted.deviations.tolist(), "covariance": rows(cov),
+        "reference_offset_mm": floats(fitted.reference_offset_mm), "unidentified": fitted.unidentified,
+        "chi2": fitted.chi2, "dof": fitted.dof}}
+
+
+def loop_lines(section) -> list[str]:
+    """What the places show of each loop: the fitted quantities with their standard errors, and what
+    they leave unidentified."""
+    loops = section.loops
+    if loops is None:
+        return []
+    values = np.asarray(loops.deviations, float).ravel()
+    se = np.sqrt(np.diag(np.asarray(loops.covariance, float)))
+    names = quantity_names()
+    out = [f"  loops fitted to the matrices at the centre and {len(section.places)} place(s) "
+           f"(chi2 {loops.chi2:.1f} for {loops.dof} degrees of freedom):"]
+    for j in range(3):
+        cells = ", ".join(f"{names[i].split(' ', 1)[0]} {names[i].split(' ', 1)[1]} {values[i]:+.3g} +- "
+                          f"{se[i]:.2g}" for i in range(10 * j, 10 * j + 10))
+        out.append(f"    {cells}")
+    if loops.unidentified:
+        out.append("  not identified by these places (their tolerance stays in the budget): "
+                   + ", ".join(loops.unidentified))
+    return out
 
 
 def summary_lines(section) -> list[str]:
@@ -97,7 +156,7 @@ def summary_lines(section) -> list[str]:
             f"{g:+.0f} +- {e:.0f}" for g, e in zip(rb.gain_ppm, rb.std_errors_gain_ppm, strict=True))
             + ") ppm, offset (" + ", ".join(f"{o:+.3f} +- {e:.3f}" for o, e in zip(
                 rb.offset_ma, rb.std_errors_offset_ma, strict=True)) + ") mA")
-    return out
+    return out + loop_lines(section)
 
 
 def _check_response(source, fitted, currents: np.ndarray) -> None:
@@ -144,6 +203,12 @@ def _hysteresis_nt(readings: list[Reading]) -> float:
                     worst = max(worst, float(gap))
                 break
     return worst
+
+
+def _symmetric(cov) -> np.ndarray:
+    """A covariance written exactly symmetric (the solver's rounding is not; the file's check is exact)."""
+    cov = np.asarray(cov, float)
+    return 0.5 * (cov + cov.T)
 
 
 def _fmt_a(setting) -> str:

@@ -33,6 +33,7 @@ from rig.fieldsources.base import (
 )
 from rig.fieldsources.coils import commissioning
 from rig.fieldsources.coils.geometry import CoilGeometry, nonuniformity_lines
+from rig.fieldsources.coils.loops import matrix_with_loops
 from rig.fieldsources.fieldmaths import CoilReference, currents_for_field
 
 VECTOR_FIELD_KINDS = frozenset({"cube24", "fibonacci", "directions", "vectors"})
@@ -133,9 +134,22 @@ class Coils(FieldSourceConfig, CoilOptions):
         stated = {name: p for name, p in positions_mm.items() if p is not None and any(p)}
         out = {name: centre for name in positions_mm}
         if self.geometry is not None and stated:
-            matrices = self.geometry.matrices_at(centre, list(stated.values()))
+            loops = self.fitted_loops
+            if loops is None:
+                matrices = self.geometry.matrices_at(centre, list(stated.values()))
+            else:  # each loop as the commissioning's places measured it
+                g = self.geometry
+                matrices = [matrix_with_loops(centre, g.shape, g.size_m, g.spacing_m,
+                                              np.asarray(p, float) / 1000.0, loops) for p in stated.values()]
             out.update(zip(stated, matrices, strict=True))
         return out
+
+    @property
+    def fitted_loops(self) -> np.ndarray | None:
+        """(3, 2, 5): each loop off its drawing as the commissioning's places measured it (None: not)."""
+        com = self._commissioned
+        loops = None if com is None or self.geometry is None else com.record.coils.loops
+        return None if loops is None else np.asarray(loops.deviations, float)
 
     # --- plan ---------------------------------------------------------------------------------------
     def record(self, target) -> dict:
@@ -200,6 +214,14 @@ class Coils(FieldSourceConfig, CoilOptions):
     def measurement_setting(self) -> tuple[float, ...]:
         return (0.0, 0.0, 0.0)  # every coil at 0 A: what is left is the ambient
 
+    def own_field_nt(self, readback, readback_se, position_mm):
+        """The field of the read-back currents at 0 A (a supply's offset, its noise averaged): the run's
+        references are the field of the read-back currents plus the ambient, so the ambient is measured
+        without it, as the commissioning's ambient is."""
+        matrix = self.matrices_at({"here": position_mm})["here"]
+        se = np.sqrt(np.square(matrix) @ np.square(np.asarray(readback_se, float)))
+        return matrix @ np.asarray(readback, float), se
+
     def drift_max_nt(self) -> float:
         return self.ambient_drift_max_nt
 
@@ -218,6 +240,19 @@ class Coils(FieldSourceConfig, CoilOptions):
         if self.geometry is None and np.any(np.asarray(position_mm or (0.0, 0.0, 0.0), float) != 0):
             return "is not at the centre and field_source has no geometry to carry its readings there"
         return None
+
+    def commissioning_place_problem(self, position_mm) -> str | None:
+        if self.geometry is None:
+            return "field_source has no geometry: the loops cannot be fitted to places off the centre"
+        if not self.geometry.encloses(position_mm):
+            return "is outside the coil set (field_source.geometry)"
+        return None
+
+    def commissioning_with_place(self, section: dict, readings, position_mm, created_utc: str,
+                                 settings: list[dict], reference_tolerance_mm: float) -> dict:
+        place = commissioning.fit_place(self, readings, position_mm, created_utc, settings)
+        merged = {**section, "places": [*section.get("places", []), place]}
+        return commissioning.with_loops(self, merged, reference_tolerance_mm)
 
     def setting_readback(self, reading) -> tuple[float, ...] | None:
         return tuple(float(v) for v in reading.currents_a)
