@@ -2,19 +2,15 @@
 
     duts = [DutModel("dut1", sigma_nt=21.0, lag_s=300.0), ...]
     chamber = ChamberModel(range_c=(-30, 70), rate_c_per_min=5.0, checks_c=(20.0,), check_sweeps=1)
-    pace = Pace(fields_nt=one_sweep, samples=20, point_s=4.4)
-    schedule = design_schedule(duts, chamber, pace, {"K": 2e-6, "kb": 0.05}, start_c=22.0)
+    schedule = design_schedule(duts, chamber, Pace(one_sweep, 20, 4.4), {"K": 2e-6}, start_c=22.0)
     schedule.legs, schedule.duration_s, schedule.met, schedule.history    # legs and predicted errors
 
 ## Physics
 
-The chamber air ramps towards a leg's temperature at the leg's rate and then holds there; each DUT's sensing
-element follows its place in the chamber (the air plus the DUT's measured offset) with its own first-order lag
-(calib/thermal.py measures both; calib/lag.py's `element_lags`); the field source sweeps a balanced set of
-fields back to back, one sweep taking `Pace.sweep_s`, and every sample carries its DUT's temperature (the
-post-run fit corrects the recorded temperature to the element's, calib/lag.py). So a schedule of legs predicts
-every sample's element temperature, hence each DUT's Gram (calib/design.py) and standard errors after every
-sweep.
+The air ramps towards a leg's temperature at the leg's rate and holds there; each DUT's element follows
+its place (the air plus its measured offset) with its own first-order lag (calib/thermal.py); the fields
+are swept back to back (`Pace.sweep_s` a sweep), each sample at its element's temperature (lag-corrected
+after the run, calib/lag.py). So a schedule predicts each DUT's Gram and standard errors after every sweep.
 
 ## The schedule
 
@@ -27,10 +23,10 @@ slowest DUT sets how long the holds are: it needs a few of its lags at each end.
 sweeps spent at the first end and at the second; `design_schedule` searches them for the least total
 time (both orders of the ends). The calibration must cover the range at the DUTs, not in the air: with
 `end_tolerance_c` each end is held at least until every DUT's element is within that of it (the slowest
-DUT sets how long), and the air goes to the end shifted by the DUTs' offsets (`air_end`, within
-`air_limits_c`) so that every DUT can get there. calib/sequential.py `next_leg` is the same search run
-during a campaign from the Grams measured so far (a receding horizon): after each sweep it says stay, go
-on to the next leg, or stop.
+DUT sets how long), and the air goes to the end shifted by the DUTs' offsets and the plan's overshoot
+(`air_end`, within `air_limits_c`) so that every DUT gets there, and sooner. calib/sequential.py
+`next_leg` is the same search run during a campaign from the Grams measured so far (a receding horizon):
+after each sweep it says stay, go on to the next leg, or stop.
 """
 
 from __future__ import annotations
@@ -63,7 +59,8 @@ class DutModel:
 @dataclass(frozen=True)
 class ChamberModel:
     """The range's two ends (at the DUTs), the ramp rate between legs, the interior temperatures of the
-    model check, how close to each end every DUT must come (None: not required), and the air's limits."""
+    model check, how close to each end every DUT must come (None: not required), the air's limits, and how
+    far beyond an end the air may go while the DUTs catch up (the plan's `end_overshoot_c`)."""
 
     range_c: tuple[float, float]
     rate_c_per_min: float
@@ -71,13 +68,17 @@ class ChamberModel:
     check_sweeps: int = 1
     end_tolerance_c: float | None = None
     air_limits_c: tuple[float, float] | None = None
+    overshoot_c: float = 0.0
 
 
 def air_end(chamber: ChamberModel, duts: Sequence[DutModel], end_c: float) -> float:
     """Where the air goes for the DUTs to reach `end_c`: shifted by the offset of the DUT furthest back (the
-    warmest at the low end, the coldest at the high end), within the air's limits."""
+    warmest at the low end, the coldest at the high end) and by the chamber's overshoot beyond the end,
+    within the air's limits. An overshoot brings the slowest DUT within its tolerance of the end sooner
+    (from D degC behind: within tol after tau ln((D + o) / (o + tol)), not tau ln(D / tol))."""
+    low = end_c <= 0.5 * sum(chamber.range_c)
     offsets = [0.0, *(d.offset_c for d in duts)]
-    target = end_c - (max(offsets) if end_c <= 0.5 * sum(chamber.range_c) else min(offsets))
+    target = end_c - max(offsets) - chamber.overshoot_c if low else end_c - min(offsets) + chamber.overshoot_c
     if chamber.air_limits_c is not None:
         target = min(max(target, chamber.air_limits_c[0]), chamber.air_limits_c[1])
     return round(target, 1)  # a set point to a tenth of a degree

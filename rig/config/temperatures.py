@@ -210,6 +210,10 @@ class SequentialTemperatures(Strict):
     max_added_checks: Count(20, 0) = Field(
         2, description="interior temperatures the run may add when T24's linearity in temperature fails on "
         "its data (0: none)")
+    end_overshoot_c: bounded(lo=0.0, hi=20.0) = Field(
+        0.0, description="how far beyond each end of range_c the air may go while the slowest DUT catches up "
+        "(its DUTs that follow fastest then go up to this far beyond the range: only as far as they are "
+        "rated); `rig design` keeps it")
     stability: Stability = Stability()
 
     moving: ClassVar[bool] = True

@@ -183,7 +183,8 @@ def design_plan(plan: Plan, station: Station, inputs: DesignInputs, *, criterion
     checks = tuple(round((lo + (hi - lo) * (k + 1) / (n_checks + 1)) * 2) / 2 for k in range(n_checks))
     lim = station.chamber.limits
     chamber = ChamberModel((lo, hi), rate, checks, check_sweeps, END_TOLERANCE_SHARE * inputs.band_c,
-                           (lim.min_setpoint_c, lim.max_setpoint_c))
+                           (lim.min_setpoint_c, lim.max_setpoint_c),
+                           getattr(plan.temperatures, "end_overshoot_c", 0.0))
     most_sweeps = min(MAX_POINTS // len(fields), MAX_SAMPLES_PER_DUT // (len(fields) * samples))
     longest_s = min(DESIGN_HORIZON_S, MAX_DURATION_S, most_sweeps * pace.sweep_s)  # a plan rig check takes
     schedule = design_schedule(inputs.duts, chamber, pace, inputs.targets, start_c=inputs.start_c,

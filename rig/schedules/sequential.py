@@ -70,7 +70,7 @@ class SequentialSchedule:
         lim = self.station.chamber.limits
         return ChamberModel((lo, hi), rate_c_per_min or self.rate(), tuple(self.temps.checks()),
                             self.temps.check_sweeps, END_TOLERANCE_SHARE * self.temps.band_c(),
-                            (lim.min_setpoint_c, lim.max_setpoint_c))
+                            (lim.min_setpoint_c, lim.max_setpoint_c), self.temps.end_overshoot_c)
 
     def rate(self) -> float:
         """The plan's rate, or the chamber's fastest if slower (measured, else the stated limit; rig check

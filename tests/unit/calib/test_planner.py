@@ -150,3 +150,24 @@ def test_decisions_stay_while_the_air_ramps_cross_when_worth_it_and_stop_when_do
     state, ratios = _state_after(legs, models)
     final = next_leg(state, legs, models, CHAMBER, PACE, TARGETS, max_duration_s=12 * 3600, ratios_now=done)
     assert final.stop and "meets" in final.reason
+
+
+def test_an_overshoot_beyond_the_ends_brings_the_slowest_dut_there_sooner():
+    """The air goes end -/+ overshoot (beyond the DUTs' offsets), within the air's limits; every DUT must
+    still come within the end tolerance, and with a slow DUT that happens sooner."""
+    from dataclasses import replace
+
+    from calib.planner import air_end
+
+    models = [DutModel("fast", 21.0, 300.0, offset_c=0.2), DutModel("slow", 21.0, 900.0, offset_c=-0.3)]
+    covered = replace(CHAMBER, end_tolerance_c=0.25, air_limits_c=(-40.0, 85.0))
+    boosted = replace(covered, overshoot_c=5.0)
+    assert air_end(covered, models, -30.0) == -30.2 and air_end(covered, models, 70.0) == 70.3
+    assert air_end(boosted, models, -30.0) == -35.2 and air_end(boosted, models, 70.0) == 75.3
+    assert air_end(replace(boosted, overshoot_c=20.0), models, -30.0) == -40.0  # the air's limit
+    plain = design_schedule(models, covered, PACE, {"b": 5.0}, start_c=22.0, max_duration_s=12 * 3600)
+    sooner = design_schedule(models, boosted, PACE, {"b": 5.0}, start_c=22.0, max_duration_s=12 * 3600)
+    assert plain.met and sooner.met
+    assert sooner.duration_s < 0.85 * plain.duration_s
+    ends = [leg.to_c for leg in sooner.legs if leg.kind == END]
+    assert sorted(ends) == [-35.2, 75.3]
