@@ -1,9 +1,10 @@
 """The Python cost of reading a simulated station, without a campaign around it: on
-configs/stations/sim-64.yaml (or --station) with the demo plan's SET/RESET pairs, the wall and simulated
-milliseconds of one sample of every DUT (rig/devices/interleave.py read_all: the I2C DUTs interleaved, the
-serial ones in their threads), of the I2C DUTs alone, of every temperature sensor (read_all), and of one
-stability poll (rig/run/runner.py: every DUT's temperature source); with the I2C switch control bytes
-written per sample. --profile N prints the N costliest functions of the DUTs' reading (cProfile).
+configs/stations/sim-64.yaml (or --station) with the demo plan's SET/RESET pairs, the wall, CPU (the
+process's) and simulated milliseconds of one sample of every DUT (rig/devices/interleave.py read_all: the
+I2C DUTs interleaved, the serial ones in their threads), of the I2C DUTs alone, of every temperature
+sensor (read_all), and of one stability poll (rig/run/runner.py: every DUT's temperature source); with the
+I2C switch control bytes written per call. --profile N prints the N costliest functions of the DUTs'
+reading (cProfile).
 
     python bench/read_cost.py [--station PATH] [--samples 20] [--profile 25]
 """
@@ -43,15 +44,16 @@ def _sim_switch(switch):
     return chip if hasattr(chip, "writes") else None
 
 
-def measure(rig, what, samples: int) -> tuple[float, float, float]:
-    """(wall ms, simulated ms, switch writes) per call of what()."""
+def measure(rig, what, samples: int) -> tuple[float, float, float, float]:
+    """(wall ms, CPU ms of the process, simulated ms, switch writes) per call of what()."""
     clock = rig.clock
-    writes0, wall0, sim0 = _switch_writes(rig), time.perf_counter(), clock.now()
+    writes0, sim0 = _switch_writes(rig), clock.now()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     for _ in range(samples):
         what()
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     n = samples
-    return ((time.perf_counter() - wall0) * 1e3 / n, (clock.now() - sim0) * 1e3 / n,
-            (_switch_writes(rig) - writes0) / n)
+    return wall * 1e3 / n, cpu * 1e3 / n, (clock.now() - sim0) * 1e3 / n, (_switch_writes(rig) - writes0) / n
 
 
 def main() -> None:
@@ -74,10 +76,10 @@ def main() -> None:
         read_all(rig.duts, clock)  # first readings connect lazily
         print(f"{args.station.name}: {len(rig.duts)} DUTs ({len(i2c)} on I2C), {len(rig.temp_sensors)} "
               f"sensors; per call, {args.samples} calls")
-        print(f"{'':40} {'wall ms':>8} {'sim ms':>8} {'switch writes':>14}")
+        print(f"{'':40} {'wall ms':>8} {'CPU ms':>8} {'sim ms':>8} {'switch writes':>14}")
         for label, what in cases.items():
-            wall, sim, writes = measure(rig, what, args.samples)
-            print(f"{label:40} {wall:8.2f} {sim:8.1f} {writes:14.1f}")
+            wall, cpu, sim, writes = measure(rig, what, args.samples)
+            print(f"{label:40} {wall:8.2f} {cpu:8.2f} {sim:8.1f} {writes:14.1f}")
         if args.profile:
             prof = cProfile.Profile()
             prof.enable()
