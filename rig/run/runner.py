@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from rig import config as cfg
-from rig.analysis.livefit import LiveFit
+from rig.analysis.livefit import LiveFit, LiveSummaries
 from rig.core.errors import ERRORS
 from rig.core.points import Point
 from rig.devices.build import Rig
@@ -79,7 +79,7 @@ class CampaignRunner:
         self.settled_c: dict[str, float] = {}  # where each DUT settled there (its place may be off the air)
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
-        self.live_summaries = {name: "no data yet" for name in rig.duts}
+        self.live_summaries = LiveSummaries(self.live)  # each solved when read (the live view), not per point
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
         self._stability_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
@@ -244,7 +244,6 @@ class CampaignRunner:
             live.add(np.array([r.field_nt for r in mine]).reshape(-1, 3),
                      np.array([r.temp_c for r in mine], float),
                      np.array([r.ref_field_nt for r in mine]).reshape(-1, 3))
-            self.live_summaries[dut] = live.summary()
 
     def preload_live(self, session_path) -> None:
         """On resume: start the live fits from what the session already holds."""
@@ -257,7 +256,6 @@ class CampaignRunner:
                 except ERRORS:
                     continue
                 live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
-                self.live_summaries[dut] = live.summary()
 
     def checkpoint(self, cmd: Checkpoint) -> None:
         log.info("point %s recorded", cmd.point_id)
