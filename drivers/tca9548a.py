@@ -61,10 +61,11 @@ class TCA9548A:
         self.address = address
         self.name = name or f"i2c switch 0x{address:02X}"
         self.control: int | None = None  # last byte written and read back; None: unknown
+        self.bank: _PhysicalBus | None = None  # the bus record that selects through it (MuxedBus)
 
     def write_control(self, value: int) -> None:
         """Write the control byte and verify it by reading it back."""
-        self.control = None  # unknown until the read-back agrees
+        self._unknown()  # until the read-back agrees
         try:  # straight to the bus: every switch change of a many-DUT sample comes through here
             self.bus.write_byte(self.address, value)
         except OSError as exc:
@@ -97,9 +98,15 @@ class TCA9548A:
         if self.control != POWER_UP_CONTROL:
             self.write_control(POWER_UP_CONTROL)
 
+    def _unknown(self) -> None:
+        """Forget the control byte, and the bus record's selection made through it."""
+        self.control = None
+        if self.bank is not None:
+            self.bank.selected = None
+
     def _fault(self, exc: OSError, what: str) -> DeviceError:
         """A failed transfer to the switch, as the switch's fault; its byte is then unknown."""
-        self.control = None
+        self._unknown()
         where = f"switch at 0x{self.address:02X}"
         if exc.errno in NACK_ERRNOS:
             detail = f"no ACK from the {where}: a fault of the I2C switch, not of the device behind it"
@@ -126,23 +133,30 @@ class _PhysicalBus:
     def __init__(self) -> None:
         self.lock = threading.RLock()
         self.switches: dict[int, TCA9548A] = {}
+        # (address, mask) the last select() left as the one enabled channel of all the switches; any
+        # control byte written or lost since forgets it
+        self.selected: tuple[int, int] | None = None
 
     def switch(self, bus: Any, address: int, name: str | None) -> TCA9548A:
         with self.lock:
             found = self.switches.get(address)
             if found is None:
                 found = self.switches[address] = TCA9548A(bus, address, name=name)
+                found.bank = self
             return found
 
     def select(self, address: int, mask: int) -> None:
         """Enable the channels of `mask` (one bit) of one switch, every other switch off first (call under
         the lock). Nothing is written where the byte is known to be right already."""
+        if self.selected == (address, mask):  # nothing written or lost since this very selection
+            return
         for other in self.switches.values():
             if other.control != POWER_UP_CONTROL and other.address != address:
                 other.write_control(POWER_UP_CONTROL)
         target = self.switches[address]
         if target.control != mask:
             target.write_control(mask)
+        self.selected = (address, mask)
 
 
 _BUSES: weakref.WeakKeyDictionary[Any, _PhysicalBus] = weakref.WeakKeyDictionary()

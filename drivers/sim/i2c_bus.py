@@ -163,6 +163,8 @@ class RegisterChip:
     def on_read(self, register: int, length: int) -> bytes:
         self.update()
         self.pointer = (register + length) & 0xFF
+        if register + length <= len(self.registers):  # no wrap: the usual burst
+            return bytes(map(self.read_register, range(register, register + length)))
         return bytes(self.read_register((register + i) & 0xFF) for i in range(length))
 
     def on_write(self, register: int, data: bytes) -> None:

@@ -272,11 +272,11 @@ class World:
             if self.current_source is not None and self.coils_enabled:
                 rng = self._centre_rng if dut is None else self.duts[dut].current_rng
                 currents = self.current_source.delivered_a(currents, self.coil_outputs_on, rng)
-            if self.coil_nonlinearity_per_a.any():
+            if any(self.coil_nonlinearity_per_a.tolist()):  # (faster than ndarray.any on 3 numbers)
                 currents = currents * (1.0 + self.coil_nonlinearity_per_a * np.abs(currents))
             matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
             field = matrix @ currents + self.ambient_nt
-            if self.ambient_drift_nt_per_s.any():
+            if any(self.ambient_drift_nt_per_s.tolist()):
                 field = field + self.drift_nt()
             return field if not self._bent() else field + self._environment_nt(dut)
         site = self.site_field_nt + self.drift_nt()
