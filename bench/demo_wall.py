@@ -3,9 +3,9 @@
 in a new process, --repeat times in turn; each run's wall time, its CPU time (user + system: on a machine
 other work shares, the steadier figure), the post-run fits' share, and the medians' ratios. --before
 COMMIT runs that commit's code (a `git archive` copy) in turn with this one, so both come from the same
-minutes of the same machine.
+minutes of the same machine (several commits: each in turn, the figures per change).
 
-    python bench/demo_wall.py [--repeat 1] [--out DIR] [--only 64|2] [--before COMMIT]
+    python bench/demo_wall.py [--repeat 1] [--out DIR] [--only 64|2] [--before COMMIT ...]
 """
 
 from __future__ import annotations
@@ -32,12 +32,12 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--out", type=Path)
     parser.add_argument("--only", choices=["64", "2"])
-    parser.add_argument("--before", help="a commit to time in turn with this code")
+    parser.add_argument("--before", nargs="*", default=[], help="commits to time in turn with this code")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="demo-wall-"))
     out.mkdir(parents=True, exist_ok=True)
     two = _two_duts(out)
-    codes = [("after", REPO)] + ([("before", _checkout(args.before, out))] if args.before else [])
+    codes = [("after", REPO)] + [(commit[:8], _checkout(commit, out)) for commit in args.before]
     runs: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for k in range(args.repeat):
         for version, code in codes:
