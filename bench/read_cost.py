@@ -2,9 +2,9 @@
 configs/stations/sim-64.yaml (or --station) with the demo plan's SET/RESET pairs, the wall, CPU (the
 process's) and simulated milliseconds of one sample of every DUT (rig/devices/interleave.py read_all: the
 I2C DUTs interleaved, the serial ones in their threads), of the I2C DUTs alone, of every temperature
-sensor (read_all), and of one stability poll (rig/run/runner.py: every DUT's temperature source); with the
-I2C switch control bytes written per call. --profile N prints the N costliest functions of the DUTs'
-reading (cProfile).
+sensor (read_all: also how a stability poll reads them now), and of the same sources read one after
+another (how rig/run/runner.py's stability poll read them before); with the I2C switch control bytes
+written per call. --profile N prints the N costliest functions of the DUTs' reading (cProfile).
 
     python bench/read_cost.py [--station PATH] [--samples 20] [--profile 25]
 """
@@ -71,7 +71,7 @@ def main() -> None:
             "every DUT (read_all)": lambda: read_all(rig.duts, clock),
             "the I2C DUTs alone": lambda: read_all(i2c, clock),
             "every temperature sensor (read_all)": lambda: read_all(rig.temp_sensors, clock),
-            "one stability poll (each source read)": lambda: [s.read() for s in sources],
+            "the sources one after another": lambda: [s.read() for s in sources],
         }
         read_all(rig.duts, clock)  # first readings connect lazily
         print(f"{args.station.name}: {len(rig.duts)} DUTs ({len(i2c)} on I2C), {len(rig.temp_sensors)} "

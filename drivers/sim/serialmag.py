@@ -36,11 +36,8 @@ Timing: replies leave `reply_latency_s` after the CR (the notes: about 2 ms); co
 commanded rate from its own thread. With `line_time`, every command and every line sent is also held back
 for its 8N1 time at the device's baud rate. These waits are real time (the pty is real I/O), unless
 `world_time` (the rig's simulated stations) and the world's clock is simulated: then the bytes leave at
-once and the waits are left out of the simulated time, as they always were (the line's waits were slept
-in real time only). Charging them to the shared simulated clock from this thread would add them to the
-waits of the devices read at the same moment in the campaign's own thread instead of overlapping them (a
-64-DUT sample would take the sum of the lines' and the I2C conversions' times); leaving them out keeps
-the simulated time of a sample what the I2C chain takes, and costs no real time beyond the pty's own.
+once, and the waits stay out of the simulated time as they always were (charged to the shared clock from
+this thread, they would add to the I2C DUTs' waits of the same sample instead of overlapping them).
 
 Power-on defaults: rate 20 Hz, auto S/R on, polarity +1 (SET), ASCII, 9600 baud, not streaming,
 write-enable off.
