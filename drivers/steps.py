@@ -12,6 +12,7 @@ about as long as one (their transfers still go one at a time: one bus is one loc
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Generator, Hashable
 from typing import Any, TypeVar
 
@@ -33,29 +34,30 @@ def run_steps(steps: Steps[T], clock: Clock) -> T:
 
 
 def interleave(steps: dict[Hashable, Steps[Any]], clock: Clock) -> dict[Hashable, Any]:
-    """Run several devices' steps together: the one due first goes next. {key: reading}; the first
-    error is raised after the other devices' steps are closed."""
-    due: dict[Hashable, float] = {}
+    """Run several devices' steps together: the one due first goes next (of several due at the same
+    instant, the first in `steps`' order). {key: reading}; the first error is raised after the other
+    devices' steps are closed."""
+    order = {key: n for n, key in enumerate(steps)}
+    queue: list[tuple[float, int, Hashable]] = []  # (due, order, key): a heap, for many devices
     results: dict[Hashable, Any] = {}
 
-    def advance(key: Hashable) -> None:
+    def advance(key: Hashable, started: bool) -> None:
         try:
-            wait_s = next(steps[key]) if key not in due else steps[key].send(None)
+            wait_s = steps[key].send(None) if started else next(steps[key])
         except StopIteration as done:
-            due.pop(key, None)
             results[key] = done.value
             return
-        due[key] = clock.now() + wait_s
+        heapq.heappush(queue, (clock.now() + wait_s, order[key], key))
 
     try:
         for key in steps:
-            advance(key)
-        while due:
-            key = min(due, key=due.__getitem__)
-            wait_s = due[key] - clock.now()
+            advance(key, False)
+        while queue:
+            due, _, key = heapq.heappop(queue)
+            wait_s = due - clock.now()
             if wait_s > 0:
                 clock.sleep(wait_s)
-            advance(key)
+            advance(key, True)
     except BaseException:
         for gen in steps.values():
             gen.close()

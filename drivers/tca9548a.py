@@ -26,8 +26,7 @@ import errno
 import logging
 import threading
 import weakref
-from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 from drivers.base import Device
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
@@ -39,7 +38,6 @@ ADDRESSES = range(0x70, 0x78)  # 0x70 + A2A1A0
 CHANNELS = 8  # bit n of the control byte enables channel n
 POWER_UP_CONTROL = 0x00  # all channels disabled after power-up or RESET
 NACK_ERRNOS = (errno.EREMOTEIO, errno.ENXIO)  # ENXIO from some adapters (an MCP2221 bridge)
-T = TypeVar("T")
 
 
 def channel_mask(channel: int) -> int:
@@ -63,24 +61,31 @@ class TCA9548A:
         self.address = address
         self.name = name or f"i2c switch 0x{address:02X}"
         self.control: int | None = None  # last byte written and read back; None: unknown
+        self.bank: _PhysicalBus | None = None  # the bus record that selects through it (MuxedBus)
 
     def write_control(self, value: int) -> None:
         """Write the control byte and verify it by reading it back."""
-        what = f"write control byte 0x{value:02X}"
-        self.control = None  # unknown until the read-back agrees
-        self._call(lambda: self.bus.write_byte(self.address, value), what)
+        self._unknown()  # until the read-back agrees
+        try:  # straight to the bus: every switch change of a many-DUT sample comes through here
+            self.bus.write_byte(self.address, value)
+        except OSError as exc:
+            raise self._fault(exc, f"write control byte 0x{value:02X}") from exc
         got = self.read_control()
         if got != value:
             raise ProtocolError(
-                self.name, what,
+                self.name, f"write control byte 0x{value:02X}",
                 f"switch at 0x{self.address:02X} read back 0x{got:02X}: a fault of the I2C switch, "
                 "not of the device behind it",
             )
         self.control = value
-        log.debug("%s: control 0x%02X", self.name, value, extra={"device": self.name})
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: control 0x%02X", self.name, value, extra={"device": self.name})
 
     def read_control(self) -> int:
-        return self._call(lambda: self.bus.read_byte(self.address), "read control byte")
+        try:
+            return self.bus.read_byte(self.address)
+        except OSError as exc:
+            raise self._fault(exc, "read control byte") from exc
 
     def select(self, channel: int) -> None:
         """Enable `channel` alone (written only when it is not known to be selected already)."""
@@ -93,18 +98,22 @@ class TCA9548A:
         if self.control != POWER_UP_CONTROL:
             self.write_control(POWER_UP_CONTROL)
 
-    def _call(self, transfer: Callable[[], T], what: str) -> T:
-        try:
-            return transfer()
-        except OSError as exc:
-            self.control = None
-            where = f"switch at 0x{self.address:02X}"
-            if exc.errno in NACK_ERRNOS:
-                detail = f"no ACK from the {where}: a fault of the I2C switch, not of the device behind it"
-                raise DeviceNotFound(self.name, what, detail) from exc
-            if exc.errno == errno.ETIMEDOUT:
-                raise DeviceTimeout(self.name, what, f"bus timeout at the {where}") from exc
-            raise DeviceError(self.name, what, f"I2C error at the {where}: {exc}") from exc
+    def _unknown(self) -> None:
+        """Forget the control byte, and the bus record's selection made through it."""
+        self.control = None
+        if self.bank is not None:
+            self.bank.selected = None
+
+    def _fault(self, exc: OSError, what: str) -> DeviceError:
+        """A failed transfer to the switch, as the switch's fault; its byte is then unknown."""
+        self._unknown()
+        where = f"switch at 0x{self.address:02X}"
+        if exc.errno in NACK_ERRNOS:
+            detail = f"no ACK from the {where}: a fault of the I2C switch, not of the device behind it"
+            return DeviceNotFound(self.name, what, detail)
+        if exc.errno == errno.ETIMEDOUT:
+            return DeviceTimeout(self.name, what, f"bus timeout at the {where}")
+        return DeviceError(self.name, what, f"I2C error at the {where}: {exc}")
 
 
 def identify(bus: Any, address: int) -> str | None:
@@ -124,20 +133,30 @@ class _PhysicalBus:
     def __init__(self) -> None:
         self.lock = threading.RLock()
         self.switches: dict[int, TCA9548A] = {}
+        # (address, mask) the last select() left as the one enabled channel of all the switches; any
+        # control byte written or lost since forgets it
+        self.selected: tuple[int, int] | None = None
 
     def switch(self, bus: Any, address: int, name: str | None) -> TCA9548A:
         with self.lock:
             found = self.switches.get(address)
             if found is None:
                 found = self.switches[address] = TCA9548A(bus, address, name=name)
+                found.bank = self
             return found
 
-    def select(self, address: int, channel: int) -> None:
-        """Enable one channel of one switch, every other switch off first (call under the lock)."""
+    def select(self, address: int, mask: int) -> None:
+        """Enable the channels of `mask` (one bit) of one switch, every other switch off first (call under
+        the lock). Nothing is written where the byte is known to be right already."""
+        if self.selected == (address, mask):  # nothing written or lost since this very selection
+            return
         for other in self.switches.values():
-            if other.address != address:
-                other.disable()
-        self.switches[address].select(channel)
+            if other.control != POWER_UP_CONTROL and other.address != address:
+                other.write_control(POWER_UP_CONTROL)
+        target = self.switches[address]
+        if target.control != mask:
+            target.write_control(mask)
+        self.selected = (address, mask)
 
 
 _BUSES: weakref.WeakKeyDictionary[Any, _PhysicalBus] = weakref.WeakKeyDictionary()
@@ -183,48 +202,62 @@ class MuxedBus:
     """
 
     def __init__(self, bus: Any, address: int, channel: int, *, name: str | None = None):
-        channel_mask(channel)  # checked now, not at the first transfer
+        self._mask = channel_mask(channel)  # checked now, not at the first transfer
         self.bus = bus
         self.channel = channel
         self._shared = _physical(bus)
+        self._lock = self._shared.lock
         self.switch = self._shared.switch(bus, address, name)
+        self._address = self.switch.address
 
     def __repr__(self) -> str:
         return f"MuxedBus({self.switch.name}, channel {self.channel})"
 
-    def _on_channel(self, transfer: Callable[[], T]) -> T:
-        with self._shared.lock:
-            self._shared.select(self.switch.address, self.channel)
-            return transfer()
-
-    # --- smbus2 API (same names and arguments) ------------------------------------------------------
+    # Each transfer selects its channel and goes on under the bus lock, written out per method (no closure
+    # per transfer: these are the hot path of a many-DUT campaign).
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
-        return self._on_channel(lambda: self.bus.read_byte_data(i2c_addr, register, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            return self.bus.read_byte_data(i2c_addr, register, force)
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
-        self._on_channel(lambda: self.bus.write_byte_data(i2c_addr, register, value, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            self.bus.write_byte_data(i2c_addr, register, value, force)
 
     def read_word_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
-        return self._on_channel(lambda: self.bus.read_word_data(i2c_addr, register, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            return self.bus.read_word_data(i2c_addr, register, force)
 
     def write_word_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
-        self._on_channel(lambda: self.bus.write_word_data(i2c_addr, register, value, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            self.bus.write_word_data(i2c_addr, register, value, force)
 
     def read_i2c_block_data(
         self, i2c_addr: int, register: int, length: int, force: bool | None = None
     ) -> list[int]:
-        return self._on_channel(lambda: self.bus.read_i2c_block_data(i2c_addr, register, length, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            return self.bus.read_i2c_block_data(i2c_addr, register, length, force)
 
     def write_i2c_block_data(
         self, i2c_addr: int, register: int, data: list[int], force: bool | None = None
     ) -> None:
-        self._on_channel(lambda: self.bus.write_i2c_block_data(i2c_addr, register, data, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            self.bus.write_i2c_block_data(i2c_addr, register, data, force)
 
     def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
-        return self._on_channel(lambda: self.bus.read_byte(i2c_addr, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            return self.bus.read_byte(i2c_addr, force)
 
     def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
-        self._on_channel(lambda: self.bus.write_byte(i2c_addr, value, force))
+        with self._lock:
+            self._shared.select(self._address, self._mask)
+            self.bus.write_byte(i2c_addr, value, force)
 
     def close(self) -> None:
         """Nothing to release: the physical bus belongs to whoever opened it."""

@@ -126,7 +126,7 @@ class DutTruth:
                     break
         rhs = v - self.b_nt - temp_c * self.kb_nt_per_c
         more = self._more_offset(temp_c, extra_offset_nt)
-        return np.linalg.solve(self._matrix(temp_c), rhs if more is None else rhs - more)
+        return solve3(self._matrix(temp_c), rhs if more is None else rhs - more)
 
     def bridge_offset_at(self, temp_c: float) -> np.ndarray:
         return self.bridge_offset_nt + (temp_c - 25.0) * self.bridge_offset_tc_nt_per_c
@@ -155,6 +155,24 @@ class DutTruth:
             truth.flicker_nt = deviation_scale * FLICKER_TYPICAL_NT
             truth.air_offset_c = deviation_scale * rng.normal(0, AIR_OFFSET_TYPICAL_C)
         return truth
+
+
+def solve3(m: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """m^-1 y for a 3x3 m, by its adjugate in floats: every reading of a simulated DUT solves one, and
+    numpy's LAPACK call costs several times the arithmetic. A matrix far from well conditioned (the
+    determinant below 1e-6 of the product of the rows' norms) goes to numpy's pivoted solve instead."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    y0, y1, y2 = y.tolist()
+    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co_a + b * co_b + c * co_c
+    scale = math.sqrt((a * a + b * b + c * c) * (d * d + e * e + f * f) * (g * g + h * h + i * i))
+    if not abs(det) > 1e-6 * scale:
+        return np.linalg.solve(m, y)
+    return np.array([
+        co_a * y0 + (c * h - b * i) * y1 + (b * f - c * e) * y2,
+        co_b * y0 + (a * i - c * g) * y1 + (c * d - a * f) * y2,
+        co_c * y0 + (b * g - a * h) * y1 + (a * e - b * d) * y2,
+    ]) / det
 
 
 class ThermalPlay:

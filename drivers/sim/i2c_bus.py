@@ -163,6 +163,8 @@ class RegisterChip:
     def on_read(self, register: int, length: int) -> bytes:
         self.update()
         self.pointer = (register + length) & 0xFF
+        if register + length <= len(self.registers):  # no wrap: the usual burst
+            return bytes(map(self.read_register, range(register, register + length)))
         return bytes(self.read_register((register + i) & 0xFF) for i in range(length))
 
     def on_write(self, register: int, data: bytes) -> None:
@@ -216,6 +218,13 @@ class FakeSMBus:
         return self._chip(address)
 
     def _chip(self, address: int):
+        if not self._faults and not self._nacks:  # no fault hook set: the usual case, looked up directly
+            found = self._answering(address)
+            if len(found) == 1:
+                return found[0]
+            if not found:
+                raise _nack()
+            return _Collision(found)
         faults = self._faults.get(address)
         if faults is not None and faults.draw() in ("nack", "unplug"):
             raise _nack()
@@ -234,9 +243,17 @@ class FakeSMBus:
 
     def _answering(self, address: int) -> list:
         """Every chip that ACKs `address`: on the main bus, and behind enabled switch channels."""
-        found = [self.chips[address]] if address in self.chips else []
+        chip = self.chips.get(address)
+        found = [] if chip is None else [chip]
         for switch in self._switches:
-            if switch.control:  # a switch with every channel off hides everything behind it
+            control = switch.control
+            if not control:  # a switch with every channel off hides everything behind it
+                continue
+            if control & (control - 1) == 0:  # one channel: looked up directly
+                chip = switch.channels[control.bit_length() - 1].get(address)
+                if chip is not None:
+                    found.append(chip)
+            else:
                 found += switch.visible(address)
         return found
 

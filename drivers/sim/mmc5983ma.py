@@ -33,8 +33,10 @@ def encode_field_codes(codes: tuple[int, int, int]) -> bytes:
 
 def field_to_codes(field_nt: np.ndarray) -> tuple[int, int, int]:
     """Quantise to 18 bits around the null code; beyond +-8 G the code sticks at the rail."""
-    codes = np.rint(np.asarray(field_nt) / mmc.NT_PER_GAUSS * mmc.COUNTS_PER_GAUSS) + mmc.NULL_CODE
-    return tuple(int(c) for c in np.clip(codes, 0, mmc.CODE_MAX))
+    # in floats, not arrays (every simulated reading comes through here); round() is half-to-even like
+    # numpy's rint
+    return tuple(min(mmc.CODE_MAX, max(0, round(x / mmc.NT_PER_GAUSS * mmc.COUNTS_PER_GAUSS) + mmc.NULL_CODE))
+                 for x in np.asarray(field_nt, float).tolist())
 
 
 class MMC5983MASim(RegisterChip):

@@ -1,6 +1,6 @@
 """Fake firmware of the Honeywell HMR2300 serial magnetometer (drivers/serialmag.py), on a pty pair.
 
-    SerialMagSim(world, dut, device_id=0, *, reply_latency_s=0.002, line_time=False,
+    SerialMagSim(world, dut, device_id=0, *, reply_latency_s=0.002, line_time=False, world_time=False,
                  serial_number="SM2300-0001", firmware="SM2300 fw 1.4", range_counts=30000, seed=0)
       .start() -> str   a line of its own; the port path a driver opens (a stable symlink to the pty slave)
       .stop()           stop the stream thread and the pty; also on leaving a `with` block
@@ -32,9 +32,12 @@ RESET (-1) pulse, or with auto S/R on the device's own (out_set - out_reset)/2. 
 counts per gauss and clipped to +-range_counts (+-2 gauss). ZN stores the present reading as the zero;
 VN only records the flag (averaging is not modelled).
 
-Timing is real time (the pty is real I/O): replies leave `reply_latency_s` after the CR (the notes: about
-2 ms); continuous mode emits at the commanded rate from its own thread. With `line_time`, every command
-and every line sent is also held back for its 8N1 time at the device's baud rate.
+Timing: replies leave `reply_latency_s` after the CR (the notes: about 2 ms); continuous mode emits at the
+commanded rate from its own thread. With `line_time`, every command and every line sent is also held back
+for its 8N1 time at the device's baud rate. These waits are real time (the pty is real I/O), unless
+`world_time` (the rig's simulated stations) and the world's clock is simulated: then the bytes leave at
+once, and the waits stay out of the simulated time as they always were (charged to the shared clock from
+this thread, they would add to the I2C DUTs' waits of the same sample instead of overlapping them).
 
 Power-on defaults: rate 20 Hz, auto S/R on, polarity +1 (SET), ASCII, 9600 baud, not streaming,
 write-enable off.
@@ -190,6 +193,7 @@ class SerialMagSim:
         *,
         reply_latency_s: float = 0.002,
         line_time: bool = False,
+        world_time: bool = False,
         serial_number: str = "SM2300-0001",
         firmware: str = "SM2300 fw 1.4",
         range_counts: int = 30_000,
@@ -200,6 +204,7 @@ class SerialMagSim:
         self.device_id = device_id
         self.reply_latency_s = reply_latency_s
         self.line_time = line_time
+        self.world_time = world_time
         self.serial_number = serial_number
         self.firmware = firmware
         self.range_counts = range_counts
@@ -310,7 +315,7 @@ class SerialMagSim:
 
     def _on_command(self, line: bytes) -> None:
         if self.line_time:  # the command's own bytes (and its CR) take time on the wire
-            self.closing.wait((len(line) + 1) * 10 / self.baud)
+            self._wait((len(line) + 1) * 10 / self.baud)
         with self._lock:
             self.received.append(line)
             if self._drop > 0:
@@ -399,14 +404,19 @@ class SerialMagSim:
         return format_binary_sample(counts) if self.binary else format_sample_line(counts)
 
     def _reply(self, line: bytes) -> None:
-        if self.reply_latency_s > 0:
-            self.closing.wait(self.reply_latency_s)
+        self._wait(self.reply_latency_s)
         self._send(line + b"\r")
+
+    def _wait(self, seconds: float, unless: threading.Event | None = None) -> None:
+        """Let `seconds` pass before the line goes on, in real time; none with world_time on a simulated
+        clock (module docstring)."""
+        if seconds > 0 and not (self.world_time and getattr(self.world.clock, "simulated", False)):
+            (unless or self.closing).wait(seconds)
 
     def _send(self, line: bytes, unless: threading.Event | None = None) -> None:
         """Put a line on the wire (after its line time, if emulated); skipped once `unless` is set."""
         if self.line_time:
-            (unless or self.closing).wait(len(line) * 10 / self.baud)
+            self._wait(len(line) * 10 / self.baud, unless)
         with self._lock:
             if unless is not None and unless.is_set():
                 return
@@ -453,4 +463,5 @@ class SerialMagSim:
 
 def simulate(req: SimRequest) -> SimSerial:
     device_id = getattr(req.options, "device_id", 0)
-    return SimSerial(SerialMagSim(req.world, req.name, device_id), baudrate=9600, timeout_s=0.5)
+    return SimSerial(SerialMagSim(req.world, req.name, device_id, world_time=True), baudrate=9600,
+                     timeout_s=0.5)

@@ -235,7 +235,7 @@ class World:
         """True field in the DUT's sensor frame, nT."""
         with self._lock:
             self._advance()
-            return self.duts[dut].truth.mount @ self.lab_field_nt(dut)
+            return self.duts[dut].truth.mount @ self._lab_field_nt(dut)
 
     def dut_raw_nt(self, dut: str, polarity: int = 1, noisy: bool = True) -> np.ndarray:
         """What the DUT's bridges output, in nT: polarity x h + bridge offset + noise.
@@ -246,7 +246,7 @@ class World:
             self._advance()
             d = self.duts[dut]
             extra = d.extra_offset_nt(self._t)
-            h = d.truth.raw_from_field(d.truth.mount @ self.lab_field_nt(dut), d.temp_c, extra)
+            h = d.truth.raw_from_field(d.truth.mount @ self._lab_field_nt(dut), d.temp_c, extra)
             out = polarity * h + d.truth.bridge_offset_at(d.temp_c)
             if noisy and d.truth.noise_nt > 0:
                 out = out + self.rng.normal(0, d.truth.noise_nt, 3)
@@ -262,19 +262,27 @@ class World:
         """The field where `dut` sits (lab frame; for a turntable, the table frame), or at the centre."""
         with self._lock:
             self._advance()
-            if self.field_source == "coils":
-                currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
-                if self.current_source is not None and self.coils_enabled:
-                    rng = self._centre_rng if dut is None else self.duts[dut].current_rng
-                    currents = self.current_source.delivered_a(currents, self.coil_outputs_on, rng)
+            return self._lab_field_nt(dut)
+
+    def _lab_field_nt(self, dut: str | None) -> np.ndarray:
+        """lab_field_nt with the lock held and the state advanced. Terms that are zero (no coil
+        nonlinearity, no drift) are skipped, not added: every DUT reading comes through here."""
+        if self.field_source == "coils":
+            currents = self.coil_currents_a if self.coils_enabled else np.zeros(3)
+            if self.current_source is not None and self.coils_enabled:
+                rng = self._centre_rng if dut is None else self.duts[dut].current_rng
+                currents = self.current_source.delivered_a(currents, self.coil_outputs_on, rng)
+            if any(self.coil_nonlinearity_per_a.tolist()):  # (faster than ndarray.any on 3 numbers)
                 currents = currents * (1.0 + self.coil_nonlinearity_per_a * np.abs(currents))
-                matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
-                field = matrix @ currents + self.ambient_nt + self.drift_nt()
-                return field if not self._bent() else field + self._environment_nt(dut)
-            site = self.site_field_nt + self.drift_nt()
-            if self._bent():
-                site = site + self._environment_nt(dut)
-            return self.turntable_axes.rotation(*self.table_deg).T @ site
+            matrix = self.coil_constants if dut is None else self._coil_matrix[dut]
+            field = matrix @ currents + self.ambient_nt
+            if any(self.ambient_drift_nt_per_s.tolist()):
+                field = field + self.drift_nt()
+            return field if not self._bent() else field + self._environment_nt(dut)
+        site = self.site_field_nt + self.drift_nt()
+        if self._bent():
+            site = site + self._environment_nt(dut)
+        return self.turntable_axes.rotation(*self.table_deg).T @ site
 
     def _bent(self) -> bool:
         return self.lab is not None or self.chamber.makes_field

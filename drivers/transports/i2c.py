@@ -95,23 +95,27 @@ class I2CTransport:
     def read_byte(self, register: int, what: str) -> int:
         return self.read_block(register, 1, what)[0]
 
+    # The transfers are the hot path of a many-DUT campaign: the first try goes straight to the bus, and
+    # the operation's name, the retries and the raw log's text are made only when they are needed.
     def read_block(self, register: int, length: int, what: str) -> bytes:
         if not 1 <= length <= BLOCK_MAX_BYTES:
             raise ValueError(f"I2C burst of {length} bytes: must be 1..{BLOCK_MAX_BYTES}")
-        operation = f"read {what} register 0x{register:02X}"
 
         def transfer() -> bytes:
             if length == 1:
                 return bytes([self.bus.read_byte_data(self.address, register)])
             return bytes(self.bus.read_i2c_block_data(self.address, register, length))
 
-        data = self._call(transfer, operation)
+        try:
+            data = transfer()
+        except (OSError, DeviceError) as exc:
+            data = self._retried(transfer, f"read {what} register 0x{register:02X}", exc)
         if len(data) != length:
-            raise DeviceError(self.name, operation, f"got {len(data)} bytes, expected {length}")
-        log.debug(
-            "%s: 0x%02X read 0x%02X -> %s", self.name, self.address, register, _hex(data),
-            extra={"device": self.name},
-        )
+            raise DeviceError(self.name, f"read {what} register 0x{register:02X}",
+                              f"got {len(data)} bytes, expected {length}")
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: 0x%02X read 0x%02X -> %s", self.name, self.address, register, _hex(data),
+                      extra={"device": self.name})
         return data
 
     def write_byte(self, register: int, value: int, what: str) -> None:
@@ -120,11 +124,9 @@ class I2CTransport:
     def write_block(self, register: int, data: bytes, what: str) -> None:
         if not 1 <= len(data) <= BLOCK_MAX_BYTES:
             raise ValueError(f"I2C burst of {len(data)} bytes: must be 1..{BLOCK_MAX_BYTES}")
-        operation = f"write {what} register 0x{register:02X}"
-        log.debug(
-            "%s: 0x%02X write 0x%02X <- %s", self.name, self.address, register, _hex(data),
-            extra={"device": self.name},
-        )
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: 0x%02X write 0x%02X <- %s", self.name, self.address, register, _hex(data),
+                      extra={"device": self.name})
 
         def transfer() -> None:
             if len(data) == 1:
@@ -132,9 +134,19 @@ class I2CTransport:
             else:
                 self.bus.write_i2c_block_data(self.address, register, list(data))
 
-        self._call(transfer, operation)
+        try:
+            transfer()
+        except (OSError, DeviceError) as exc:
+            self._retried(transfer, f"write {what} register 0x{register:02X}", exc)
 
-    def _call(self, transfer: Callable[[], T], operation: str) -> T:
+    def _retried(self, transfer: Callable[[], T], operation: str, failed: BaseException) -> T:
+        """The tries after a first that raised `failed` (an OSError of the bus, or the DeviceError of an
+        I2C switch on the way), with backoff; the last failure raised naming whose fault it is."""
+        if isinstance(failed, OSError):
+            error = self._as_device_error(failed, operation)
+            error.__cause__ = failed
+            failed = error
+
         def attempt() -> T:
             try:
                 return transfer()
@@ -144,7 +156,7 @@ class I2CTransport:
         try:
             return with_retries(
                 attempt, device=self.name, operation=operation, tries=self.tries,
-                backoff_s=self.backoff_s, clock=self.clock,
+                backoff_s=self.backoff_s, clock=self.clock, failed=failed,
             )
         except DeviceError as exc:
             cause = exc.__cause__

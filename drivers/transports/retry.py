@@ -23,15 +23,19 @@ def with_retries(
     clock: Clock | None = None,
     retry_on: tuple[type[BaseException], ...] = (DeviceError, OSError, TimeoutError),
     recover: Callable[[], None] | None = None,
+    failed: BaseException | None = None,
 ) -> T:
     """Call `op` up to `tries` times. Between tries: log a warning (its record carries `device` and the
     exception as `fault`, so a session can code it), call `recover` (e.g. reconnect), back off (doubling).
-    The last failure is raised as a DeviceError naming device and operation."""
+    The last failure is raised as a DeviceError naming device and operation. `failed`: the caller made
+    the first try itself (a fast path that builds nothing until something fails) and it raised this."""
     clock = clock or RealClock()
     delay = backoff_s
     last: BaseException | None = None
     for attempt in range(1, tries + 1):
         try:
+            if failed is not None and attempt == 1:
+                raise failed
             return op()
         except retry_on as exc:  # noqa: PERF203 - retry loop
             last = exc

@@ -5,16 +5,34 @@
 Drivers that offer `read_steps()` (drivers/steps.py: MMC5983MA, HMC5883L) are interleaved in this thread:
 each starts its conversion, and whichever is due next is resumed (one bus is one lock, so transfers still
 go one at a time). The others (the serial magnetometers, which wait for their line) are read in worker
-threads meanwhile, one per device; a shared serial line's lock keeps its devices' exchanges apart.
+threads meanwhile, one per device; a shared serial line's lock keeps its devices' exchanges apart. The
+workers are kept between calls (starting threads for every sample cost more than a serial reading), and
+every reading has ended, done or failed, before read_all returns or raises.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
 from drivers.clock import Clock
 from drivers.steps import interleave
+
+_workers: ThreadPoolExecutor | None = None
+_workers_size = 0
+_workers_lock = threading.Lock()
+
+
+def _pool(size: int) -> ThreadPoolExecutor:
+    """Worker threads for `size` readings at once, kept for the next call (a bigger pool when needed)."""
+    global _workers, _workers_size
+    with _workers_lock:
+        if _workers is None or _workers_size < size:
+            if _workers is not None:
+                _workers.shutdown(wait=False)
+            _workers, _workers_size = ThreadPoolExecutor(size, thread_name_prefix="dut-read"), size
+        return _workers
 
 
 def read_all(duts: dict[str, Any], clock: Clock) -> dict[str, Any]:
@@ -23,8 +41,11 @@ def read_all(duts: dict[str, Any], clock: Clock) -> dict[str, Any]:
     if not blocking:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
         return {name: got[name] for name in duts}
-    with ThreadPoolExecutor(max_workers=len(blocking), thread_name_prefix="dut-read") as pool:
-        futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
+    pool = _pool(len(blocking))
+    futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
+    try:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
-        got.update({name: future.result() for name, future in futures.items()})
+    finally:
+        wait(futures.values())  # no reading goes on behind a failure
+    got.update({name: future.result() for name, future in futures.items()})
     return {name: got[name] for name in duts}

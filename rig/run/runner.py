@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from rig import config as cfg
-from rig.analysis.livefit import LiveFit
+from rig.analysis.livefit import LiveFit, LiveSummaries
 from rig.core.errors import ERRORS
 from rig.core.points import Point
 from rig.devices.build import Rig
@@ -54,8 +54,12 @@ HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many stability ba
 
 
 def poll_interval_s(criteria: StabilityCriteria) -> float:
-    """Temperature poll while waiting for stability: about 8 samples per dwell window, between 2 and 30 s."""
-    return min(30.0, max(2.0, criteria.dwell_s / 8.0))
+    """Temperature poll while waiting for stability: 4 samples per dwell window (5 span it, 12 the three
+    dwells the detector's asymptote compares), between 2 and 60 s. The temperatures it judges move on the
+    scale of minutes (DUT lags behind the air of 5-15 min, dwells of 2-5 min), so more samples add no
+    information, only bus traffic (64 probes a poll on a big station) and a detector fed twice as often;
+    a stable DUT is seen at most one interval after it is."""
+    return min(60.0, max(2.0, criteria.dwell_s / 4.0))
 
 
 class CampaignRunner:
@@ -75,7 +79,7 @@ class CampaignRunner:
         self.settled_c: dict[str, float] = {}  # where each DUT settled there (its place may be off the air)
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
-        self.live_summaries = {name: "no data yet" for name in rig.duts}
+        self.live_summaries = LiveSummaries(self.live)  # each solved when read (the live view), not per point
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
         self._stability_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
@@ -126,15 +130,12 @@ class CampaignRunner:
                     Reason.CHAMBER_SENSOR if reading.input_error else Reason.CHAMBER_OFF_COURSE)
             raise Hold(f"chamber {reading.problem}", code=code, device=self.rig.chamber.name)
 
-    def _dut_temps(self, cache: dict | None = None) -> dict[str, float | None]:
-        """Each DUT's temperature from its temp source (a sensor is read once per call)."""
-        cache = {} if cache is None else cache
-        out = {}
-        for dut, source in self.rig.temp_sources.items():
-            if source.name not in cache:
-                cache[source.name] = source.read()
-            out[dut] = cache[source.name].temp_c
-        return out
+    def _dut_temps(self) -> dict[str, float | None]:
+        """Each DUT's temperature from its temp source: every source read once, their conversions
+        overlapped (devices/interleave.py) as a sample's are, not one after the other."""
+        sources = {source.name: source for source in self.rig.temp_sources.values()}
+        got = read_all(sources, self.rig.clock)
+        return {dut: got[source.name].temp_c for dut, source in self.rig.temp_sources.items()}
 
     def wait_stable(self, cmd: WaitStable) -> dict:
         """Poll the DUT temperatures until all are stable; Hold on alarm or at the hard maximum wait."""
@@ -243,7 +244,6 @@ class CampaignRunner:
             live.add(np.array([r.field_nt for r in mine]).reshape(-1, 3),
                      np.array([r.temp_c for r in mine], float),
                      np.array([r.ref_field_nt for r in mine]).reshape(-1, 3))
-            self.live_summaries[dut] = live.summary()
 
     def preload_live(self, session_path) -> None:
         """On resume: start the live fits from what the session already holds."""
@@ -256,7 +256,6 @@ class CampaignRunner:
                 except ERRORS:
                     continue
                 live.add(ds.h_nt, ds.temp_c, ds.ref_nt)
-                self.live_summaries[dut] = live.summary()
 
     def checkpoint(self, cmd: Checkpoint) -> None:
         log.info("point %s recorded", cmd.point_id)

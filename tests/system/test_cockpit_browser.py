@@ -16,7 +16,7 @@ from tests.system.test_cockpit_http import HOSTILE, tiny_session
 pytestmark = [pytest.mark.system,
               pytest.mark.skipif(browser.missing() is not None, reason=f"no browser: {browser.missing()}")]
 
-SAMPLES = 20
+SAMPLES = 100  # points long enough for the page to be watched and paused before the run ends
 
 
 def summary(page, key: str) -> object:

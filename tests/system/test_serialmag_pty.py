@@ -133,6 +133,25 @@ def test_wrong_entry_reply_is_retried(mag, sim, world):
     assert_close_to_truth(mag.read(), world)
 
 
+def test_on_a_simulated_clock_world_time_replies_at_once_and_leaves_the_clock_alone(world):
+    """A latency far beyond the driver's timeout: slept in real time it fails the read; as world time on a
+    simulated clock the reply leaves at once and the world's clock does not move."""
+    for world_time in (False, True):
+        with SerialMagSim(world, "dut1", reply_latency_s=0.5, world_time=world_time) as slow:
+            m = make_mag(slow, world, tries=1)
+            try:
+                t0 = world.clock.now()
+                if world_time:
+                    m.connect()
+                    assert_close_to_truth(m.read(), world)
+                    assert world.clock.now() == t0
+                else:
+                    with pytest.raises(DeviceTimeout):
+                        m.connect()
+            finally:
+                m.close()
+
+
 def test_silent_device_ends_in_timeout_naming_device_and_operation(mag, sim):
     sim.drop_next(3)
     with pytest.raises(DeviceTimeout) as err:

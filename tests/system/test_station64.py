@@ -119,3 +119,28 @@ def test_a_clash_on_the_64_dut_station_is_refused_naming_key_and_line(tmp_path, 
     message = str(err.value)
     assert f"sim-64.yaml: {where}" in message and "(line " in message, message
     assert what in message, message
+
+
+def test_a_stability_poll_reads_the_64_probes_in_about_one_conversion():
+    """rig/run/runner.py's poll reads every DUT's temperature source once, their one-shot conversions
+    overlapped (in turn, 64 x 124 ms of simulated time); each value is its DUT's probe's."""
+    from types import SimpleNamespace
+
+    from drivers.tmp117 import DEFAULT_AVERAGING, active_time_s
+    from rig.run.runner import CampaignRunner, poll_interval_s
+
+    station = cfg.load_station(STATION)
+    rig = open_rig(station)
+    try:
+        t0 = rig.clock.now()
+        temps = CampaignRunner._dut_temps(SimpleNamespace(rig=rig))
+        poll_s = rig.clock.now() - t0
+        truth = {dut: rig.world.dut_temp_c(dut) for dut in rig.duts}
+    finally:
+        rig.close()
+    one_s = active_time_s(DEFAULT_AVERAGING)
+    assert set(temps) == {d.name for d in station.duts}
+    assert one_s <= poll_s < 2 * one_s
+    assert all(abs(temps[dut] - truth[dut]) < 0.01 for dut in temps)  # 7.8 mdegC steps, no lag set
+    demo = cfg.load_plan(REPO / "configs" / "plans" / "demo.yaml").temperatures.stability
+    assert poll_interval_s(SimpleNamespace(dwell_s=demo.dwell_s)) == demo.dwell_s / 4

@@ -14,7 +14,7 @@ from drivers.sim.i2c_bus import FakeSMBus, I2CSwitchSim, RegisterChip
 from drivers.sim.mmc5983ma import MMC5983MASim
 from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
 from drivers.sim.world import DutTruth, World
-from drivers.tca9548a import TCA9548A, MuxedBus, disable_all
+from drivers.tca9548a import TCA9548A, MuxedBus, disable_all, switch_on
 
 # --- literal bytes from hardware-notes 1.5: one control byte, bit n enables channel n, 0x00 at power-up
 SELECT_3 = [("write", None, b"\x08"), ("read", None, b"\x08")]  # write the byte, read it back
@@ -174,6 +174,28 @@ def test_two_switches_never_enable_two_channels_at_once():
     ]
     disable_all(rec)
     assert switches[0x70].control == switches[0x71].control == 0
+
+
+def test_a_selection_is_trusted_only_until_some_control_byte_changes():
+    """Transfers on the channel already selected write nothing; once any switch's byte is written (all
+    off at a safe state) or lost (a failed transfer), the next transfer selects again, every other
+    switch off first."""
+    _, fake, switches, rec, (d1, d2) = two_duts(((0x70, 2), (0x71, 2)))
+    d1.connect()
+    rec.calls.clear()
+    d1.measure_codes()
+    assert {c[1] for c in calls(rec)} == {0x30}  # the channel stays: nothing to the switches
+    disable_all(rec)
+    rec.calls.clear()
+    d1.measure_codes()
+    assert calls(rec)[:2] == [("write", 0x70, None, b"\x04"), ("read", 0x70, None, b"\x04")]
+    d2.connect()
+    fake.nack(0x71, count=1)
+    with pytest.raises(DeviceNotFound):
+        switch_on(rec, 0x71).read_control()  # a lost transfer: 0x71's byte unknown
+    rec.calls.clear()
+    d2.measure_codes()
+    assert calls(rec)[:2] == [("write", 0x71, None, b"\x04"), ("read", 0x71, None, b"\x04")]
 
 
 class OneChannelProbe(RegisterChip):
