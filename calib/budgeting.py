@@ -40,6 +40,7 @@ from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperatu
 from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
 from calib.mcrefit import CHUNK_DRAWS, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
+from calib.rowgroups import RowGroups
 from calib.uncertainty import COVERAGE_FACTOR, Budget
 
 Z_975 = 1.959963984540054
@@ -180,7 +181,8 @@ class _Draws:
 def _scalar_data(rng, qs, m: int, n: int, noise_nt):
     """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets."""
     dh = None if noise_nt is None else rng.standard_normal((m, n, 3)) * noise_nt
-    dref = _total((q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
+    dref = _total(a.rows_times(q) if isinstance(a, RowGroups)
+                  else (q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
     dt = _total(q @ a.T for q, _, a in qs if a is not None)
     return dh, dref, dt
 
