@@ -38,7 +38,7 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
 from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
-from calib.mcrefit import CHUNK_DRAWS, refit_for
+from calib.mcrefit import draw_chunks, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.rowgroups import RowGroups
 from calib.uncertainty import COVERAGE_FACTOR, Budget
@@ -145,10 +145,9 @@ class _Draws:
             qs = [(_unit(rng, dist, (m, root.shape[1])) @ root.T, a_ref, a_temp)
                   for root, dist, a_ref, a_temp in self.data_parts]
             if self.scalar_refits:  # in chunks: every draw holds a copy of the data
-                for lo in range(0, m, CHUNK_DRAWS):
-                    rows = slice(lo, min(lo + CHUNK_DRAWS, m))
-                    dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs], rows.stop - lo,
-                                                len(self.lin.ds), self.noise_nt)
+                for rows in draw_chunks(m, len(self.lin.ds)):
+                    dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs],
+                                                rows.stop - rows.start, len(self.lin.ds), self.noise_nt)
                     change[rows], failed[rows] = self.refit(dh, dref, dt)
             else:
                 moved, failed = self.refit(np.column_stack([q for q, _, _ in qs]))
@@ -210,12 +209,16 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
         qs.append((q, a_ref, a_temp))
         linear_change += q @ by_name[source.name].jacobian.T
     noise = np.sqrt(lin.sigma2) if statistical else None
-    dh, dref, dt = _scalar_data(rng, qs, draws, len(lin.ds), noise)
-    if dh is not None:
-        linear_change += lin.reading_change(dh)
-    if dh is None and dref is None and dt is None:
+    if noise is None and all(a_ref is None and a_temp is None for _, a_ref, a_temp in qs):
         return True, "no input to draw", 0
-    refitted, failed = refit_for(lin, None)(dh, dref, dt)
+    refit, n = refit_for(lin, None), len(lin.ds)
+    refitted, failed = np.empty_like(linear_change), np.zeros(draws, bool)
+    for rows in draw_chunks(draws, n):  # the drawn data a chunk at a time (the same draws as at once)
+        dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs], rows.stop - rows.start, n,
+                                    noise)
+        if dh is not None:
+            linear_change[rows] += lin.reading_change(dh)
+        refitted[rows], failed[rows] = refit(dh, dref, dt)
     d, mapped = refitted[~failed] - linear_change[~failed], linear_change[~failed]
     off = np.max(np.abs(d), axis=0, initial=0.0)
     u = np.sqrt(np.diag(linear.covariance))

@@ -23,6 +23,15 @@ MAX_TENSOR_TERMS = 4096  # q^(x k) terms kept per power before the sums are take
 MAX_SCALAR_STEPS = 8
 STEP_TOLERANCE = 1e-3
 CHUNK_DRAWS = 512
+# draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 12 MB (every draw is refitted on
+# its own, so the chunks change nothing but the memory; with 141k rows a draw is 3.4 MB)
+CHUNK_ROWS = 1 << 19
+
+
+def draw_chunks(m: int, n: int) -> list[slice]:
+    """The m draws of data of n rows in chunks of at most CHUNK_DRAWS draws and CHUNK_ROWS rows."""
+    size = max(1, min(CHUNK_DRAWS, CHUNK_ROWS // max(n, 1)))
+    return [slice(lo, min(lo + size, m)) for lo in range(0, m, size)]
 
 
 def _kron_power(a: np.ndarray, k: int) -> np.ndarray:
