@@ -118,7 +118,7 @@ class _Draws:
             if a_grid is not None:  # a model error: its data and its direct effect through one linear map
                 self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, a_grid))
             elif self.scalar_refits:
-                self.data_parts.append((root, source.distribution, a_ref, a_temp))
+                self.data_parts.append((root, source.distribution, _by_quantity(a_ref, len(ds)), a_temp))
             elif a_temp is not None and cal.model in ("t24", "t36") and refit_temperature:
                 if a_ref is not None:
                     self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution, None))
@@ -177,11 +177,20 @@ class _Draws:
         return field - self.cal.apply(h, temp)[None]
 
 
+def _by_quantity(a_ref, n: int):
+    """A dense a_ref (N,3,Q) as its (Q,3N) transpose, made once for every chunk of draws (None and the
+    compact form as they are)."""
+    if a_ref is None or isinstance(a_ref, RowGroups):
+        return a_ref
+    return np.ascontiguousarray(np.reshape(a_ref, (3 * n, -1)).T)
+
+
 def _scalar_data(rng, qs, m: int, n: int, noise_nt):
-    """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets."""
+    """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets; qs: (q (m,Q),
+    a_ref as `_by_quantity` gives it, a_temp (N,Q)) per source."""
     dh = None if noise_nt is None else rng.standard_normal((m, n, 3)) * noise_nt
-    dref = _total(a.rows_times(q) if isinstance(a, RowGroups)
-                  else (q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
+    dref = _total(a.rows_times(q) if isinstance(a, RowGroups) else (q @ a).reshape(m, n, 3)
+                  for q, a, _ in qs if a is not None)
     dt = _total(q @ a.T for q, _, a in qs if a is not None)
     return dh, dref, dt
 
@@ -206,7 +215,7 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
         a_ref, a_temp = source.sensitivities(lin.ds)
         q = _unit(rng, source.distribution, (draws, np.atleast_2d(source.covariance).shape[0])) @ \
             _root(source.covariance).T
-        qs.append((q, a_ref, a_temp))
+        qs.append((q, _by_quantity(a_ref, len(lin.ds)), a_temp))
         linear_change += q @ by_name[source.name].jacobian.T
     noise = np.sqrt(lin.sigma2) if statistical else None
     if noise is None and all(a_ref is None and a_temp is None for _, a_ref, a_temp in qs):

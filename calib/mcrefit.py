@@ -23,9 +23,9 @@ MAX_TENSOR_TERMS = 4096  # q^(x k) terms kept per power before the sums are take
 MAX_SCALAR_STEPS = 8
 STEP_TOLERANCE = 1e-3
 CHUNK_DRAWS = 512
-# draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 12 MB (every draw is refitted on
+# draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 25 MB (every draw is refitted on
 # its own, so the chunks change nothing but the memory; with 141k rows a draw is 3.4 MB)
-CHUNK_ROWS = 1 << 19
+CHUNK_ROWS = 1 << 20
 
 
 def draw_chunks(m: int, n: int) -> list[slice]:
@@ -122,19 +122,18 @@ class ScalarRefit:
         if self.temp:
             ka = _upper(theta[:, 9:15])
             v = h - c[:, None, :] - t[..., None] * theta[:, None, 15:18]
-            y = v @ a.transpose(0, 2, 1) + t[..., None] * (v @ ka.transpose(0, 2, 1))
+            y = _times(v, a.transpose(0, 2, 1)) + t[..., None] * _times(v, ka.transpose(0, 2, 1))
         else:
             v = h - c[:, None, :]
-            y = v @ a.transpose(0, 2, 1)
-        norm = np.sqrt(np.einsum("mni,mni->mn", y, y))
+            y = _times(v, a.transpose(0, 2, 1))
+        norm = np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2 + y[..., 2] ** 2)
         wu = y * (self.lin.w * (norm - fn) / norm)[..., None]  # w r u, u = y / |y|
-        upper = np.triu_indices(3)
-        g_a = (wu.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
+        g_a = _upper_sums(wu, v)
         su = wu.sum(axis=1)
         if not self.temp:
             return np.column_stack([g_a, -np.einsum("mji,mj->mi", a, su)])
         wut = wu * t[..., None]
-        g_ka = (wut.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
+        g_ka = _upper_sums(wut, v)
         sut = wut.sum(axis=1)
         sutt = np.einsum("mni,mn->mi", wut, t)
         g_c = -(np.einsum("mji,mj->mi", a, su) + np.einsum("mji,mj->mi", ka, sut))
@@ -164,6 +163,23 @@ class ScalarRefit:
         failed[moving] = True  # still moving after MAX_SCALAR_STEPS: not converged
         failed |= ~np.all(np.isfinite(theta), axis=1)
         return (theta - lin.theta) @ lin.select.T, failed
+
+
+def _times(x: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    """x @ mat per draw, x (m,N,3), mat (m,3,3), column by column: a batched matmul of 3x3 matrices on
+    long arrays takes numpy's slow loops."""
+    out = np.empty(x.shape)
+    for j in range(3):
+        out[..., j] = (x[..., 0] * mat[:, None, 0, j] + x[..., 1] * mat[:, None, 1, j]
+                       + x[..., 2] * mat[:, None, 2, j])
+    return out
+
+
+def _upper_sums(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(m,6): sum over the rows of x_i v_j for the upper entries (i, j), row by row."""
+    upper = np.triu_indices(3)
+    return np.column_stack([np.einsum("mn,mn->m", x[..., i], v[..., j])
+                            for i, j in zip(*upper, strict=True)])
 
 
 def _upper(entries: np.ndarray) -> np.ndarray:

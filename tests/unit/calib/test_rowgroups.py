@@ -10,7 +10,7 @@ import pytest
 
 import calib
 from calib import synthetic
-from calib.budgeting import _scalar_data, budget
+from calib.budgeting import _by_quantity, _scalar_data, budget
 from calib.dataset import Dataset
 from calib.linearise import linearised
 from calib.propagation import InputSource
@@ -57,7 +57,7 @@ def test_sums_and_rows_agree_with_the_dense_array():
     m, n = 7, 300
     rng_a, rng_b = np.random.default_rng(4), np.random.default_rng(4)
     compact = _scalar_data(rng_a, [(q, groups, None)], m, n, None)[1]
-    dense = _scalar_data(rng_b, [(q, groups.dense(), None)], m, n, None)[1]
+    dense = _scalar_data(rng_b, [(q, _by_quantity(groups.dense(), n), None)], m, n, None)[1]
     np.testing.assert_allclose(compact, dense, rtol=1e-12, atol=1e-12)
 
 
