@@ -14,6 +14,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from calib.errors import FitError
@@ -194,7 +196,14 @@ def refit_for(lin, a_temp: np.ndarray | None):
     if isinstance(lin, ScalarGaussNewton):
         return ScalarRefit(lin)
     if isinstance(lin, LinearInReference) and a_temp is not None:
-        return TemperatureRefit(lin, a_temp)
+        # the law's check (calib/lawcheck.py) and the Monte Carlo refit the same temperature sources: their
+        # sums over the rows are taken once per linearisation and sensitivity
+        a_temp = np.ascontiguousarray(a_temp, float)
+        key = (a_temp.shape, hashlib.blake2b(a_temp.tobytes(), digest_size=16).digest())
+        made = lin.__dict__.setdefault("_temperature_refits", {})
+        if key not in made:
+            made[key] = TemperatureRefit(lin, a_temp)
+        return made[key]
     if a_temp is not None and np.any(a_temp):
         raise FitError("temperature changes of a model without temperature terms")
     return None
