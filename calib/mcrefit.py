@@ -118,26 +118,26 @@ class ScalarRefit:
         self.temp = lin.temp
 
     def _gradient(self, theta, h, fn, t):
-        """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian."""
+        """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian; h (m|1,3,N): the
+        readings component by component (each a contiguous row: 3x3 products on long arrays stay
+        element-wise, which numpy's batched matmul would not)."""
         a = _upper(theta[:, :6])
-        c = theta[:, 6:9]
+        c = theta[:, 6:9, None]
+        v = h - c if not self.temp else h - c - t[:, None, :] * theta[:, 15:18, None]
+        y = _times(a, v)
         if self.temp:
             ka = _upper(theta[:, 9:15])
-            v = h - c[:, None, :] - t[..., None] * theta[:, None, 15:18]
-            y = _times(v, a.transpose(0, 2, 1)) + t[..., None] * _times(v, ka.transpose(0, 2, 1))
-        else:
-            v = h - c[:, None, :]
-            y = _times(v, a.transpose(0, 2, 1))
-        norm = np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2 + y[..., 2] ** 2)
-        wu = y * (self.lin.w * (norm - fn) / norm)[..., None]  # w r u, u = y / |y|
+            y += t[:, None, :] * _times(ka, v)
+        norm = np.sqrt(y[:, 0] ** 2 + y[:, 1] ** 2 + y[:, 2] ** 2)
+        wu = y * (self.lin.w * (norm - fn) / norm)[:, None, :]  # w r u, u = y / |y|
         g_a = _upper_sums(wu, v)
-        su = wu.sum(axis=1)
+        su = wu.sum(axis=2)
         if not self.temp:
             return np.column_stack([g_a, -np.einsum("mji,mj->mi", a, su)])
-        wut = wu * t[..., None]
+        wut = wu * t[:, None, :]
         g_ka = _upper_sums(wut, v)
-        sut = wut.sum(axis=1)
-        sutt = np.einsum("mni,mn->mi", wut, t)
+        sut = wut.sum(axis=2)
+        sutt = np.einsum("min,mn->mi", wut, t)
         g_c = -(np.einsum("mji,mj->mi", a, su) + np.einsum("mji,mj->mi", ka, sut))
         g_kc = -(np.einsum("mji,mj->mi", a, sut) + np.einsum("mji,mj->mi", ka, sutt))
         return np.column_stack([g_a, g_c, g_ka, g_kc])
@@ -147,6 +147,7 @@ class ScalarRefit:
         lin = self.lin
         m = next(x.shape[0] for x in (dh, dref, dt) if x is not None)
         h = lin.ds.h_nt[None] if dh is None else lin.ds.h_nt[None] + dh
+        h = np.ascontiguousarray(h.transpose(0, 2, 1))  # (m|1,3,N)
         if dref is not None and lin.norm_from_ref:
             fn = np.linalg.norm(lin.ds.ref_nt[None] + dref, axis=2)
         else:
@@ -167,21 +168,19 @@ class ScalarRefit:
         return (theta - lin.theta) @ lin.select.T, failed
 
 
-def _times(x: np.ndarray, mat: np.ndarray) -> np.ndarray:
-    """x @ mat per draw, x (m,N,3), mat (m,3,3), column by column: a batched matmul of 3x3 matrices on
-    long arrays takes numpy's slow loops."""
-    out = np.empty(x.shape)
-    for j in range(3):
-        out[..., j] = (x[..., 0] * mat[:, None, 0, j] + x[..., 1] * mat[:, None, 1, j]
-                       + x[..., 2] * mat[:, None, 2, j])
+def _times(mat: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """mat @ x per draw, mat (m,3,3), x (m|1,3,N) component by component."""
+    out = np.empty((max(len(mat), len(x)),) + x.shape[1:])
+    for i in range(3):
+        out[:, i] = (mat[:, i, 0, None] * x[:, 0] + mat[:, i, 1, None] * x[:, 1]
+                     + mat[:, i, 2, None] * x[:, 2])
     return out
 
 
 def _upper_sums(x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(m,6): sum over the rows of x_i v_j for the upper entries (i, j), row by row."""
+    """(m,6): sum over the rows of x_i v_j for the upper entries (i, j); x, v (m,3,N)."""
     upper = np.triu_indices(3)
-    return np.column_stack([np.einsum("mn,mn->m", x[..., i], v[..., j])
-                            for i, j in zip(*upper, strict=True)])
+    return np.column_stack([np.einsum("mn,mn->m", x[:, i], v[:, j]) for i, j in zip(*upper, strict=True)])
 
 
 def _upper(entries: np.ndarray) -> np.ndarray:
