@@ -5,9 +5,10 @@
 
 Each model (T24, P12, scalar) is fitted and budgeted as `rig refit SESSION --dut D --model M` does it
 (rig/analysis/sessionfit.py: references with the run's best ambient, the session's plan options); the
-seconds are those of the fit with its budget, the session read once. With --against, prints the largest
-relative change of any budget line (contribution_nt), of the parameters' expanded uncertainties and of
-expanded_vector_error_nt. Copy a session before timing it: reading one takes its lock.
+seconds are those of the fit with its budget (wall and the process's CPU time), the session read once.
+With --against, prints the largest relative change of any budget line (contribution_nt), of the
+parameters' expanded uncertainties and of expanded_vector_error_nt. Copy a session before timing it:
+reading one takes its lock.
 """
 
 from __future__ import annotations
@@ -32,12 +33,13 @@ def figures(session: str, dut: str, models) -> dict:
     prepared = fitter.prepare(ds)
     out = {"read_s": time.perf_counter() - start, "rows": len(ds), "models": {}}
     for model in models:
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         cal, b = fitter.calibrate_budgeted(prepared, model)
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         u = cal.uncertainty or {}
         out["models"][model] = {
             "seconds": seconds,
+            "cpu_s": cpu,  # the process's CPU time: less moved by other loads than the wall time
             "method": u.get("method", ""),
             "budget": {c["source"]: c["contribution_nt"] for c in u.get("budget", [])},
             "expanded": {k: np.ravel(v).tolist() for k, v in (u.get("expanded") or {}).items()},
@@ -57,12 +59,14 @@ def _rel(a, b) -> float:
 def compare(now: dict, before: dict) -> None:
     for model, m in now["models"].items():
         old = before["models"].get(model)
-        line = f"{model:7s} {m['seconds']:7.2f} s"
+        line = f"{model:7s} {m['seconds']:7.2f} s (cpu {m['cpu_s']:7.2f} s)"
         if old is not None:
             lines = [_rel(m["budget"][k], old["budget"][k]) for k in m["budget"] if k in old["budget"]]
             missing = set(m["budget"]) ^ set(old["budget"])
             params = [_rel(m["expanded"][k], old["expanded"][k]) for k in m["expanded"]]
-            line += (f" (before {old['seconds']:7.2f} s)  budget lines {max(lines, default=0):.2e}"
+            old_cpu = old.get("cpu_s", float("nan"))
+            line += (f"  before {old['seconds']:7.2f} s (cpu {old_cpu:7.2f} s)"
+                     f"  budget lines {max(lines, default=0):.2e}"
                      f"  expanded {max(params, default=0):.2e}  expanded_vector_error_nt "
                      f"{_rel(m['expanded_vector_error_nt'], old['expanded_vector_error_nt']):.2e}"
                      + (f"  lines only in one: {sorted(missing)}" if missing else ""))
