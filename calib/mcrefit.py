@@ -56,25 +56,26 @@ class TemperatureRefit:
         xs = xs[:degree + 1]
         p = lin.p
         self.lin, self.p, self.a = lin, p, a_temp
-        grams = [sum((xs[j][:, :, None] * xs[k - j][:, None, :]) for j in range(max(0, k - degree),
-                                                                           min(k, degree) + 1))
-                 for k in range(2 * degree + 1)]  # (N,p,p) per power of d
-        rhs = [xs[k][:, :, None] * ds.ref_nt[:, None, :] for k in range(degree + 1)]  # (N,p,3)
-        self.g0 = np.einsum("n,nab->ab", w, grams[0])
-        self.b0 = np.einsum("n,nab->ab", w, rhs[0])
+        self.g0 = (xs[0] * w[:, None]).T @ xs[0]
+        self.b0 = (xs[0] * w[:, None]).T @ ds.ref_nt
         self.scale = np.sqrt(np.diag(self.g0))
         self.theta0 = self._solve(self.g0[None], self.b0[None])[0]
         self.terms = []  # (power k, coefficient tensor (Q^k or N, p*p + 3p)) per power k >= 1
         for k in range(1, 2 * degree + 1):
-            both = grams[k].reshape(len(t), -1)
-            if k <= degree:
-                both = np.column_stack([both, rhs[k].reshape(len(t), -1)])
-            else:
-                both = np.column_stack([both, np.zeros((len(t), 3 * p))])
-            if a_temp.shape[1] ** k <= MAX_TENSOR_TERMS:
-                self.terms.append((k, True, (_kron_power(a_temp, k) * w[:, None]).T @ both))
-            else:
-                self.terms.append((k, False, both * w[:, None]))
+            pairs = [(j, k - j) for j in range(max(0, k - degree), min(k, degree) + 1)]
+            if a_temp.shape[1] ** k <= MAX_TENSOR_TERMS:  # the weighted sums, one (p,p) product each
+                kron = _kron_power(a_temp, k) * w[:, None]
+                coef = np.zeros((kron.shape[1], p * p + 3 * p))
+                for i in range(kron.shape[1]):
+                    coef[i, :p * p] = sum((xs[j] * kron[:, i, None]).T @ xs[l] for j, l in pairs).ravel()
+                    if k <= degree:
+                        coef[i, p * p:] = ((xs[k] * kron[:, i, None]).T @ ds.ref_nt).ravel()
+                self.terms.append((k, True, coef))
+                continue
+            both = sum(xs[j][:, :, None] * xs[l][:, None, :] for j, l in pairs).reshape(len(t), -1)
+            rhs = (xs[k][:, :, None] * ds.ref_nt[:, None, :]).reshape(len(t), -1) if k <= degree else \
+                np.zeros((len(t), 3 * p))
+            self.terms.append((k, False, np.column_stack([both, rhs]) * w[:, None]))
 
     def _solve(self, g: np.ndarray, b: np.ndarray) -> np.ndarray:
         s = self.scale
