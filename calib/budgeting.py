@@ -38,8 +38,9 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
 from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
-from calib.mcrefit import CHUNK_DRAWS, refit_for
+from calib.mcrefit import draw_chunks, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
+from calib.rowgroups import RowGroups
 from calib.uncertainty import COVERAGE_FACTOR, Budget
 
 Z_975 = 1.959963984540054
@@ -117,7 +118,7 @@ class _Draws:
             if a_grid is not None:  # a model error: its data and its direct effect through one linear map
                 self.linear_parts.append((by_name[source.name].jacobian, root, source.distribution, a_grid))
             elif self.scalar_refits:
-                self.data_parts.append((root, source.distribution, a_ref, a_temp))
+                self.data_parts.append((root, source.distribution, _by_quantity(a_ref, len(ds)), a_temp))
             elif a_temp is not None and cal.model in ("t24", "t36") and refit_temperature:
                 if a_ref is not None:
                     self.linear_parts.append((lin.ref_jacobian(a_ref), root, source.distribution, None))
@@ -144,10 +145,9 @@ class _Draws:
             qs = [(_unit(rng, dist, (m, root.shape[1])) @ root.T, a_ref, a_temp)
                   for root, dist, a_ref, a_temp in self.data_parts]
             if self.scalar_refits:  # in chunks: every draw holds a copy of the data
-                for lo in range(0, m, CHUNK_DRAWS):
-                    rows = slice(lo, min(lo + CHUNK_DRAWS, m))
-                    dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs], rows.stop - lo,
-                                                len(self.lin.ds), self.noise_nt)
+                for rows in draw_chunks(m, len(self.lin.ds)):
+                    dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs],
+                                                rows.stop - rows.start, len(self.lin.ds), self.noise_nt)
                     change[rows], failed[rows] = self.refit(dh, dref, dt)
             else:
                 moved, failed = self.refit(np.column_stack([q for q, _, _ in qs]))
@@ -177,10 +177,20 @@ class _Draws:
         return field - self.cal.apply(h, temp)[None]
 
 
+def _by_quantity(a_ref, n: int):
+    """A dense a_ref (N,3,Q) as its (Q,3N) transpose, made once for every chunk of draws (None and the
+    compact form as they are)."""
+    if a_ref is None or isinstance(a_ref, RowGroups):
+        return a_ref
+    return np.ascontiguousarray(np.reshape(a_ref, (3 * n, -1)).T)
+
+
 def _scalar_data(rng, qs, m: int, n: int, noise_nt):
-    """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets."""
+    """(dh (m,N,3) or None, dref (m,N,3) or None, dt (m,N) or None) of m drawn datasets; qs: (q (m,Q),
+    a_ref as `_by_quantity` gives it, a_temp (N,Q)) per source."""
     dh = None if noise_nt is None else rng.standard_normal((m, n, 3)) * noise_nt
-    dref = _total((q @ a.reshape(3 * n, -1).T).reshape(m, n, 3) for q, a, _ in qs if a is not None)
+    dref = _total(a.rows_times(q) if isinstance(a, RowGroups) else (q @ a).reshape(m, n, 3)
+                  for q, a, _ in qs if a is not None)
     dt = _total(q @ a.T for q, _, a in qs if a is not None)
     return dh, dref, dt
 
@@ -205,15 +215,19 @@ def validate_scalar(lin: ScalarGaussNewton, linear: LinearBudget, sources: list[
         a_ref, a_temp = source.sensitivities(lin.ds)
         q = _unit(rng, source.distribution, (draws, np.atleast_2d(source.covariance).shape[0])) @ \
             _root(source.covariance).T
-        qs.append((q, a_ref, a_temp))
+        qs.append((q, _by_quantity(a_ref, len(lin.ds)), a_temp))
         linear_change += q @ by_name[source.name].jacobian.T
     noise = np.sqrt(lin.sigma2) if statistical else None
-    dh, dref, dt = _scalar_data(rng, qs, draws, len(lin.ds), noise)
-    if dh is not None:
-        linear_change += lin.reading_change(dh)
-    if dh is None and dref is None and dt is None:
+    if noise is None and all(a_ref is None and a_temp is None for _, a_ref, a_temp in qs):
         return True, "no input to draw", 0
-    refitted, failed = refit_for(lin, None)(dh, dref, dt)
+    refit, n = refit_for(lin, None), len(lin.ds)
+    refitted, failed = np.empty_like(linear_change), np.zeros(draws, bool)
+    for rows in draw_chunks(draws, n):  # the drawn data a chunk at a time (the same draws as at once)
+        dh, dref, dt = _scalar_data(rng, [(q[rows], a, b) for q, a, b in qs], rows.stop - rows.start, n,
+                                    noise)
+        if dh is not None:
+            linear_change[rows] += lin.reading_change(dh)
+        refitted[rows], failed[rows] = refit(dh, dref, dt)
     d, mapped = refitted[~failed] - linear_change[~failed], linear_change[~failed]
     off = np.max(np.abs(d), axis=0, initial=0.0)
     u = np.sqrt(np.diag(linear.covariance))

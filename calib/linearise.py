@@ -32,6 +32,7 @@ from calib.dataset import Dataset
 from calib.design import regressors as t24_regressors
 from calib.equations import apply, p12_angles_from_rows
 from calib.errors import FitError
+from calib.rowgroups import RowGroups
 from calib.scalar import UPPER, _residuals_jacobian, orientation_balance_weights
 from calib.stats import known_norm
 
@@ -134,7 +135,9 @@ class LinearInReference:
         """(p,3,Q) per-axis coefficient changes -> (P,Q) in the layout's order."""
         return per_axis.reshape(self.p * 3, -1)[self.index]
 
-    def ref_jacobian(self, a_ref: np.ndarray) -> np.ndarray:
+    def ref_jacobian(self, a_ref) -> np.ndarray:
+        if isinstance(a_ref, RowGroups):
+            return self._flat(np.einsum("gk,giq->kiq", a_ref.sums(self.reference_map.T), a_ref.per_group))
         return self._flat(np.einsum("kn,niq->kiq", self.reference_map, a_ref))
 
     def temp_jacobian(self, a_temp: np.ndarray) -> np.ndarray:
@@ -190,9 +193,15 @@ class P12Rows:
             down[j] -= step
             self.jac[:, j] = (_p12_params(_split(up)) - _p12_params(_split(down))) / (2 * step)
 
-    def ref_jacobian(self, a_ref: np.ndarray) -> np.ndarray:
+    def ref_jacobian(self, a_ref) -> np.ndarray:
         parts = []
         for i, (x, g_inv, c, r, _) in enumerate(self.rows):
+            if isinstance(a_ref, RowGroups):  # the same sums over the rows, taken per group first
+                a = a_ref.per_group[:, :i + 1, :]  # (K, i+1, Q)
+                sums = a_ref.sums(np.column_stack([self.w * r, x * self.w[:, None]]))  # (K, 1 + i+2)
+                first = np.vstack([np.einsum("gjq,g->jq", a, sums[:, 0]), np.zeros((1, a.shape[2]))])
+                parts.append(g_inv @ (first - sums[:, 1:].T @ np.einsum("gjq,j->gq", a, c[:-1])))
+                continue
             a = a_ref[:, :i + 1, :]  # (N, i+1, Q): the change of the regressors B_1..B_i
             first = np.vstack([np.einsum("njq,n->jq", a, self.w * r), np.zeros((1, a.shape[2]))])
             moved = np.einsum("njq,j->nq", a, c[:-1])  # dX c
@@ -270,10 +279,13 @@ class ScalarGaussNewton:
         """(P,Q) parameter change for residual changes dr (N,Q)."""
         return self.select @ (-self.n_inv @ ((self.jac * self.w[:, None]).T @ dr))
 
-    def ref_jacobian(self, a_ref: np.ndarray) -> np.ndarray:
+    def ref_jacobian(self, a_ref) -> np.ndarray:
         if not self.norm_from_ref:
             return np.zeros((self.layout.size, a_ref.shape[2]))
         unit = self.ds.ref_nt / np.linalg.norm(self.ds.ref_nt, axis=1, keepdims=True)
+        if isinstance(a_ref, RowGroups):  # (J W)^T dr summed per group first, dr = -unit . a_ref
+            jw_u = a_ref.sums((self.jac * self.w[:, None])[:, :, None] * unit[:, None, :])  # (K,free,3)
+            return self.select @ (self.n_inv @ np.einsum("gfi,giq->fq", jw_u, a_ref.per_group))
         return self._through_fit(-np.einsum("ni,niq->nq", unit, a_ref))  # r = |y| - |B|
 
     def temp_jacobian(self, a_temp: np.ndarray) -> np.ndarray:

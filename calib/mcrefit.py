@@ -14,6 +14,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from calib.errors import FitError
@@ -23,6 +25,15 @@ MAX_TENSOR_TERMS = 4096  # q^(x k) terms kept per power before the sums are take
 MAX_SCALAR_STEPS = 8
 STEP_TOLERANCE = 1e-3
 CHUNK_DRAWS = 512
+# draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 25 MB (every draw is refitted on
+# its own, so the chunks change nothing but the memory; with 141k rows a draw is 3.4 MB)
+CHUNK_ROWS = 1 << 20
+
+
+def draw_chunks(m: int, n: int) -> list[slice]:
+    """The m draws of data of n rows in chunks of at most CHUNK_DRAWS draws and CHUNK_ROWS rows."""
+    size = max(1, min(CHUNK_DRAWS, CHUNK_ROWS // max(n, 1)))
+    return [slice(lo, min(lo + size, m)) for lo in range(0, m, size)]
 
 
 def _kron_power(a: np.ndarray, k: int) -> np.ndarray:
@@ -45,25 +56,26 @@ class TemperatureRefit:
         xs = xs[:degree + 1]
         p = lin.p
         self.lin, self.p, self.a = lin, p, a_temp
-        grams = [sum((xs[j][:, :, None] * xs[k - j][:, None, :]) for j in range(max(0, k - degree),
-                                                                           min(k, degree) + 1))
-                 for k in range(2 * degree + 1)]  # (N,p,p) per power of d
-        rhs = [xs[k][:, :, None] * ds.ref_nt[:, None, :] for k in range(degree + 1)]  # (N,p,3)
-        self.g0 = np.einsum("n,nab->ab", w, grams[0])
-        self.b0 = np.einsum("n,nab->ab", w, rhs[0])
+        self.g0 = (xs[0] * w[:, None]).T @ xs[0]
+        self.b0 = (xs[0] * w[:, None]).T @ ds.ref_nt
         self.scale = np.sqrt(np.diag(self.g0))
         self.theta0 = self._solve(self.g0[None], self.b0[None])[0]
         self.terms = []  # (power k, coefficient tensor (Q^k or N, p*p + 3p)) per power k >= 1
         for k in range(1, 2 * degree + 1):
-            both = grams[k].reshape(len(t), -1)
-            if k <= degree:
-                both = np.column_stack([both, rhs[k].reshape(len(t), -1)])
-            else:
-                both = np.column_stack([both, np.zeros((len(t), 3 * p))])
-            if a_temp.shape[1] ** k <= MAX_TENSOR_TERMS:
-                self.terms.append((k, True, (_kron_power(a_temp, k) * w[:, None]).T @ both))
-            else:
-                self.terms.append((k, False, both * w[:, None]))
+            pairs = [(j, k - j) for j in range(max(0, k - degree), min(k, degree) + 1)]
+            if a_temp.shape[1] ** k <= MAX_TENSOR_TERMS:  # the weighted sums, one (p,p) product each
+                kron = _kron_power(a_temp, k) * w[:, None]
+                coef = np.zeros((kron.shape[1], p * p + 3 * p))
+                for i in range(kron.shape[1]):
+                    coef[i, :p * p] = sum((xs[j] * kron[:, i, None]).T @ xs[l] for j, l in pairs).ravel()
+                    if k <= degree:
+                        coef[i, p * p:] = ((xs[k] * kron[:, i, None]).T @ ds.ref_nt).ravel()
+                self.terms.append((k, True, coef))
+                continue
+            both = sum(xs[j][:, :, None] * xs[l][:, None, :] for j, l in pairs).reshape(len(t), -1)
+            rhs = (xs[k][:, :, None] * ds.ref_nt[:, None, :]).reshape(len(t), -1) if k <= degree else \
+                np.zeros((len(t), 3 * p))
+            self.terms.append((k, False, np.column_stack([both, rhs]) * w[:, None]))
 
     def _solve(self, g: np.ndarray, b: np.ndarray) -> np.ndarray:
         s = self.scale
@@ -107,27 +119,26 @@ class ScalarRefit:
         self.temp = lin.temp
 
     def _gradient(self, theta, h, fn, t):
-        """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian."""
+        """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian; h (m|1,3,N): the
+        readings component by component (each a contiguous row: 3x3 products on long arrays stay
+        element-wise, which numpy's batched matmul would not)."""
         a = _upper(theta[:, :6])
-        c = theta[:, 6:9]
+        c = theta[:, 6:9, None]
+        v = h - c if not self.temp else h - c - t[:, None, :] * theta[:, 15:18, None]
+        y = _times(a, v)
         if self.temp:
             ka = _upper(theta[:, 9:15])
-            v = h - c[:, None, :] - t[..., None] * theta[:, None, 15:18]
-            y = v @ a.transpose(0, 2, 1) + t[..., None] * (v @ ka.transpose(0, 2, 1))
-        else:
-            v = h - c[:, None, :]
-            y = v @ a.transpose(0, 2, 1)
-        norm = np.sqrt(np.einsum("mni,mni->mn", y, y))
-        wu = y * (self.lin.w * (norm - fn) / norm)[..., None]  # w r u, u = y / |y|
-        upper = np.triu_indices(3)
-        g_a = (wu.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
-        su = wu.sum(axis=1)
+            y += t[:, None, :] * _times(ka, v)
+        norm = np.sqrt(y[:, 0] ** 2 + y[:, 1] ** 2 + y[:, 2] ** 2)
+        wu = y * (self.lin.w * (norm - fn) / norm)[:, None, :]  # w r u, u = y / |y|
+        g_a = _upper_sums(wu, v)
+        su = wu.sum(axis=2)
         if not self.temp:
             return np.column_stack([g_a, -np.einsum("mji,mj->mi", a, su)])
-        wut = wu * t[..., None]
-        g_ka = (wut.transpose(0, 2, 1) @ v)[:, upper[0], upper[1]]
-        sut = wut.sum(axis=1)
-        sutt = np.einsum("mni,mn->mi", wut, t)
+        wut = wu * t[:, None, :]
+        g_ka = _upper_sums(wut, v)
+        sut = wut.sum(axis=2)
+        sutt = np.einsum("min,mn->mi", wut, t)
         g_c = -(np.einsum("mji,mj->mi", a, su) + np.einsum("mji,mj->mi", ka, sut))
         g_kc = -(np.einsum("mji,mj->mi", a, sut) + np.einsum("mji,mj->mi", ka, sutt))
         return np.column_stack([g_a, g_c, g_ka, g_kc])
@@ -137,6 +148,7 @@ class ScalarRefit:
         lin = self.lin
         m = next(x.shape[0] for x in (dh, dref, dt) if x is not None)
         h = lin.ds.h_nt[None] if dh is None else lin.ds.h_nt[None] + dh
+        h = np.ascontiguousarray(h.transpose(0, 2, 1))  # (m|1,3,N)
         if dref is not None and lin.norm_from_ref:
             fn = np.linalg.norm(lin.ds.ref_nt[None] + dref, axis=2)
         else:
@@ -157,6 +169,21 @@ class ScalarRefit:
         return (theta - lin.theta) @ lin.select.T, failed
 
 
+def _times(mat: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """mat @ x per draw, mat (m,3,3), x (m|1,3,N) component by component."""
+    out = np.empty((max(len(mat), len(x)),) + x.shape[1:])
+    for i in range(3):
+        out[:, i] = (mat[:, i, 0, None] * x[:, 0] + mat[:, i, 1, None] * x[:, 1]
+                     + mat[:, i, 2, None] * x[:, 2])
+    return out
+
+
+def _upper_sums(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(m,6): sum over the rows of x_i v_j for the upper entries (i, j); x, v (m,3,N)."""
+    upper = np.triu_indices(3)
+    return np.column_stack([np.einsum("mn,mn->m", x[:, i], v[:, j]) for i, j in zip(*upper, strict=True)])
+
+
 def _upper(entries: np.ndarray) -> np.ndarray:
     """(m,6) upper-triangular entries (row by row) -> (m,3,3)."""
     out = np.zeros((entries.shape[0], 3, 3))
@@ -169,7 +196,14 @@ def refit_for(lin, a_temp: np.ndarray | None):
     if isinstance(lin, ScalarGaussNewton):
         return ScalarRefit(lin)
     if isinstance(lin, LinearInReference) and a_temp is not None:
-        return TemperatureRefit(lin, a_temp)
+        # the law's check (calib/lawcheck.py) and the Monte Carlo refit the same temperature sources: their
+        # sums over the rows are taken once per linearisation and sensitivity
+        a_temp = np.ascontiguousarray(a_temp, float)
+        key = (a_temp.shape, hashlib.blake2b(a_temp.tobytes(), digest_size=16).digest())
+        made = lin.__dict__.setdefault("_temperature_refits", {})
+        if key not in made:
+            made[key] = TemperatureRefit(lin, a_temp)
+        return made[key]
     if a_temp is not None and np.any(a_temp):
         raise FitError("temperature changes of a model without temperature terms")
     return None

@@ -44,13 +44,14 @@ from calib.dataset import Dataset
 from calib.distributions import gaussian_radius
 from calib.errors import DataError
 from calib.linearise import ParamLayout, field_jacobian, linearised
+from calib.rowgroups import RowGroups
 from calib.uncertainty import raw_for
 
 STATISTICAL = "fit (statistical)"
 # of each unit part of q: normal, rectangular (a +- tolerance), two-point (+-1 with equal chance: a state
 # that is one way or the other, as a thermal hysteresis at a point of use)
 DISTRIBUTIONS = ("normal", "rectangular", "two-point")
-Sensitivity = np.ndarray | Callable[[Dataset], np.ndarray] | None
+Sensitivity = np.ndarray | RowGroups | Callable[[Dataset], np.ndarray | RowGroups] | None
 GridSensitivity = np.ndarray | Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None
 
 
@@ -60,7 +61,9 @@ class InputSource:
 
     name: str
     covariance: np.ndarray  # Sigma_q (Q,Q): standard uncertainties squared, with their correlations
-    ref_nt: Sensitivity = None  # a_ref (N,3,Q), or a function of the dataset giving it
+    # a_ref (N,3,Q) or its compact form calib.rowgroups.RowGroups (offsets per group of rows), or a
+    # function of the dataset giving either
+    ref_nt: Sensitivity = None
     temp_c: Sensitivity = None  # a_temp (N,Q), or a function of the dataset giving it
     distribution: str = "normal"  # of q = L v (L L^T = Sigma_q), v independent unit-variance entries
     origin: str = ""  # where Sigma_q comes from (a commissioning file, a datasheet, a tolerance)
@@ -83,7 +86,11 @@ class InputSource:
         wanted = (("ref_nt", self.ref_nt, (len(ds), 3, q)), ("temp_c", self.temp_c, (len(ds), q)))
         for what, given, shape in wanted:
             a = given(ds) if callable(given) else given
-            if a is not None:
+            if isinstance(a, RowGroups):  # compact: kept so, every consumer contracts it per group
+                if a.shape != shape:
+                    raise DataError(f"source {self.name!r}: {what} sensitivity has shape {a.shape}, "
+                                    f"expected {shape}")
+            elif a is not None:
                 a = np.asarray(a, float)
                 if a.shape != shape:
                     raise DataError(f"source {self.name!r}: {what} sensitivity has shape {a.shape}, "

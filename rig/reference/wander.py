@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.propagation import InputSource
+from calib.rowgroups import RowGroups
 
 WANDER_FACTOR = 3.0
 SIGNIFICANCE = 3.0
@@ -68,9 +69,7 @@ def wander_source(ds, resid: np.ndarray, noise_nt: np.ndarray,
     variance = WANDER_FACTOR * allan
     labels, index = np.unique(np.asarray(ds.group if ds.group is not None else ds.columns["point"],
                                          object).astype(str), return_inverse=True)
-    a = np.zeros((len(ds), 3, 3 * len(labels)))
-    for i in range(3):
-        a[np.arange(len(ds)), i, 3 * index + i] = 1.0
+    a = RowGroups.offsets(index, len(labels))  # compact: a dense (N,3,3 steps) would be N x steps x 9
     deviation = ", ".join(f"{v:.1f}" for v in np.sqrt(allan))
     said = (f"consecutive points within a step: Allan deviation ({deviation}) nT beyond the noise; "
             f"{WANDER_FACTOR:g} x its variance per step, {len(labels)} steps")
