@@ -26,6 +26,7 @@ nT under every plan's error against the truth, the same for all of them.
 from __future__ import annotations
 
 import argparse
+import logging
 import tempfile
 import time
 from pathlib import Path
@@ -42,6 +43,9 @@ from rig.schedules.compile import check_campaign, compile_plan
 from rig.schedules.design import design_inputs, design_plan, designed_plan_text
 from rig.schedules.inputs import planning_inputs
 from rig.session.reader import SessionReader, read_dataset
+
+# as `rig` itself does: a timed-out request is the rig's to retry and log, not pymodbus's to print raw frames
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 REPO = Path(__file__).resolve().parents[1]
 PLANS = REPO / "configs" / "plans"
