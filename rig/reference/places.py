@@ -30,14 +30,11 @@ import numpy as np
 import yaml
 
 from calib.digest import sha256_file
-from rig.config import Station
 from rig.core.errors import ConfigError
-from rig.core.paths import inside
-from rig.core.yamlload import load_model, read_text
 from rig.devices.build import open_rig
 from rig.reference import commissioning_file
-from rig.reference.procedure import drive, reference_of, setting_records
-from rig.reference.sitefield import ReferenceReader, load_reference_calibrations
+from rig.reference.procedure import commissioning_inputs, drive, setting_records
+from rig.reference.sitefield import ReferenceReader
 
 SAME_PLACE_MM = 1.0
 
@@ -57,12 +54,8 @@ def commission_place(station_path: str | Path, out_dir: str | Path, position_mm,
                      current_a: float | None = None, clock=None, on_rig=None,
                      now: dt.datetime | None = None) -> Path:
     """Measure at `position_mm`, add it to the file in `out_dir` and fit the loops again; its path."""
-    text = read_text(station_path)
-    station = load_model(Station, station_path, text)
+    _, station, ref_config, calibrations, target = commissioning_inputs(station_path, out_dir)
     source = station.field_source
-    ref_config = reference_of(station, station_path, text)
-    calibrations = load_reference_calibrations(station, station_path, text)
-    target = inside(out_dir, f"{station.name}.commissioning.yaml")
     position = np.asarray(position_mm, float)
     where = f"rig commission: --position {_fmt(position)} mm"
     problem = source.commissioning_place_problem(position)

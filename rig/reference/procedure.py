@@ -42,12 +42,8 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
                thermal_step_c: float | None = None) -> Path:
     """Measure, fit and write the station's commissioning file (with `thermal`, its thermal section too);
     returns its path."""
-    text = read_text(station_path)
-    station = load_model(Station, station_path, text)
+    _, station, ref_config, calibrations, target = commissioning_inputs(station_path, out_dir)
     source = station.field_source
-    ref_config = reference_of(station, station_path, text)
-    calibrations = load_reference_calibrations(station, station_path, text)
-    target = inside(out_dir, f"{station.name}.commissioning.yaml")
     design = source.commissioning_design(current_a, repeats)
     if thermal:
         from rig.reference.thermal import THERMAL_STEP_C, measure_thermal
@@ -111,6 +107,16 @@ def setting_records(readings: list[Reading]) -> list[dict]:
     return [{"setting": [float(v) for v in r.setting], "mean_nt": floats(r.measured.vector_nt),
              "se_nt": floats(r.measured.std_error_nt), "n": r.measured.n,
              **({} if r.readback is None else {"readback": floats(r.readback)})} for r in readings]
+
+
+def commissioning_inputs(station_path: str | Path, out_dir: str | Path):
+    """(station text, station, its reference magnetometer, the references' calibrations, the commissioning
+    file's path in out_dir), each checked."""
+    text = read_text(station_path)
+    station = load_model(Station, station_path, text)
+    ref_config = reference_of(station, station_path, text)
+    calibrations = load_reference_calibrations(station, station_path, text)
+    return text, station, ref_config, calibrations, inside(out_dir, f"{station.name}.commissioning.yaml")
 
 
 def reference_of(station, station_path, text):
