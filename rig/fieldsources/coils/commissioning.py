@@ -112,9 +112,8 @@ def with_loops(source, coils: dict, reference_tolerance_mm: float) -> dict:
                     np.asarray(p["covariance"], float)[:9, :9]) for p in coils["places"]]
     fitted = fit_loops(centre, np.asarray(coils["covariance"], float)[:9, :9], source.geometry, places,
                        reference_tolerance_mm)
-    cov = 0.5 * (fitted.covariance + fitted.covariance.T)
     return {**coils, "loops": {
-        "deviations": fitted.deviations.tolist(), "covariance": rows(cov),
+        "deviations": fitted.deviations.tolist(), "covariance": rows(_symmetric(fitted.covariance)),
         "reference_offset_mm": floats(fitted.reference_offset_mm), "unidentified": fitted.unidentified,
         "chi2": fitted.chi2, "dof": fitted.dof}}
 
