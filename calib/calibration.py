@@ -165,10 +165,11 @@ def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
             for b in budget):
         raise DataError(f"{where}: key 'uncertainty.budget' must be a list of {{source, contribution_nt}}")
     _check_covariance(block.get("covariance"), params, where)
-    model_error = block.get("model_error_nt")
-    if model_error is not None and (not isinstance(model_error, list) or len(model_error) != 3 or not all(
-            _is_number(v) and v >= 0 for v in model_error)):
-        raise DataError(f"{where}: key 'uncertainty.model_error_nt' must be 3 finite, non-negative numbers")
+    for key in ("model_error_nt", "hysteresis_state_nt"):
+        per_axis = block.get(key)
+        if per_axis is not None and (not isinstance(per_axis, list) or len(per_axis) != 3 or not all(
+                _is_number(v) and v >= 0 for v in per_axis)):
+            raise DataError(f"{where}: key 'uncertainty.{key}' must be 3 finite, non-negative numbers")
     return block
 
 

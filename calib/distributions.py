@@ -164,3 +164,64 @@ def gaussian_radius(cov: np.ndarray, p: float = 0.95, iterations: int = 8) -> np
             step = r + (p - cdf) / slope
         r = np.where((step >= lo) & (step <= hi), step, 0.5 * (lo + hi))
     return np.where(zero, 0.0, r).reshape(shape)
+
+
+def _sphere_rule(n: int = 10, m: int = 20) -> np.ndarray:
+    """Directions (n m, 3) averaging a smooth function over the whole unit sphere with equal weight:
+    Gauss-Legendre in cos(theta) times the trapezoid rule in phi (its weights folded into a repeat)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    phi = 2.0 * np.pi * np.arange(m) / m
+    mu, p = np.meshgrid(x, phi, indexing="ij")
+    s = np.sqrt(1.0 - mu * mu)
+    u = np.stack([s * np.cos(p), s * np.sin(p), mu], axis=-1).reshape(-1, 3)
+    return u, np.repeat(0.5 * w / m, m)
+
+
+_SPHERE_U, _SPHERE_W = _sphere_rule()
+P_TOLERANCE = 2e-6
+_CHI3_PDF = np.sqrt(2.0 / np.pi)  # the chi distribution's (3 dof) density is this x rho^2 exp(-rho^2 / 2)
+
+
+def shifted_radius(cov: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterations: int = 30) -> np.ndarray:
+    """Radius r with P(|e| <= r) = p for e = x + c, x ~ N(0, cov[n]) (N,3,3) and c one of `shifts` (S,3),
+    each equally likely: a normal error beside a state that is one way or another. Along a direction u,
+    x = rho R u (R R^T = cov, rho^2 chi-square with 3 dof), so |e| <= r holds for rho between the roots
+    of rho^2 |Ru|^2 + 2 rho (Ru . c) + |c|^2 - r^2: P is the chi-square's mass between them, averaged over
+    the sphere (_sphere_rule) and the shifts. r by Newton steps kept inside a shrinking bracket, until P
+    is within P_TOLERANCE of p (r then within about 1e-5 of itself)."""
+    cov = np.asarray(cov, float)
+    lam, vec = np.linalg.eigh(cov)
+    lam = np.clip(lam, 0.0, None)
+    root = vec * np.sqrt(lam)[:, None, :]
+    ru = np.einsum("nij,dj->ndi", root, _SPHERE_U)  # (N,D,3)
+    a = np.maximum(np.einsum("ndi,ndi->nd", ru, ru), np.finfo(float).tiny)[:, None, :]  # (N,1,D)
+    shifts = np.atleast_2d(np.asarray(shifts, float))
+    b = np.einsum("ndi,si->nsd", ru, shifts)  # (N,S,D)
+    cc = np.einsum("si,si->s", shifts, shifts)[None, :, None]  # (1,S,1)
+
+    def coverage(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P(|e| <= r), dP/dr): the roots move by +-r / sqrt(disc) as r grows."""
+        disc = b * b - a * (cc - (r * r)[:, None, None])
+        real = disc > 0
+        width = np.sqrt(np.where(real, disc, 0.0))
+        upper = np.where(real, np.maximum((-b + width) / a, 0.0), 0.0)
+        lower = np.where(real, np.maximum((-b - width) / a, 0.0), 0.0)
+        mass = chi3_cdf(upper * upper) - chi3_cdf(lower * lower)
+        density = _CHI3_PDF * (upper * upper * np.exp(-0.5 * upper * upper)
+                               + lower * lower * np.exp(-0.5 * lower * lower))
+        slope = np.where(real, density * r[:, None, None] / np.where(real, width, 1.0), 0.0)
+        return np.mean(mass @ _SPHERE_W, axis=1), np.mean(slope @ _SPHERE_W, axis=1)
+
+    lo, hi = np.zeros(len(cov)), np.sqrt(np.max(cc)) + 3.0 * np.sqrt(lam[:, -1]) + 1e-9  # P(hi) > 0.97
+    r = np.minimum(np.sqrt(np.max(cc) + _R2_95_3D * lam.mean(axis=1)), hi)  # an isotropic normal's, shifted
+    for _ in range(iterations):
+        f, slope = coverage(r)
+        f -= p
+        if np.all(np.abs(f) <= P_TOLERANCE):
+            break
+        below = f < 0
+        lo, hi = np.where(below, r, lo), np.where(below, hi, r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = r - f / slope
+        r = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+    return r

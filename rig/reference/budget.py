@@ -254,18 +254,23 @@ def reference_covariance(cal: Calibration) -> np.ndarray:
 def uncertainty_section(b: Budget) -> dict:
     """The calibration file's `uncertainty:` section: the budget (its parameters' full covariance
     included), and the model error a user adds at any field and temperature to what that covariance
-    gives (rig apply --uncertainty)."""
+    gives (rig apply --uncertainty, calib/fielderror.py): the normal part, and the DUT's thermal state at
+    a point of use (+-d per axis, two-point) apart, so that the radius there follows its distribution."""
     out = b.as_dict()
     out["model_error_nt"] = model_error_nt(b).tolist()
+    state = model_error_nt(b, two_point=True)
+    if np.any(state > 0):
+        out["hysteresis_state_nt"] = state.tolist()
     return out
 
 
-def model_error_nt(b: Budget) -> np.ndarray:
+def model_error_nt(b: Budget, two_point: bool = False) -> np.ndarray:
     """(3,): the standard uncertainty per axis of the field error no parameter carries (the model
-    sources' direct effects), RMS over the grid."""
+    sources' direct effects), RMS over the grid: of the normal (and rectangular) sources, or with
+    `two_point` of the two-point ones (the thermal state: +- this)."""
     total = np.zeros(3)
     for c in b.linear.contributions:
-        if c.grid_effect is not None:
+        if c.grid_effect is not None and (c.source.distribution == "two-point") == two_point:
             sigma = np.atleast_2d(c.source.covariance)
             total += np.mean(np.einsum("giq,qr,gir->gi", c.grid_effect, sigma, c.grid_effect), axis=0)
     return np.sqrt(total)

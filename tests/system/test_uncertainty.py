@@ -228,6 +228,8 @@ def test_the_files_carry_the_covariance_and_the_duts_cross_covariance(worlds, tm
         assert len(cal.uncertainty["model_error_nt"]) == 3
         again = calfile.load(calibration_file(session, DUTS[0], "t24"))
         assert again.uncertainty == calfile.load(calibration_file(session, DUTS[0], "t24")).uncertainty
+    # dut1's thermal hysteresis: its state at a point of use, apart from the normal model error
+    assert np.all(np.asarray(cals["dut1"].uncertainty["hysteresis_state_nt"]) > 0)
     path = cross_covariance_path(session)
     budgets = {d: inputs.budget(d, data[d], calib.fit(data[d], "t24")) for d in DUTS}
     np.testing.assert_allclose(cross_covariance(path, "t24", *DUTS), cross_covariance_of(*budgets.values()),

@@ -72,3 +72,33 @@ def test_a_malformed_covariance_is_refused_in_one_line(change, message):
         Calibration.from_dict(data, where="cal.yaml")
     said = str(info.value)
     assert said.startswith("cal.yaml: key 'uncertainty.covariance.") and "\n" not in said
+
+
+def test_a_thermal_state_is_its_two_point_mixture_not_a_normal_error(tmp_path):
+    """A file with the DUT's thermal state (+-d per axis): the covariance counts d^2, the radius is the
+    mixture's (95 % of draws of the parameters' error plus +-d), below a normal radius of that covariance;
+    the key round-trips, and a negative value is refused in one line."""
+    cal, b = _calibrated(4)
+    d = [120.0, 80.0, 40.0]
+    cal.uncertainty = {**cal.uncertainty, "hysteresis_state_nt": d}
+    h, temps = b.linear.grid_h_nt[:6], b.linear.grid_temp_c[:6]
+    cov = field_covariance(cal, h, temps)
+    without = field_covariance(Calibration.from_dict({**cal.to_dict(), "uncertainty": {
+        k: v for k, v in cal.uncertainty.items() if k != "hysteresis_state_nt"}}), h, temps)
+    np.testing.assert_allclose(cov - without, np.broadcast_to(np.diag(np.square(d)), cov.shape), rtol=1e-9)
+    _, radius = expanded_at(cal, h, temps)
+    rng = np.random.default_rng(0)
+    for n in range(len(h)):
+        x = rng.multivariate_normal(np.zeros(3), without[n], 200_000)
+        x += rng.choice([-1.0, 1.0], (len(x), 3)) * d
+        assert np.mean(np.linalg.norm(x, axis=1) <= radius[n]) == pytest.approx(0.95, abs=0.003)
+    from calib.distributions import gaussian_radius
+
+    assert np.all(radius < gaussian_radius(cov))
+    path = tmp_path / "state.yaml"
+    calfile.save(cal, path)
+    assert calfile.load(path).uncertainty["hysteresis_state_nt"] == d
+    data = cal.to_dict()
+    data["uncertainty"]["hysteresis_state_nt"] = [1.0, -2.0, 0.0]
+    with pytest.raises(DataError, match=r"^cal.yaml: key 'uncertainty.hysteresis_state_nt' must be 3"):
+        Calibration.from_dict(data, where="cal.yaml")
