@@ -12,9 +12,46 @@ from calib.atomic import atomic_write
 from calib.calibration import Calibration
 from calib.errors import DataError
 
-# libyaml's emitter writes the same text as the pure-Python one, about 5x faster (64 DUTs x 3 models of
-# files at the end of a campaign); the pure-Python one where PyYAML was built without libyaml
-DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+_FLOAT_TAG, _STR_TAG = "tag:yaml.org,2002:float", "tag:yaml.org,2002:str"
+
+
+def _float_text(x: float) -> str:
+    """A float as PyYAML's SafeRepresenter writes it (its dot before an exponent included)."""
+    if x != x:
+        return ".nan"
+    if x in (float("inf"), float("-inf")):
+        return ".inf" if x > 0 else "-.inf"
+    text = repr(x).lower()
+    return text.replace("e", ".0e", 1) if "." not in text and "e" in text else text
+
+
+class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):
+    """libyaml's emitter (the same text as the pure-Python one, about 5x faster; the pure-Python one where
+    PyYAML was built without it), with the lists of floats that make most of a file (covariances,
+    intervals) represented in one pass: the same nodes the generic path makes, and the tag of their text
+    known instead of matched against every implicit resolver (the same answers: every text _float_text
+    writes is a float to the resolver, and a plain scalar's default tag is str)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._float_texts: set[str] = set()
+
+    def represent_list(self, data):
+        if not data or not all(type(x) is float for x in data):
+            return super().represent_list(data)
+        texts = [_float_text(x) for x in data]
+        self._float_texts.update(texts)
+        flow = True if self.default_flow_style is None else self.default_flow_style  # plain scalars: flow
+        return yaml.SequenceNode("tag:yaml.org,2002:seq", [yaml.ScalarNode(_FLOAT_TAG, t) for t in texts],
+                                 flow_style=flow)
+
+    def resolve(self, kind, value, implicit):
+        if kind is yaml.ScalarNode and value in self._float_texts:
+            return _FLOAT_TAG if implicit[0] else _STR_TAG
+        return super().resolve(kind, value, implicit)
+
+
+_Dumper.add_representer(list, _Dumper.represent_list)  # 64 DUTs x 3 models of files after a campaign
 
 
 def save(cal: Calibration, path: str | os.PathLike) -> None:
@@ -27,7 +64,7 @@ def save(cal: Calibration, path: str | os.PathLike) -> None:
                 json.dump(d, f, indent=2)
                 f.write("\n")
             else:
-                yaml.dump(d, f, Dumper=DUMPER, sort_keys=False, default_flow_style=None, width=120)
+                yaml.dump(d, f, Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120)
     except OSError as err:
         raise DataError(f"{path}: cannot write the calibration file ({err.strerror or err})") from None
 

@@ -3,7 +3,7 @@ reference magnetometer, the ambient and the other inputs every DUT of the run sh
 for all of them, so anyone combining DUTs (an array, a gradiometer) needs cov(theta_a, theta_b).
 
     collector = CrossCovariance()
-    collector.add(dut, model, budget)           # each DUT's calib Budget (its linear part)
+    collector.add(dut, model, labels, shared)   # each DUT's fit (rig/analysis/dutfits.py)
     path = collector.write(session_path)         # <session stem>.cross-covariance.json
     cov = cross_covariance(path, "t24", "dut1", "dut2")     # (P_a, P_b), parameters in file order
 
@@ -44,22 +44,21 @@ class CrossCovariance:
         self.models: dict[str, dict] = {}
         self.notes: list[str] = []
 
-    def add(self, dut: str, model: str, budget) -> None:
-        linear = getattr(budget, "linear", None)
-        if linear is None:
+    def add(self, dut: str, model: str, labels: list[str], shared: list) -> None:
+        """One DUT's fit: its parameter labels and its budget's shared inputs [(name, covariance,
+        jacobian)] (rig/analysis/dutfits.py shared_inputs)."""
+        if not labels:
             return
-        entry = self.models.setdefault(model, {"parameters": list(budget.parameter_labels), "shared": {}})
-        for c in linear.contributions:
-            if c.source is None or not c.source.shared:
-                continue
-            sigma = np.atleast_2d(np.asarray(c.source.covariance, float))
-            shared = entry["shared"].setdefault(c.source.shared, {"covariance": sigma, "jacobians": {}})
-            if shared["covariance"].shape != sigma.shape or not np.allclose(shared["covariance"], sigma,
-                                                                             rtol=1e-9, atol=0.0):
-                self.notes.append(f"{model} {dut}: shared input {c.source.shared!r} has another covariance "
+        entry = self.models.setdefault(model, {"parameters": list(labels), "shared": {}})
+        for name, covariance, jacobian in shared:
+            sigma = np.atleast_2d(np.asarray(covariance, float))
+            kept = entry["shared"].setdefault(name, {"covariance": sigma, "jacobians": {}})
+            if kept["covariance"].shape != sigma.shape or not np.allclose(kept["covariance"], sigma,
+                                                                           rtol=1e-9, atol=0.0):
+                self.notes.append(f"{model} {dut}: shared input {name!r} has another covariance "
                                   "than the first DUT's: left out of its cross-covariance")
                 continue
-            shared["jacobians"][dut] = c.jacobian
+            kept["jacobians"][dut] = jacobian
 
     def as_dict(self) -> dict:
         out = {"format": FORMAT_NAME, "format_version": 1,

@@ -1,15 +1,12 @@
 """After a completed run: fit every model of the plan for every DUT from the session's own data, state
-each calibration's uncertainty (rig/reference/budget.py), write the calibration files beside the session, and
-judge
-each DUT against the plan's acceptance limits."""
+each calibration's uncertainty (rig/reference/budget.py), write the calibration files beside the session,
+and judge each DUT against the plan's acceptance limits."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from rig import __version__
 from rig import config as cfg
-from rig.core.errors import ERRORS
 from rig.session.events import Kind, Reason
 
 
@@ -37,76 +34,41 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) ->
     to the session and record each fit in it; the DUTs' shared inputs in the cross-covariance file beside
     them (rig/analysis/crosscov.py). Where a DUT's T24 linearity in temperature fails, a T36 is fitted too
     (unless the plan fits it already) and both record the choice between them
-    (rig/analysis/tempchoice.py). `progress(dut, model, done, total)` is told before each fit; the
-    session records it too (rig/analysis/fitprogress.py)."""
+    (rig/analysis/tempchoice.py). Many DUTs are fitted on two cores (rig/analysis/dutfits.py).
+    `progress(dut, model, done, total)` is told as each DUT's fits begin; the session records it too
+    (rig/analysis/fitprogress.py). The entries come in the station's DUT order."""
     from rig.analysis.crosscov import CrossCovariance
+    from rig.analysis.dutfits import fitted_duts
     from rig.analysis.fitprogress import FitProgress
-    from rig.analysis.sessionfit import SessionFitter
-    from rig.analysis.tempchoice import share_choice, wants_t36
-    from rig.session.reader import SessionReader
 
-    out = []
-    with SessionReader(session.path) as reader:
-        fitter = SessionFitter.of(reader)
-        datasets = [(dut, _dataset(reader, dut.name)) for dut in station.duts]
+    models = tuple(plan.fit.models)
+    duts = [dut.name for dut in station.duts]
     shared = CrossCovariance()
-    tell = FitProgress(session, len(station.duts) * len(plan.fit.models), progress)
-    for dut, ds in datasets:
-        if isinstance(ds, Exception):
-            out.append({"dut": dut.name, "model": "-", "error": str(ds)})
-            continue
-        prepared = fitter.prepare(ds)
-        fitted: dict[str, Any] = {}  # model: (calibration, budget), or the error that stopped its fit
-        for model in plan.fit.models:
-            tell(dut.name, model)
-            fitted[model] = _calibrate(fitter, prepared, model, plan.fit.robust)
-        t24 = fitted.get("t24")
-        if isinstance(t24, tuple) and wants_t36(t24[0]):  # T24's linearity in temperature failed
-            if "t36" not in fitted:
-                fitted["t36"] = _calibrate(fitter, prepared, "t36", plan.fit.robust)
-            if isinstance(fitted["t36"], tuple):
-                share_choice(t24[0], fitted["t36"][0])
-        for model, result in fitted.items():
-            out.append(_keep(session, dut.name, model, result, shared, len(prepared.ds)))
+    tell = FitProgress(session, len(duts) * len(models), progress)
+
+    def started(dut: str) -> None:
+        for model in models:
+            tell(dut, model)
+
+    kept: dict[str, list[dict]] = {}
+    for dut, fits in fitted_duts(session.path, models, bool(plan.fit.robust), duts, started):
+        kept[dut] = [_keep(session, fit, shared) for fit in fits]
     tell.finished(shared)
-    return out
+    return [entry for dut in duts for entry in kept[dut]]
 
 
-def _calibrate(fitter, prepared, model: str, robust: bool):
-    """(calibration, its budget), or the project error that stopped the fit."""
-    try:
-        return fitter.calibrate_budgeted(prepared, model, robust=robust, software_version=__version__)
-    except ERRORS as exc:
-        return exc
-
-
-def _keep(session, dut: str, model: str, result, shared, n: int) -> dict[str, Any]:
-    """A fit's file beside the session and its record in it, or its failure logged."""
-    from calib import calfile
-    from rig.core.paths import calibration_file
-
-    entry: dict[str, Any] = {"dut": dut, "model": model}
-    try:
-        if isinstance(result, Exception):
-            raise result
-        cal, budget = result
-        shared.add(dut, model, budget)
-        path = calibration_file(session.path, dut, model)
-    except ERRORS as exc:
-        entry["error"] = str(exc)
-        session.log_event(Kind.FIT_FAILED, f"{dut} {model}: {exc}", code=Reason.FIT_FAILED,
-                          level="WARNING", device=dut, model=model)
+def _keep(session, fit, shared) -> dict[str, Any]:
+    """A fit's record in the session (its file is written already), or its failure logged."""
+    entry: dict[str, Any] = {"dut": fit.dut, "model": fit.model}
+    if fit.error is not None:
+        entry["error"] = fit.error
+        if fit.model != "-":
+            session.log_event(Kind.FIT_FAILED, f"{fit.dut} {fit.model}: {fit.error}", code=Reason.FIT_FAILED,
+                              level="WARNING", device=fit.dut, model=fit.model)
         return entry
-    calfile.save(cal, path)
+    cal = fit.calibration
+    shared.add(fit.dut, fit.model, fit.labels, fit.shared)
     rms = cal.stats.get("rms_after_nt")
-    session.record_fit(dut, model, cal.to_dict(), residual_rms_nt=rms)
-    entry.update(path=path, rms_nt=rms, calibration=cal, n=n)
+    session.record_fit(fit.dut, fit.model, cal.to_dict(), residual_rms_nt=rms)
+    entry.update(path=fit.path, rms_nt=rms, calibration=cal, n=fit.rows)
     return entry
-
-
-def _dataset(reader, dut: str):
-    """One DUT's dataset, or the project error that stopped reading it."""
-    try:
-        return reader.dataset(dut)
-    except ERRORS as exc:
-        return exc
