@@ -33,7 +33,8 @@ IN_FLIGHT = 2  # DUTs handed to the helper at a time: it never idles, and never 
 @dataclass
 class DutFit:
     """One model fitted to one DUT: its calibration (None when the fit failed: `error` says why), the
-    file written, and its budget's shared inputs [(name, covariance, jacobian)] with the parameter labels."""
+    file written, its budget's shared inputs [(name, covariance, jacobian)] with the parameter labels, and
+    the process that fitted it."""
 
     dut: str
     model: str
@@ -43,6 +44,7 @@ class DutFit:
     rows: int = 0
     labels: list[str] = field(default_factory=list)
     shared: list[tuple[str, Any, Any]] = field(default_factory=list)
+    pid: int = field(default_factory=os.getpid)
 
 
 class SessionFits:

@@ -1,0 +1,63 @@
+"""The post-run fits of many DUTs on two cores (rig/analysis/dutfits.py): a campaign on the shipped 16-DUT
+station has its fits shared with a helper process, whose calibration files are byte for byte the ones
+the run's own process writes; a helper that dies leaves its DUTs to the run's process."""
+
+from __future__ import annotations
+
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import pytest
+
+from rig.analysis import dutfits
+from rig.config import load_station
+from tests.system.campaign_helpers import REPO, quick_demo, run_rig
+
+pytestmark = pytest.mark.system
+
+STATION = REPO / "configs" / "stations" / "sim-16.yaml"
+MODELS = ("t24", "p12")
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("helper")
+    proc = run_rig("run", str(quick_demo(folder, samples=1)), "--station", str(STATION), "--out", str(folder),
+                   "--no-live", timeout=300)
+    assert proc.returncode in (0, 3), proc.stderr[-2000:]
+    return next(folder.glob("*.session"))
+
+
+def _files(session) -> dict[str, list[bytes]]:
+    """The calibration files beside the session, each but the line of when it was made."""
+    return {p.name: [line for line in p.read_bytes().splitlines() if not line.startswith(b"created_utc:")]
+            for p in sorted(session.parent.glob("*.yaml")) if p.name.count(".") >= 3}
+
+
+def test_a_helper_fits_part_of_the_duts_and_writes_what_the_run_writes_itself(session):
+    duts = [d.name for d in load_station(STATION).duts]
+    told: list[str] = []
+    helped = {dut: {f.pid for f in fits} for dut, fits in dutfits.fitted_duts(session, MODELS, False, duts,
+                                                                               told.append)}
+    assert sorted(told) == sorted(duts) and set(helped) == set(duts)
+    here = {dut for dut, pids in helped.items() if pids == {os.getpid()}}
+    assert 0 < len(here) < len(duts)  # both processes fitted DUTs
+    shared = _files(session)
+    assert len(shared) >= 2 * len(duts)
+    with dutfits.SessionFits(session, MODELS, False) as alone:
+        for dut in duts:
+            alone.fit(dut)
+    assert _files(session) == shared
+
+
+def test_a_helper_that_dies_leaves_its_duts_to_the_run(session, monkeypatch):
+    def dying(*_):
+        return ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=sys.exit, initargs=(3,))
+
+    monkeypatch.setattr(dutfits, "_helper", dying)
+    duts = [d.name for d in load_station(STATION).duts]
+    fitted = dict(dutfits.fitted_duts(session, MODELS, False, duts, lambda dut: None))
+    assert set(fitted) == set(duts)
+    assert all(f.pid == os.getpid() and f.error is None for fits in fitted.values() for f in fits)
