@@ -6,20 +6,20 @@
         ...                                          # as each DUT's fits end (any order)
 
 A DUT's fits read nothing but the session (its recorded plan and station, its samples), so they can run
-in another process. With HELPER_MIN_FITS fits or more and two cores, a helper process (spawned: the
-rig's process has hardware threads, which a fork would copy mid-flight) takes DUTs from the end of the
-list while this process fits them from the front; they meet in the middle. Whatever the helper cannot do
-(it failed to start, or died) is fitted here. A DutFit is plain data, the same from either process: the
-calibration, its file, and what the cross-covariance needs of its budget (rig/analysis/crosscov.py).
+in another process. With HELPER_MIN_FITS fits or more and two cores, a helper process
+(rig/analysis/fithelper.py) takes DUTs from the end of the list while this process fits them from the
+front; they meet in the middle. The helper is a fresh interpreter started on its own module, never a copy
+of this process: a fork would copy the hardware threads mid-flight, and multiprocessing's spawn would
+run again whatever script started the campaign. Whatever the helper cannot do (it failed to start, or
+died) is fitted here. A DutFit is plain data, the same from either process: the calibration, its file,
+and what the cross-covariance needs of its budget (rig/analysis/crosscov.py).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -127,24 +127,16 @@ def shared_inputs(budget) -> tuple[list[str], list[tuple[str, Any, Any]]]:
 
 
 # --- many DUTs ----------------------------------------------------------------------------------------
-_HELPER: SessionFits | None = None
-
-
-def _start_helper(session_path: str, models: tuple[str, ...], robust: bool) -> None:
-    global _HELPER
-    _HELPER = SessionFits(session_path, models, robust)
-
-
-def _helper_fit(dut: str) -> list[DutFit]:
-    assert _HELPER is not None, "the helper process was not started with the session"
-    return _HELPER.fit(dut)
-
-
 def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool, duts: list[str],
                 started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
     """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin."""
+    from rig.analysis.fithelper import Helper
+
     with SessionFits(session_path, models, robust) as here:
-        helper = _helper(session_path, models, robust, len(duts) * len(models))
+        helper = None
+        if len(duts) * len(models) >= HELPER_MIN_FITS and (os.cpu_count() or 1) >= 2 \
+                and os.environ.get("MAGRIG_POSTRUN_HELPER") != "0":
+            helper = Helper.start(session_path, models, robust)
         if helper is None:
             for dut in duts:
                 started(dut)
@@ -154,40 +146,24 @@ def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool,
             yield from _shared_out(here, helper, list(duts), started)
 
 
-def _helper(session_path, models, robust, fits: int) -> ProcessPoolExecutor | None:
-    if fits < HELPER_MIN_FITS or (os.cpu_count() or 1) < 2 or os.environ.get("MAGRIG_POSTRUN_HELPER") == "0":
-        return None
-    try:
-        return ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=_start_helper,
-                                   initargs=(str(session_path), tuple(models), robust))
-    except OSError:  # no process to be had: every fit here
-        return None
-
-
-def _shared_out(here: SessionFits, helper: ProcessPoolExecutor, duts: list[str],
+def _shared_out(here: SessionFits, helper, duts: list[str],
                 started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
     """This process fits from the front, the helper from the back; a DUT the helper fails is fitted here."""
-    inflight: dict[Future, str] = {}
-    helper_ok = True
-    while duts or inflight:
-        while helper_ok and len(inflight) < IN_FLIGHT and len(duts) > 1:
+    given: list[str] = []  # handed to the helper, not yet back
+    while duts or given:
+        while helper.alive and len(given) < IN_FLIGHT and len(duts) > 1:
             dut = duts.pop()
             started(dut)
-            try:
-                inflight[helper.submit(_helper_fit, dut)] = dut
-            except RuntimeError:  # the pool broke before this submit
-                helper_ok = False
-                duts.append(dut)
+            given.append(dut)
+            helper.give(dut)
         if duts:
             dut = duts.pop(0)
             started(dut)
             yield dut, here.fit(dut)
-        elif inflight:
-            wait(inflight, return_when=FIRST_COMPLETED)
-        for future in [f for f in inflight if f.done()]:
-            dut = inflight.pop(future)
-            try:
-                yield dut, future.result()
-            except Exception:  # noqa: BLE001 - the helper died or failed: this DUT is fitted here instead
-                helper_ok = False
+        for dut, fits in helper.results(block=not duts):
+            given.remove(dut)
+            yield dut, fits
+        if not helper.alive:  # what it held is fitted here
+            while given:
+                dut = given.pop(0)
                 yield dut, here.fit(dut)

@@ -5,13 +5,13 @@ the run's own process writes; a helper that dies leaves its DUTs to the run's pr
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
+import tempfile
 
 import pytest
 
-from rig.analysis import dutfits
+from rig.analysis import dutfits, fithelper
 from rig.config import load_station
 from tests.system.campaign_helpers import REPO, quick_demo, run_rig
 
@@ -52,12 +52,17 @@ def test_a_helper_fits_part_of_the_duts_and_writes_what_the_run_writes_itself(se
     assert _files(session) == shared
 
 
-def test_a_helper_that_dies_leaves_its_duts_to_the_run(session, monkeypatch):
+def test_a_helper_that_dies_leaves_its_duts_to_the_run(session, monkeypatch, caplog):
     def dying(*_):
-        return ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=sys.exit, initargs=(3,))
+        proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit('out of memory')"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors)
+        return fithelper.Helper(proc, errors)
 
-    monkeypatch.setattr(dutfits, "_helper", dying)
+    errors = tempfile.TemporaryFile()
+    monkeypatch.setattr(fithelper.Helper, "start", dying)
     duts = [d.name for d in load_station(STATION).duts]
     fitted = dict(dutfits.fitted_duts(session, MODELS, False, duts, lambda dut: None))
     assert set(fitted) == set(duts)
     assert all(f.pid == os.getpid() and f.error is None for fits in fitted.values() for f in fits)
+    said = [r.getMessage() for r in caplog.records if "helper process" in r.getMessage()]
+    assert len(said) == 1 and "code 1 (out of memory)" in said[0]

@@ -1,0 +1,133 @@
+"""The post-run fits' helper process (rig/analysis/dutfits.py), and how the run's process speaks to it.
+
+    python -m rig.analysis.fithelper SESSION MODELS ROBUST     # MODELS "t24,p12"; ROBUST 0 or 1
+
+It reads DUT names, one a line, on its standard input; for each it fits every model (writing the
+calibration files) and answers on its standard output with the pickled [DutFit] (8-byte length first).
+It ends when its input ends, so a run's process that dies for any reason takes it along. Pickle is safe
+here: both ends are this program, over a pipe only they hold.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import queue
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import rig
+
+LENGTH = struct.Struct(">Q")
+SILENT_S = 300.0  # one DUT's fits take a fraction of a second; this long without an answer is a hang
+
+
+def main(argv: list[str]) -> int:
+    from rig.analysis.dutfits import SessionFits
+
+    session, models, robust = argv
+    out = sys.stdout.buffer
+    with SessionFits(session, tuple(models.split(",")), robust == "1") as fits:
+        for line in sys.stdin:
+            payload = pickle.dumps(fits.fit(line.strip()), protocol=pickle.HIGHEST_PROTOCOL)
+            out.write(LENGTH.pack(len(payload)) + payload)
+            out.flush()
+    return 0
+
+
+class Helper:
+    """The run's end: give(dut), then results() as they come; `alive` False once it has ended or failed
+    (its stderr is kept in a file and said in the log)."""
+
+    def __init__(self, proc: subprocess.Popen, errors):
+        self.proc, self.errors = proc, errors
+        self.alive = True
+        self._done: queue.Queue = queue.Queue()
+        self._reader = threading.Thread(target=self._read, name="fit helper", daemon=True)
+        self._reader.start()
+
+    @classmethod
+    def start(cls, session_path, models, robust: bool) -> Helper | None:
+        """The helper started on `session_path`, or None where no process can be had."""
+        code = str(Path(rig.__file__).resolve().parents[1])  # this very code, installed or not
+        path = os.pathsep.join(filter(None, [code, os.environ.get("PYTHONPATH")]))
+        env = {**os.environ, "PYTHONPATH": path, "OPENBLAS_NUM_THREADS": "1"}  # one core is its share
+        errors = tempfile.TemporaryFile()
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "rig.analysis.fithelper", str(session_path),
+                                     ",".join(models), "1" if robust else "0"],
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, env=env)
+        except OSError:
+            errors.close()
+            return None
+        return cls(proc, errors)
+
+    def give(self, dut: str) -> None:
+        try:
+            self.proc.stdin.write(f"{dut}\n".encode())
+            self.proc.stdin.flush()
+        except OSError:  # it has ended: the reader says so
+            self.alive = False
+
+    def results(self, block: bool):
+        """(dut, fits) for every answer there is; with `block`, waits for one, or for the helper's end (a
+        helper silent for SILENT_S is taken for hung: stopped, and `alive` False)."""
+        while True:
+            try:
+                fits = self._done.get(block=block and self.alive, timeout=SILENT_S if block else None)
+            except queue.Empty:
+                if block and self.alive:
+                    self.alive = False
+                    self.proc.kill()
+                return
+            if fits is None:
+                self.alive = False
+                return
+            yield fits[0].dut, fits
+            block = False
+
+    def _read(self) -> None:
+        stream = self.proc.stdout
+        try:
+            while head := stream.read(LENGTH.size):
+                fits = pickle.loads(stream.read(LENGTH.unpack(head)[0]))
+                self._done.put(fits)
+        except (OSError, EOFError, pickle.UnpicklingError, struct.error):
+            pass
+        self._done.put(None)
+
+    def close(self) -> None:
+        """Input closed (it ends), waited for; a failure of its own logged with its last words."""
+        import logging
+
+        try:
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            code = self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self.errors.seek(0)
+        said = self.errors.read().decode(errors="replace").strip().splitlines()
+        self.errors.close()
+        if code != 0:
+            last = said[-1] if said else "no message"
+            logging.getLogger("magrig.postrun").warning(
+                "post-run fits: the helper process ended with code %s (%s); its DUTs were fitted here",
+                code, last)
+
+    def __enter__(self) -> Helper:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
