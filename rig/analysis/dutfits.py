@@ -11,8 +11,9 @@ in another process. With HELPER_MIN_FITS fits or more and two cores, a helper pr
 front; they meet in the middle. The helper is a fresh interpreter started on its own module, never a copy
 of this process: a fork would copy the hardware threads mid-flight, and multiprocessing's spawn would
 run again whatever script started the campaign. Whatever the helper cannot do (it failed to start, or
-died) is fitted here. A DutFit is plain data, the same from either process: the calibration, its file,
-and what the cross-covariance needs of its budget (rig/analysis/crosscov.py).
+died) is fitted here; MAGRIG_POSTRUN_HELPER=0 in the environment keeps every fit here. A DutFit is plain
+data, the same from either process: the calibration, its file, and what the cross-covariance needs of its
+budget (rig/analysis/crosscov.py).
 """
 
 from __future__ import annotations
