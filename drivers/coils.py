@@ -200,18 +200,17 @@ class CoilController(Device):
                 raise DeviceFault(
                     self.name, "wait settled", f"controller reports {', '.join(sorted(reading.faults))}"
                 )
-            errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
-            tols = tolerances(reading)
             if not all(reading.settled):
                 return False
+            tols = tolerances(reading)
+            errors = [abs(c - s) for c, s in zip(reading.currents_a, reading.setpoints_a, strict=True)]
             if all(e <= t for e, t in zip(errors, tols, strict=True)):
                 return True
             recent.append(reading.currents_a)
             if tol_a is not None or len(recent) < STEADY_POLLS:
                 return False
-            means = [sum(axis) / len(axis) for axis in zip(*recent, strict=True)]
-            self._off_setpoint(reading, [abs(m - s) for m, s in zip(means, reading.setpoints_a, strict=True)],
-                               tols)
+            self._off_setpoint([sum(axis) / len(axis) for axis in zip(*recent, strict=True)],
+                               reading.setpoints_a, tols)
             return True
 
         def timed_out(reading: CoilReading) -> DeviceTimeout:
@@ -228,11 +227,11 @@ class CoilController(Device):
         return wait_until(self.clock, self.read, settled, timeout_s=timeout_s, poll_s=self.poll_s,
                           timed_out=timed_out)
 
-    def _off_setpoint(self, reading: CoilReading, errors: list[float], tols: list[float]) -> None:
-        """A settled, steady read-back beyond the stated accuracy: a fault far off, else warned once per
-        axis."""
-        for axis, current, setpoint, error, tol in zip(AXES, reading.currents_a, reading.setpoints_a, errors,
-                                                       tols, strict=True):
+    def _off_setpoint(self, means: list[float], setpoints, tols: list[float]) -> None:
+        """Settled read-backs (their mean per axis) beyond the stated accuracy: a fault far off, else
+        warned once per axis."""
+        for axis, current, setpoint, tol in zip(AXES, means, setpoints, tols, strict=True):
+            error = abs(current - setpoint)
             if error <= tol:
                 continue
             what = (f"axis {axis} settled at {current:+.6f} A for its setpoint {setpoint:+.6f} A: "

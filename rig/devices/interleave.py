@@ -44,15 +44,14 @@ def read_all(duts: dict[str, Any], clock: Clock) -> dict[str, Any]:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
         return {name: got[name] for name in duts}
     pool = _pool(len(blocking))
-    if getattr(clock, "simulated", False):  # nothing waits on a wire: overlap would only share the GIL
+    overlap = not getattr(clock, "simulated", False)  # nothing waits on a wire: it would only share the GIL
+    futures = {name: pool.submit(dev.read) for name, dev in blocking.items()} if overlap else {}
+    try:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
+    finally:
+        wait(futures.values())  # no reading goes on behind a failure
+    if not overlap:
         futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
         wait(futures.values())
-    else:
-        futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
-        try:
-            got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
-        finally:
-            wait(futures.values())  # no reading goes on behind a failure
     got.update({name: future.result() for name, future in futures.items()})
     return {name: got[name] for name in duts}
