@@ -166,8 +166,8 @@ def gaussian_radius(cov: np.ndarray, p: float = 0.95, iterations: int = 8) -> np
     return np.where(zero, 0.0, r).reshape(shape)
 
 
-def _sphere_rule(n: int = 10, m: int = 20) -> np.ndarray:
-    """Directions (n m, 3) averaging a smooth function over the whole unit sphere with equal weight:
+def _sphere_rule(n: int = 10, m: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """(directions (n m, 3), weights) averaging a smooth function over the whole unit sphere:
     Gauss-Legendre in cos(theta) times the trapezoid rule in phi (its weights folded into a repeat)."""
     x, w = np.polynomial.legendre.leggauss(n)
     phi = 2.0 * np.pi * np.arange(m) / m
