@@ -1,34 +1,22 @@
-"""The post-run fits of one DUT, and of many DUTs on two cores.
+"""The post-run fits of one DUT (many DUTs on two cores: rig/analysis/fithelper.py).
 
     with SessionFits(session_path, models, robust) as fits:
         results = fits.fit("dut1")                  # [DutFit per model], its calibration files written
-    for dut, results in fitted_duts(session_path, models, robust, duts, started):
-        ...                                          # as each DUT's fits end (any order)
 
 A DUT's fits read nothing but the session (its recorded plan and station, its samples), so they can run
-in another process. With HELPER_MIN_FITS fits or more and two cores, a helper process
-(rig/analysis/fithelper.py) takes DUTs from the end of the list while this process fits them from the
-front; they meet in the middle. The helper is a fresh interpreter started on its own module, never a copy
-of this process: a fork would copy the hardware threads mid-flight, and multiprocessing's spawn would
-run again whatever script started the campaign. Whatever the helper cannot do (it failed to start, or
-died) is fitted here; MAGRIG_POSTRUN_HELPER=0 in the environment keeps every fit here. A DutFit is plain
-data, the same from either process: the calibration, its file, and what the cross-covariance needs of its
-budget (rig/analysis/crosscov.py).
+in another process. A DutFit is plain data, the same from either process: the calibration, its file, and
+what the cross-covariance needs of its budget (rig/analysis/crosscov.py).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from rig import __version__
 from rig.core.errors import ERRORS
-
-HELPER_MIN_FITS = 16  # below this a helper's start-up (about a second) costs more than it saves
-IN_FLIGHT = 2  # DUTs handed to the helper at a time: it never idles, and never holds many
 
 
 @dataclass
@@ -125,46 +113,3 @@ def shared_inputs(budget) -> tuple[list[str], list[tuple[str, Any, Any]]]:
     return list(budget.parameter_labels), [(c.source.shared, c.source.covariance, c.jacobian)
                                            for c in linear.contributions
                                            if c.source is not None and c.source.shared]
-
-
-# --- many DUTs ----------------------------------------------------------------------------------------
-def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool, duts: list[str],
-                started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
-    """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin."""
-    from rig.analysis.fithelper import Helper
-
-    with SessionFits(session_path, models, robust) as here:
-        helper = None
-        if len(duts) * len(models) >= HELPER_MIN_FITS and (os.cpu_count() or 1) >= 2 \
-                and os.environ.get("MAGRIG_POSTRUN_HELPER") != "0":
-            helper = Helper.start(session_path, models, robust)
-        if helper is None:
-            for dut in duts:
-                started(dut)
-                yield dut, here.fit(dut)
-            return
-        with helper:
-            yield from _shared_out(here, helper, list(duts), started)
-
-
-def _shared_out(here: SessionFits, helper, duts: list[str],
-                started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
-    """This process fits from the front, the helper from the back; a DUT the helper fails is fitted here."""
-    given: list[str] = []  # handed to the helper, not yet back
-    while duts or given:
-        while helper.alive and len(given) < IN_FLIGHT and len(duts) > 1:
-            dut = duts.pop()
-            started(dut)
-            given.append(dut)
-            helper.give(dut)
-        if duts:
-            dut = duts.pop(0)
-            started(dut)
-            yield dut, here.fit(dut)
-        for dut, fits in helper.results(block=not duts):
-            given.remove(dut)
-            yield dut, fits
-        if not helper.alive:  # what it held is fitted here
-            while given:
-                dut = given.pop(0)
-                yield dut, here.fit(dut)

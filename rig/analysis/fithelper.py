@@ -1,4 +1,15 @@
-"""The post-run fits' helper process (rig/analysis/dutfits.py), and how the run's process speaks to it.
+"""The post-run fits of many DUTs on two cores: a helper process, and how the run's process shares the
+DUTs with it.
+
+    for dut, results in fitted_duts(session_path, models, robust, duts, started):
+        ...                                          # [DutFit] as each DUT's fits end (any order)
+
+With HELPER_MIN_FITS fits or more and two cores, the helper takes DUTs from the end of the list while the
+run's process fits them from the front (rig/analysis/dutfits.py); they meet in the middle. The helper is a
+fresh interpreter started on this module, never a copy of the run's process: a fork would copy the
+hardware threads mid-flight, and multiprocessing's spawn would run again whatever script started the
+campaign. Whatever the helper cannot do (it failed to start, or died) is fitted in the run's process;
+MAGRIG_POSTRUN_HELPER=0 in the environment keeps every fit there.
 
     python -m rig.analysis.fithelper SESSION MODELS ROBUST     # MODELS "t24,p12"; ROBUST 0 or 1
 
@@ -18,17 +29,19 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import rig
+from rig.analysis.dutfits import DutFit, SessionFits
 
+HELPER_MIN_FITS = 16  # below this a helper's start-up (about a second) costs more than it saves
+IN_FLIGHT = 2  # DUTs handed to the helper at a time: it never idles, and never holds many
 LENGTH = struct.Struct(">Q")
 SILENT_S = 300.0  # one DUT's fits take a fraction of a second; this long without an answer is a hang
 
 
 def main(argv: list[str]) -> int:
-    from rig.analysis.dutfits import SessionFits
-
     session, models, robust = argv
     out = sys.stdout.buffer
     with SessionFits(session, tuple(models.split(",")), robust == "1") as fits:
@@ -127,6 +140,47 @@ class Helper:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# --- many DUTs ----------------------------------------------------------------------------------------
+def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool, duts: list[str],
+                started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
+    """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin."""
+    with SessionFits(session_path, models, robust) as here:
+        helper = None
+        if len(duts) * len(models) >= HELPER_MIN_FITS and (os.cpu_count() or 1) >= 2 \
+                and os.environ.get("MAGRIG_POSTRUN_HELPER") != "0":
+            helper = Helper.start(session_path, models, robust)
+        if helper is None:
+            for dut in duts:
+                started(dut)
+                yield dut, here.fit(dut)
+            return
+        with helper:
+            yield from _shared_out(here, helper, list(duts), started)
+
+
+def _shared_out(here: SessionFits, helper: Helper, duts: list[str],
+                started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
+    """This process fits from the front, the helper from the back; a DUT the helper fails is fitted here."""
+    given: list[str] = []  # handed to the helper, not yet back
+    while duts or given:
+        while helper.alive and len(given) < IN_FLIGHT and len(duts) > 1:
+            dut = duts.pop()
+            started(dut)
+            given.append(dut)
+            helper.give(dut)
+        if duts:
+            dut = duts.pop(0)
+            started(dut)
+            yield dut, here.fit(dut)
+        for dut, fits in helper.results(block=not duts):
+            given.remove(dut)
+            yield dut, fits
+        if not helper.alive:  # what it held is fitted here
+            while given:
+                dut = given.pop(0)
+                yield dut, here.fit(dut)
 
 
 if __name__ == "__main__":

@@ -34,11 +34,11 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) ->
     to the session and record each fit in it; the DUTs' shared inputs in the cross-covariance file beside
     them (rig/analysis/crosscov.py). Where a DUT's T24 linearity in temperature fails, a T36 is fitted too
     (unless the plan fits it already) and both record the choice between them
-    (rig/analysis/tempchoice.py). Many DUTs are fitted on two cores (rig/analysis/dutfits.py).
+    (rig/analysis/tempchoice.py). Many DUTs are fitted on two cores (rig/analysis/fithelper.py).
     `progress(dut, model, done, total)` is told as each DUT's fits begin; the session records it too
     (rig/analysis/fitprogress.py). The entries come in the station's DUT order."""
     from rig.analysis.crosscov import CrossCovariance
-    from rig.analysis.dutfits import fitted_duts
+    from rig.analysis.fithelper import fitted_duts
     from rig.analysis.fitprogress import FitProgress
 
     models = tuple(plan.fit.models)

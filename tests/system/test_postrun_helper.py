@@ -1,4 +1,4 @@
-"""The post-run fits of many DUTs on two cores (rig/analysis/dutfits.py): a campaign on the shipped 16-DUT
+"""The post-run fits of many DUTs on two cores (rig/analysis/fithelper.py): a campaign on the shipped 16-DUT
 station has its fits shared with a helper process, whose calibration files are byte for byte the ones
 the run's own process writes; a helper that dies leaves its DUTs to the run's process."""
 
@@ -39,7 +39,7 @@ def _files(session) -> dict[str, list[bytes]]:
 def test_a_helper_fits_part_of_the_duts_and_writes_what_the_run_writes_itself(session):
     duts = [d.name for d in load_station(STATION).duts]
     told: list[str] = []
-    helped = {dut: {f.pid for f in fits} for dut, fits in dutfits.fitted_duts(session, MODELS, False, duts,
+    helped = {dut: {f.pid for f in fits} for dut, fits in fithelper.fitted_duts(session, MODELS, False, duts,
                                                                                told.append)}
     assert sorted(told) == sorted(duts) and set(helped) == set(duts)
     here = {dut for dut, pids in helped.items() if pids == {os.getpid()}}
@@ -61,7 +61,7 @@ def test_a_helper_that_dies_leaves_its_duts_to_the_run(session, monkeypatch, cap
     errors = tempfile.TemporaryFile()
     monkeypatch.setattr(fithelper.Helper, "start", dying)
     duts = [d.name for d in load_station(STATION).duts]
-    fitted = dict(dutfits.fitted_duts(session, MODELS, False, duts, lambda dut: None))
+    fitted = dict(fithelper.fitted_duts(session, MODELS, False, duts, lambda dut: None))
     assert set(fitted) == set(duts)
     assert all(f.pid == os.getpid() and f.error is None for fits in fitted.values() for f in fits)
     said = [r.getMessage() for r in caplog.records if "helper process" in r.getMessage()]
