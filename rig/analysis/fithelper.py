@@ -174,7 +174,8 @@ def _shared_out(here: SessionFits, helper: Helper, duts: list[str],
             dut = duts.pop(0)
             started(dut)
             yield dut, here.fit(dut)
-        for dut, fits in helper.results(block=not duts):
+        # wait for the helper only when nothing is left to fit here and it holds some
+        for dut, fits in helper.results(block=not duts and bool(given)):
             given.remove(dut)
             yield dut, fits
         if not helper.alive:  # what it held is fitted here

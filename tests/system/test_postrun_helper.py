@@ -66,3 +66,35 @@ def test_a_helper_that_dies_leaves_its_duts_to_the_run(session, monkeypatch, cap
     assert all(f.pid == os.getpid() and f.error is None for fits in fitted.values() for f in fits)
     said = [r.getMessage() for r in caplog.records if "helper process" in r.getMessage()]
     assert len(said) == 1 and "code 1 (out of memory)" in said[0]
+
+
+class _PromptHelper:
+    """A helper that has answered each DUT by the time the run looks (a fast helper beside a slow run):
+    the run must never wait for an answer when it has handed out nothing."""
+
+    alive = True
+
+    def __init__(self):
+        self.answers: list[str] = []
+
+    def give(self, dut):
+        self.answers.append(dut)
+
+    def results(self, block):
+        if block and not self.answers:
+            raise AssertionError("waited for the helper with nothing handed to it")
+        while self.answers:
+            dut = self.answers.pop(0)
+            yield dut, [dutfits.DutFit(dut, "t24")]
+
+
+class _Here:
+    def fit(self, dut):
+        return [dutfits.DutFit(dut, "t24")]
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 16])
+def test_the_run_never_waits_for_a_helper_that_holds_nothing(n):
+    duts = [f"dut{k}" for k in range(n)]
+    out = list(fithelper._shared_out(_Here(), _PromptHelper(), list(duts), lambda dut: None))
+    assert sorted(dut for dut, _ in out) == sorted(duts)
