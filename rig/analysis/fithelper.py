@@ -1,26 +1,32 @@
 """The post-run fits of many DUTs on two cores: a helper process, and how the run's process shares the
 DUTs with it.
 
-    for dut, results in fitted_duts(session_path, models, robust, duts, started):
-        ...                                          # [DutFit] as each DUT's fits end (any order)
+    with run_helper(session_path, models, robust, len(duts)) as helper:   # as the run starts
+        ...                                                                   # the run
+        for dut, results in fitted_duts(session_path, models, robust, duts, started, helper):
+            ...                                      # [DutFit] as each DUT's fits end (any order)
 
 With HELPER_MIN_FITS fits or more and two cores, the helper takes DUTs from the end of the list while the
 run's process fits them from the front (rig/analysis/dutfits.py); they meet in the middle. The helper is a
 fresh interpreter started on this module, never a copy of the run's process: a fork would copy the
 hardware threads mid-flight, and multiprocessing's spawn would run again whatever script started the
 campaign. Whatever the helper cannot do (it failed to start, or died) is fitted in the run's process;
-MAGRIG_POSTRUN_HELPER=0 in the environment keeps every fit there.
+MAGRIG_POSTRUN_HELPER=0 in the environment keeps every fit there. A helper started with the run
+(run_helper) imports what the fits use while the run goes on, so that the fits find it ready; without one,
+fitted_duts starts it itself.
 
     python -m rig.analysis.fithelper SESSION MODELS ROBUST     # MODELS "t24,p12"; ROBUST 0 or 1
 
 It reads DUT names, one a line, on its standard input; for each it fits every model (writing the
 calibration files) and answers on its standard output with the pickled [DutFit] (8-byte length first).
-It ends when its input ends, so a run's process that dies for any reason takes it along. Pickle is safe
+It ends when its input ends, so a run's process that dies for any reason takes it along. It runs in a
+process group of its own: Ctrl-C at the terminal is the run's to handle, and never reaches it. Pickle is safe
 here: both ends are this program, over a pipe only they hold.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import queue
@@ -43,12 +49,23 @@ SILENT_S = 300.0  # one DUT's fits take a fraction of a second; this long withou
 
 def main(argv: list[str]) -> int:
     session, models, robust = argv
+    # What the fits use is imported before the first DUT arrives: a helper started with the run has it
+    # ready by the run's end. The session is opened at the first DUT, once the run has recorded it all.
+    from calib import calfile  # noqa: F401
+    from rig.analysis import sessionfit, tempchoice  # noqa: F401
+    from rig.reference import budget, chain_record  # noqa: F401
+
     out = sys.stdout.buffer
-    with SessionFits(session, tuple(models.split(",")), robust == "1") as fits:
+    fits: SessionFits | None = None
+    try:
         for line in sys.stdin:
+            fits = fits or SessionFits(session, tuple(models.split(",")), robust == "1")
             payload = pickle.dumps(fits.fit(line.strip()), protocol=pickle.HIGHEST_PROTOCOL)
             out.write(LENGTH.pack(len(payload)) + payload)
             out.flush()
+    finally:
+        if fits is not None:
+            fits.close()
     return 0
 
 
@@ -63,6 +80,12 @@ class Helper:
         self._reader = threading.Thread(target=self._read, name="fit helper", daemon=True)
         self._reader.start()
 
+    @staticmethod
+    def wanted(fits: int) -> bool:
+        """Whether `fits` post-run fits are worth a helper on this machine."""
+        return fits >= HELPER_MIN_FITS and (os.cpu_count() or 1) >= 2 \
+            and os.environ.get("MAGRIG_POSTRUN_HELPER") != "0"
+
     @classmethod
     def start(cls, session_path, models, robust: bool) -> Helper | None:
         """The helper started on `session_path`, or None where no process can be had."""
@@ -73,7 +96,8 @@ class Helper:
         try:
             proc = subprocess.Popen([sys.executable, "-m", "rig.analysis.fithelper", str(session_path),
                                      ",".join(models), "1" if robust else "0"],
-                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, env=env)
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, env=env,
+                                    process_group=0)
         except OSError:
             errors.close()
             return None
@@ -121,11 +145,12 @@ class Helper:
             self.proc.stdin.close()
         except OSError:
             pass
-        try:
-            code = self.proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
+        # its output ends as it exits: the reader's join wakes at that moment, where a wait with a timeout
+        # would poll in growing sleeps
+        self._reader.join(timeout=60)
+        if self._reader.is_alive():
             self.proc.kill()
-            code = self.proc.wait()
+        code = self.proc.wait()
         self.errors.seek(0)
         said = self.errors.read().decode(errors="replace").strip().splitlines()
         self.errors.close()
@@ -143,21 +168,39 @@ class Helper:
 
 
 # --- many DUTs ----------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def run_helper(session_path: str | Path, models: tuple[str, ...], robust: bool, duts: int):
+    """A helper started with a run, for its post-run fits (None where it is not worth one): it loads what
+    the fits use while the run goes on. Give it to fitted_duts; it ends with the block."""
+    helper = Helper.start(session_path, models, robust) if Helper.wanted(duts * len(models)) else None
+    if helper is None:
+        yield None
+        return
+    with helper:
+        yield helper
+
+
 def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool, duts: list[str],
-                started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
-    """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin."""
+                started: Callable[[str], None], helper: Helper | None = None
+                ) -> Iterator[tuple[str, list[DutFit]]]:
+    """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin.
+    `helper`: one started with the run (run_helper), else one is started here where it is worth it."""
     with SessionFits(session_path, models, robust) as here:
-        helper = None
-        if len(duts) * len(models) >= HELPER_MIN_FITS and (os.cpu_count() or 1) >= 2 \
-                and os.environ.get("MAGRIG_POSTRUN_HELPER") != "0":
-            helper = Helper.start(session_path, models, robust)
-        if helper is None:
-            for dut in duts:
-                started(dut)
-                yield dut, here.fit(dut)
-            return
-        with helper:
-            yield from _shared_out(here, helper, list(duts), started)
+        if helper is None and Helper.wanted(len(duts) * len(models)):
+            with run_helper(session_path, models, robust, len(duts)) as helper:
+                yield from _fitted(here, helper, duts, started)
+        else:
+            yield from _fitted(here, helper, duts, started)
+
+
+def _fitted(here: SessionFits, helper: Helper | None, duts: list[str],
+            started: Callable[[str], None]) -> Iterator[tuple[str, list[DutFit]]]:
+    if helper is None or not helper.alive:
+        for dut in duts:
+            started(dut)
+            yield dut, here.fit(dut)
+        return
+    yield from _shared_out(here, helper, list(duts), started)
 
 
 def _shared_out(here: SessionFits, helper: Helper, duts: list[str],
@@ -185,4 +228,6 @@ def _shared_out(here: SessionFits, helper: Helper, duts: list[str],
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    exit_code = main(sys.argv[1:])
+    sys.stdout.flush()
+    os._exit(exit_code)  # everything is written and closed: the interpreter's teardown is time the run waits

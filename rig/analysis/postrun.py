@@ -28,7 +28,7 @@ def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dic
     return verdicts
 
 
-def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) -> list[dict]:
+def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None, helper=None) -> list[dict]:
     """Fit each of the plan's models for each DUT from the session's own dataset, the way `rig refit` and
     `rig refit-all` fit it (rig/analysis/sessionfit.py); write one calibration file per DUT and model next
     to the session and record each fit in it; the DUTs' shared inputs in the cross-covariance file beside
@@ -36,7 +36,8 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) ->
     (unless the plan fits it already) and both record the choice between them
     (rig/analysis/tempchoice.py). Many DUTs are fitted on two cores (rig/analysis/fithelper.py).
     `progress(dut, model, done, total)` is told as each DUT's fits begin; the session records it too
-    (rig/analysis/fitprogress.py). The entries come in the station's DUT order."""
+    (rig/analysis/fitprogress.py). `helper`: the fit helper started with the run, if any
+    (fithelper.run_helper). The entries come in the station's DUT order."""
     from rig.analysis.crosscov import CrossCovariance
     from rig.analysis.fithelper import fitted_duts
     from rig.analysis.fitprogress import FitProgress
@@ -51,7 +52,7 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None) ->
             tell(dut, model)
 
     kept: dict[str, list[dict]] = {}
-    for dut, fits in fitted_duts(session.path, models, bool(plan.fit.robust), duts, started):
+    for dut, fits in fitted_duts(session.path, models, bool(plan.fit.robust), duts, started, helper):
         kept[dut] = [_keep(session, fit, shared) for fit in fits]
     tell.finished(shared)
     return [entry for dut in duts for entry in kept[dut]]

@@ -24,6 +24,7 @@ from pathlib import Path
 from drivers.clock import Clock
 from rig import config as cfg
 from rig.analysis import postrun
+from rig.analysis.fithelper import run_helper
 from rig.core.errors import ERRORS, ConfigError, SessionError
 from rig.core.points import Point
 from rig.devices.build import Rig, open_rig
@@ -209,16 +210,19 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     display = display_factory(status, runner) if display_factory else None
     if prompt is not None and hasattr(display, "suspended"):
         engine.prompt = display.suspended(prompt)  # no live panel redrawing over the question
-    with display or contextlib.nullcontext():
-        result = engine.run(runner.tasks(), done_ids=done)
-    if runner.site is not None and result.status == COMPLETED:  # the field source is at its safe setting
-        runner.site.check_at_end(session.log_event)
-    record_final_state(rig, session)
-    outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid, judged_model=plan.judged_model)
-    if result.status == COMPLETED:
-        outcome.fits = postrun.fit_session(session, plan, rig.station,
-                                           progress=getattr(display, "fit_progress", None))
-        if plan.acceptance is not None:
-            outcome.verdicts = postrun.accept_session(session, plan, rig.station, outcome.fits,
-                                                         runner.live_summaries)
+    # the post-run fits' helper process gets ready on the other core while the run goes on
+    with run_helper(session.path, tuple(plan.fit.models), bool(plan.fit.robust), len(rig.duts)) as helper:
+        with display or contextlib.nullcontext():
+            result = engine.run(runner.tasks(), done_ids=done)
+        if runner.site is not None and result.status == COMPLETED:  # the field source is at its safe setting
+            runner.site.check_at_end(session.log_event)
+        record_final_state(rig, session)
+        outcome = RunOutcome(session.path, result, stale_lock_pid=lock.stale_pid,
+                             judged_model=plan.judged_model)
+        if result.status == COMPLETED:
+            outcome.fits = postrun.fit_session(session, plan, rig.station,
+                                               progress=getattr(display, "fit_progress", None), helper=helper)
+    if result.status == COMPLETED and plan.acceptance is not None:
+        outcome.verdicts = postrun.accept_session(session, plan, rig.station, outcome.fits,
+                                                     runner.live_summaries)
     return outcome

@@ -98,3 +98,16 @@ def test_the_run_never_waits_for_a_helper_that_holds_nothing(n):
     duts = [f"dut{k}" for k in range(n)]
     out = list(fithelper._shared_out(_Here(), _PromptHelper(), list(duts), lambda dut: None))
     assert sorted(dut for dut, _ in out) == sorted(duts)
+
+
+def test_a_helper_started_with_the_run_takes_its_share_and_ctrl_c_never_reaches_it(session):
+    """Started as the run starts, it waits through the run; Ctrl-C at the terminal goes to the terminal's
+    foreground process group, the run's, and the helper is in a group of its own."""
+    duts = [d.name for d in load_station(STATION).duts]
+    with fithelper.run_helper(session, MODELS, False, len(duts)) as helper:
+        assert helper is not None and os.getpgid(helper.proc.pid) != os.getpgid(0)
+        helped = {dut: {f.pid for f in fits} for dut, fits in fithelper.fitted_duts(
+            session, MODELS, False, duts, lambda dut: None, helper)}
+    assert set(helped) == set(duts)
+    assert {helper.proc.pid} in helped.values() and {os.getpid()} in helped.values()
+    assert helper.proc.returncode == 0
