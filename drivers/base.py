@@ -8,6 +8,7 @@ Limits are checked before anything is written (raise drivers.errors.LimitError).
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TypeVar
@@ -95,16 +96,55 @@ def wait_until(clock: Clock, read: Callable[[], R], settled: Callable[[R], bool]
         clock.sleep(min(poll_s, left))  # the last look at the deadline itself, not a poll past it
 
 
+def serial_line(dev: object) -> object | None:
+    """The serial line (drivers/transports/serial.py SerialLine) a device talks over, None for the rest."""
+    return getattr(getattr(dev, "transport", None), "line", None)
+
+
+def each_by_line(devices: list[Device], act: Callable[[Device], object], *,
+                 stop_at_error: bool = False) -> dict[int, Exception]:
+    """act(dev) for every device, the devices of each serial line in a thread of that line while the
+    others go in this one: a line's waits (the quiet after an Esc) are real time, and lines are separate
+    cables. Within a line, and among the others, the devices keep their order. {index in `devices`: the
+    Exception its act raised}; with `stop_at_error` a line (or the rest) stops at its first. Every thread
+    has ended when this returns, or when it raises (Ctrl-C here)."""
+    groups: dict[int, list[int]] = {}
+    for k, dev in enumerate(devices):
+        line = serial_line(dev)
+        groups.setdefault(0 if line is None else id(line), []).append(k)
+    errors: dict[int, Exception] = {}
+
+    def run(group: list[int]) -> None:
+        for k in group:
+            try:
+                act(devices[k])
+            except Exception as exc:
+                errors[k] = exc
+                if stop_at_error:
+                    return
+
+    threads = [threading.Thread(target=run, args=(group,), name="serial line", daemon=True)
+               for key, group in groups.items() if key != 0]
+    for thread in threads:
+        thread.start()
+    try:
+        run(groups.get(0, []))
+    finally:
+        for thread in threads:
+            thread.join()
+    return errors
+
+
 def make_all_safe(devices: Iterable[Device]) -> list[str]:
-    """safe_state() on every device, each on its own: one failure must not leave the others unsafe.
-    Returns the names of the devices that failed to go safe (each failure is logged)."""
+    """safe_state() on every device, each on its own: one failure must not leave the others unsafe (the
+    serial lines each in a thread of their own, each_by_line). Returns the names of the devices that failed
+    to go safe, in the devices' order (each failure is logged)."""
+    devices = list(devices)
+    errors = each_by_line(devices, lambda dev: dev.safe_state())
     log = logging.getLogger("magrig.safety")
     failed = []
-    for dev in devices:
-        name = getattr(dev, "name", type(dev).__name__)
-        try:
-            dev.safe_state()
-        except Exception as exc:
-            failed.append(name)
-            log.error("%s: safe_state failed: %s", name, exc, extra={"device": name})
+    for k in sorted(errors):
+        name = getattr(devices[k], "name", type(devices[k]).__name__)
+        failed.append(name)
+        log.error("%s: safe_state failed: %s", name, errors[k], extra={"device": name})
     return failed

@@ -22,7 +22,7 @@ import contextlib
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.base import Device, make_all_safe
+from drivers.base import Device, each_by_line, make_all_safe
 from drivers.clock import Clock, RealClock, SimClock
 from rig import config as cfg
 from rig.core.errors import ERRORS
@@ -135,16 +135,30 @@ def add_switch_banks(built: Built, station: cfg.Station, shared: Shared, bench) 
 
 def open_rig(station: cfg.Station, plan: cfg.Plan | None = None, clock: Clock | None = None) -> Rig:
     """Build and connect every device, then make every one safe before anything else happens (this is
-    also what makes a kill -9'ed previous run safe). A device that fails to connect raises its
-    DeviceError; the devices already connected are made safe and closed first."""
+    also what makes a kill -9'ed previous run safe). The devices of each serial line go in a thread of that
+    line, beside the others (drivers/base.py each_by_line). A device that fails to connect raises its
+    DeviceError (the first in station order, where several did); the devices already connected are made
+    safe and closed first."""
     built = build_devices(station, plan, clock)
+    devices = list(built.devices.values())
+    done: set[int] = set()  # ids of the devices connected (set.add is atomic across the line threads)
+
+    def connect(dev: Device) -> None:
+        dev.connect()
+        done.add(id(dev))
+
     connected: list[Device] = []
     try:
-        for dev in built.devices.values():
-            dev.connect()
-            connected.append(dev)
-        for dev in connected:
-            dev.safe_state()
+        # each serial line in a thread of its own (drivers/base.py each_by_line): their quiet waits overlap
+        try:
+            failed = each_by_line(devices, connect, stop_at_error=True)
+        finally:
+            connected = [dev for dev in devices if id(dev) in done]
+        if failed:
+            raise failed[min(failed)]
+        failed = each_by_line(connected, lambda dev: dev.safe_state())
+        if failed:
+            raise failed[min(failed)]
     except BaseException:
         for dev in connected:
             with contextlib.suppress(Exception):
