@@ -235,8 +235,8 @@ def to_plain(x: object) -> object:
         return {str(k): to_plain(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
         return [to_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return to_plain(x.tolist())
+    if isinstance(x, np.ndarray):  # tolist() gives python numbers already, except of an object array
+        return x.tolist() if x.dtype != object else to_plain(x.tolist())
     if isinstance(x, np.bool_):
         return bool(x)
     if isinstance(x, np.integer):

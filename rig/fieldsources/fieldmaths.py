@@ -15,6 +15,7 @@ the field at the sensor (`field_nt(readback(reading))`):
 
     ref = reference_for(station)        # station.field_source.reference(measured_nt)
     device.set(ref.command(target)); ref.field_nt(ref.readback(device.read()))
+    ref.fields_nt(setting, duts)          # {DUT: field where it sits}, each field worked out once
 """
 
 from __future__ import annotations
@@ -76,6 +77,18 @@ class CoilReference:
         """The field at DUT `where` (at the centre for None or a DUT without a matrix of its own)."""
         return coil_field_nt(self.matrices.get(where, self.coil_constants), currents_a, self.ambient_nt)
 
+    def fields_nt(self, currents_a, duts) -> dict[str, tuple[float, ...]]:
+        """field_nt at each of `duts`, as tuples: worked out once per coil matrix (the DUTs without a
+        position share the centre's), not once per DUT."""
+        by_matrix: dict[int, tuple[float, ...]] = {}
+        out = {}
+        for dut in duts:
+            matrix = self.matrices.get(dut, self.coil_constants)
+            if id(matrix) not in by_matrix:
+                by_matrix[id(matrix)] = tuple(coil_field_nt(matrix, currents_a, self.ambient_nt).tolist())
+            out[dut] = by_matrix[id(matrix)]
+        return out
+
     def record(self) -> dict:
         """What a point stores of the reference it was taken with (the ambient in use)."""
         return {"ambient_nt": [float(v) for v in self.ambient_nt]}
@@ -115,6 +128,11 @@ class TableReference:
         from calib.tablefit import table_field_nt as fitted_field
 
         return fitted_field(self.params, [angles_deg])[0]
+
+    def fields_nt(self, angles_deg, duts) -> dict[str, tuple[float, ...]]:
+        """field_nt at each of `duts`, as tuples (one field for all)."""
+        field = tuple(self.field_nt(angles_deg).tolist())
+        return dict.fromkeys(duts, field)
 
     @staticmethod
     def command(target) -> tuple[float, ...]:

@@ -198,11 +198,11 @@ class CampaignRunner:
         self.rig.field_source.wait_settled(self.source.settle_timeout_s())
         self.engine.wait(cmd.seconds, max(cmd.seconds, 1e-3))
 
-    def _reference_now(self) -> dict[str, np.ndarray]:
+    def _reference_now(self) -> dict[str, tuple[float, ...]]:
         """{DUT: the reference field where it sits}, from what the field source reports now (readback
         currents / angles)."""
         setting = self.reference.readback(self.rig.field_source.read())
-        return {dut: self.reference.field_nt(setting, dut) for dut in self.rig.duts}
+        return self.reference.fields_nt(setting, self.rig.duts)
 
     def collect_point(self, cmd: CollectPoint) -> None:
         point: Point = cmd.point
@@ -239,8 +239,12 @@ class CampaignRunner:
                                   temperatures=self.temperatures.take(), decision=decision)
 
     def _feed_live(self, rows: list[SampleRow]) -> None:
+        by_dut: dict[str, list[SampleRow]] = {}
+        for r in rows:
+            if not r.flags:
+                by_dut.setdefault(r.dut, []).append(r)
         for dut, live in self.live.items():
-            mine = [r for r in rows if r.dut == dut and not r.flags]
+            mine = by_dut.get(dut, [])
             live.add(np.array([r.field_nt for r in mine]).reshape(-1, 3),
                      np.array([r.temp_c for r in mine], float),
                      np.array([r.ref_field_nt for r in mine]).reshape(-1, 3))
