@@ -21,6 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from drivers.sim.i2c_bus import switch_writes  # noqa: E402
 from rig import config as cfg  # noqa: E402
 from rig.devices.build import open_rig  # noqa: E402
 from rig.devices.interleave import read_all  # noqa: E402
@@ -29,31 +30,17 @@ STATION = REPO / "configs" / "stations" / "sim-64.yaml"
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
 
 
-def _switch_writes(rig) -> int:
-    """Control bytes the simulated switches have received so far."""
-    total = 0
-    for dev in rig.devices():
-        for switch in getattr(dev, "switches", ()):
-            sim = _sim_switch(switch)
-            total += sim.writes if sim is not None else 0
-    return total
-
-
-def _sim_switch(switch):
-    chip = getattr(switch.bus, "chips", {}).get(switch.address)
-    return chip if hasattr(chip, "writes") else None
-
-
 def measure(rig, what, samples: int) -> tuple[float, float, float, float]:
     """(wall ms, CPU ms of the process, simulated ms, switch writes) per call of what()."""
     clock = rig.clock
-    writes0, sim0 = _switch_writes(rig), clock.now()
+    writes0, sim0 = switch_writes(rig.devices()), clock.now()
     wall0, cpu0 = time.perf_counter(), time.process_time()
     for _ in range(samples):
         what()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     n = samples
-    return wall * 1e3 / n, cpu * 1e3 / n, (clock.now() - sim0) * 1e3 / n, (_switch_writes(rig) - writes0) / n
+    writes = switch_writes(rig.devices()) - writes0
+    return wall * 1e3 / n, cpu * 1e3 / n, (clock.now() - sim0) * 1e3 / n, writes / n
 
 
 def main() -> None:

@@ -183,7 +183,7 @@ class MMC5983MA(Device):
     def read_steps(self) -> Steps[FieldSample]:
         """read() as steps (drivers/steps.py): the conversions of several chips can then overlap."""
         t = self.clock.now()
-        offset_nt = None
+        offset_nt = temp_c = None
         codes_reset: tuple[int, ...] = ()
         if self.continuous_hz is not None:
             codes = self._read_continuous_codes()
@@ -192,7 +192,11 @@ class MMC5983MA(Device):
         elif self.set_reset:
             yield from self._pulse_steps(CONTROL0_SET)
             codes = yield from self._measure_steps()
-            yield from self._pulse_steps(CONTROL0_RESET)
+            if self.read_temperature:  # the die temperature between the pair's halves, as the RESET settles
+                self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_RESET, "control 0 (SET/RESET)")
+                temp_c = yield from self._temp_steps(settle_s=SET_RESET_WAIT_S)
+            else:
+                yield from self._pulse_steps(CONTROL0_RESET)
             codes_reset = yield from self._measure_steps()
             pairs = list(zip(codes, codes_reset, strict=True))
             field_nt = tuple(code_to_nt(NULL_CODE + (s - r) / 2) for s, r in pairs)
@@ -200,7 +204,8 @@ class MMC5983MA(Device):
         else:
             codes = yield from self._measure_steps()
             field_nt = tuple(code_to_nt(c) for c in codes)
-        temp_c = (yield from self._temp_steps()) if self.read_temperature else None
+        if temp_c is None and self.read_temperature:
+            temp_c = yield from self._temp_steps()
         saturated = any(c in (0, CODE_MAX) for c in codes + codes_reset)
         flags = frozenset({"saturated"}) if saturated else frozenset()
         return FieldSample(
@@ -245,11 +250,13 @@ class MMC5983MA(Device):
                                       status_timeout_s(self.bandwidth))
         return decode_field_codes(self.link.read_block(REG_XOUT0, FIELD_BURST_BYTES, "field data"))
 
-    def _temp_steps(self) -> Steps[float]:
+    def _temp_steps(self, settle_s: float = 0.0) -> Steps[float]:
+        """TM_T, its wait (at least `settle_s`: a SET/RESET pulse written just before settles meanwhile),
+        the temperature."""
         self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_TM_T, "control 0 (TM_T)")
-        timeout_s = max(TEMP_TIMEOUT_MIN_S, status_timeout_s(self.bandwidth))
-        yield from self._status_steps(STATUS_MEAS_T_DONE, "Meas_T_Done", MEASUREMENT_TIME_S[self.bandwidth],
-                                      timeout_s)
+        timeout_s = max(TEMP_TIMEOUT_MIN_S, status_timeout_s(self.bandwidth), settle_s)
+        yield from self._status_steps(STATUS_MEAS_T_DONE, "Meas_T_Done",
+                                      max(MEASUREMENT_TIME_S[self.bandwidth], settle_s), timeout_s)
         return decode_temp_c(self.link.read_byte(REG_TOUT, "temperature"))
 
     def start_continuous(self, rate_hz: float) -> None:

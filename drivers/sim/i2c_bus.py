@@ -46,10 +46,25 @@ class I2CSwitchSim:
     """
 
     def __init__(self) -> None:
-        self.control = SWITCH_POWER_UP
+        # the enabled switches of the bus it sits on (FakeSMBus._enabled), kept up to date from here
+        self.enabled_on: dict[I2CSwitchSim, None] | None = None
+        self._control = SWITCH_POWER_UP
         self.channels: list[dict[int, I2CChip]] = [{} for _ in range(SWITCH_CHANNELS)]
         self.readback: int | None = None
         self.writes = 0  # control bytes received, for tests and benches
+
+    @property
+    def control(self) -> int:
+        return self._control
+
+    @control.setter
+    def control(self, value: int) -> None:
+        self._control = value
+        if self.enabled_on is not None:
+            if value:
+                self.enabled_on[self] = None
+            else:
+                self.enabled_on.pop(self, None)
 
     def attach(self, channel: int, address: int, chip: I2CChip) -> None:
         self.channels[channel][address] = chip
@@ -84,6 +99,17 @@ class I2CSwitchSim:
 
     def on_write(self, register: int, data: bytes) -> None:
         raise ValueError("I2C switch: register writes are not described (write one byte: write_byte)")
+
+
+def switch_writes(devices) -> int:
+    """Control bytes the simulated switches behind `devices` (a rig's devices: its switch banks list their
+    TCA9548A drivers as `switches`) have received so far: for tests and benches that count selections."""
+    total = 0
+    for dev in devices:
+        for switch in getattr(dev, "switches", ()):
+            chip = getattr(switch.bus, "chips", {}).get(switch.address)
+            total += chip.writes if isinstance(chip, I2CSwitchSim) else 0
+    return total
 
 
 class _Collision:
@@ -186,19 +212,24 @@ class FakeSMBus:
         self.bus = bus
         self.force = force
         self.chips: dict[int, I2CChip] = {}
-        self._switches: list[I2CSwitchSim] = []  # the chips that are switches, looked at on every transfer
+        # those with a channel on, looked at on every transfer (each switch keeps it up to date)
+        self._enabled: dict[I2CSwitchSim, None] = {}
         self._nacks: dict[int, int | None] = {}  # address -> transfers left to NACK (None: all)
         self._faults: dict[int, Any] = {}  # address -> fault schedule, drawn once per transfer
 
     # --- wiring and fault hooks -------------------------------------------------------------------
     def attach(self, address: int, chip: I2CChip) -> None:
         self.chips[address] = chip
-        self._switches = [c for c in self.chips.values() if isinstance(c, I2CSwitchSim)]
+        if isinstance(chip, I2CSwitchSim):
+            chip.enabled_on = self._enabled
+            chip.control = chip.control  # listed as enabled if it is
 
     def detach(self, address: int) -> I2CChip | None:
         """Unplug the chip (returned, so a test can plug the same one back in)."""
         chip = self.chips.pop(address, None)
-        self._switches = [c for c in self.chips.values() if isinstance(c, I2CSwitchSim)]
+        if isinstance(chip, I2CSwitchSim):
+            self._enabled.pop(chip, None)
+            chip.enabled_on = None
         return chip
 
     def nack(self, address: int, count: int | None = None) -> None:
@@ -245,10 +276,8 @@ class FakeSMBus:
         """Every chip that ACKs `address`: on the main bus, and behind enabled switch channels."""
         chip = self.chips.get(address)
         found = [] if chip is None else [chip]
-        for switch in self._switches:
+        for switch in self._enabled:  # a switch with every channel off hides everything behind it
             control = switch.control
-            if not control:  # a switch with every channel off hides everything behind it
-                continue
             if control & (control - 1) == 0:  # one channel: looked up directly
                 chip = switch.channels[control.bit_length() - 1].get(address)
                 if chip is not None:

@@ -210,10 +210,12 @@ class CampaignRunner:
         self._check_chamber()
         rows: list[SampleRow] = []
         beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
+        together = self._sample_devices()
         for _ in range(point.samples):
-            sensors = {name: r.temp_c for name, r in read_all(self.rig.temp_sensors, self.rig.clock).items()}
             ref_nt = self._reference_now()
-            samples = read_all(self.rig.duts, self.rig.clock)  # conversions overlap (devices/interleave.py)
+            got = read_all(together, self.rig.clock)  # conversions overlap (devices/interleave.py)
+            sensors = {name: got[name].temp_c for name in self.rig.temp_sensors}
+            samples = {dut: got[dut] for dut in self.rig.duts}
             for dut, dev in self.rig.duts.items():
                 sample = samples[dut]
                 if self.rig.temp_sources[dut] is dev:  # its own sensor; a probe beside it is kept too
@@ -237,6 +239,17 @@ class CampaignRunner:
         stats = {**self._stability_stats, "reference": self.reference.record()}
         self.session.record_point(point.id, rows, stats, started=started,
                                   temperatures=self.temperatures.take(), decision=decision)
+
+    def _sample_devices(self) -> dict[str, Any]:
+        """The DUTs and the temperature sensors, read as one: each probe right after the DUT it sits beside,
+        so that on a switched I2C bus it shares its DUT's channel selection."""
+        by_dut: dict[str, list[str]] = {}
+        for s in self.rig.station.temperature_sensors:
+            by_dut.setdefault(s.beside, []).append(s.name)
+        order = [name for dut in self.rig.duts for name in (dut, *by_dut.pop(dut, []))]
+        order += [name for names in by_dut.values() for name in names]
+        devices = {**self.rig.duts, **self.rig.temp_sensors}
+        return {name: devices[name] for name in order}
 
     def _feed_live(self, rows: list[SampleRow]) -> None:
         by_dut: dict[str, list[SampleRow]] = {}

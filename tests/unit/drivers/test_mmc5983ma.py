@@ -121,6 +121,28 @@ def test_temperature_transcript() -> None:
     bus.assert_done()
 
 
+def test_set_reset_with_temperature_measures_it_between_the_halves_while_the_reset_settles() -> None:
+    script = SET_RESET[:5] + TEMPERATURE + SET_RESET[5:]  # SET, TM_M, ..., RESET, TM_T, ..., TM_M, ...
+    dev, bus, clock = scripted(script, set_reset=True, read_temperature=True)
+    start = clock.now()
+    sample = dev.read()
+    bus.assert_done()
+    assert sample.temp_c == pytest.approx(-75 + 128 * 200 / 255)
+    assert sample.field_nt[0] == pytest.approx(code_to_nt(131072 + 800))
+    # SET 1 ms, field 8 ms, then the temperature's 8 ms cover the RESET's 1 ms, field 8 ms: 25 ms, not 26
+    assert clock.now() - start == pytest.approx(0.025, abs=1e-6)
+
+
+def test_at_the_fastest_bandwidth_the_reset_still_settles_its_millisecond() -> None:
+    fast = [("write", 0x0A, b"\x03")] + SET_RESET[:5] + TEMPERATURE + SET_RESET[5:]
+    dev, bus, clock = scripted(fast, set_reset=True, read_temperature=True)
+    dev.set_bandwidth(3)  # 0.5 ms conversions
+    start = clock.now()
+    dev.read()
+    bus.assert_done()
+    assert clock.now() - start == pytest.approx(0.001 + 0.0005 + 0.001 + 0.0005, abs=1e-6)
+
+
 def test_bandwidth_transcript_and_shorter_wait() -> None:
     dev, bus, clock = scripted([("write", 0x0A, b"\x03"), ("write", 0x09, b"\x01"), ("read", 0x08, b"\x01"),
                                 ("read", 0x00, BURST)])
@@ -302,13 +324,13 @@ def test_simulator_speaks_the_datasheet_bytes() -> None:
         ("write", 0x09, b"\x01"),
         ("read", 0x08, b"\x11"),  # OTP_Read_Done (since power-on) | Meas_M_Done
         ("read", 0x00, bytes([0x90, 0x00, 0x78, 0x00, 0x80, 0x00, 0x00])),  # +H after SET
-        ("write", 0x09, b"\x10"),
-        ("write", 0x09, b"\x01"),
-        ("read", 0x08, b"\x11"),
-        ("read", 0x00, bytes([0x70, 0x00, 0x88, 0x00, 0x80, 0x00, 0x00])),  # -H after RESET
+        ("write", 0x09, b"\x10"),  # RESET, and the die temperature measured while it settles
         ("write", 0x09, b"\x02"),
         ("read", 0x08, b"\x13"),  # Meas_T_Done too
         ("read", 0x07, b"\x7c"),  # 124: (22 + 75) * 255 / 200 rounded
+        ("write", 0x09, b"\x01"),
+        ("read", 0x08, b"\x13"),
+        ("read", 0x00, bytes([0x70, 0x00, 0x88, 0x00, 0x80, 0x00, 0x00])),  # -H after RESET
     ]
     assert sample.field_nt == (100_000.0, -50_000.0, 0.0)
     assert sample.offset_nt == (0.0, 0.0, 0.0)

@@ -88,6 +88,27 @@ def test_fake_collision_reads_the_wired_and_and_writes_reach_both():
     assert a.registers[0x11] == b.registers[0x11] == 0x5A
 
 
+def test_fake_switch_unplugged_with_a_channel_on_hides_it_and_shows_it_again_when_plugged_back():
+    bus = FakeSMBus()
+    mux = bus.add_switch(0x70)
+    other = bus.add_switch(0x71)
+    mux.attach(3, 0x30, chip_with(0x2F, 0x30))
+    other.attach(0, 0x30, chip_with(0x2F, 0x0F))
+    bus.write_byte(0x70, 0x08)
+    assert bus.read_byte_data(0x30, 0x2F) == 0x30
+    unplugged = bus.detach(0x70)
+    with pytest.raises(OSError):
+        bus.read_byte_data(0x30, 0x2F)
+    unplugged.control = 0x00  # what it holds meanwhile is its own
+    unplugged.control = 0x08
+    bus.write_byte(0x71, 0x01)
+    assert bus.read_byte_data(0x30, 0x2F) == 0x0F  # the other switch's chip alone
+    bus.attach(0x70, unplugged)  # plugged back with channel 3 still on: both answer
+    assert bus.read_byte_data(0x30, 0x2F) == 0x30 & 0x0F
+    bus.write_byte(0x71, 0x00)
+    assert bus.read_byte_data(0x30, 0x2F) == 0x30
+
+
 def test_fake_switch_faults():
     bus = FakeSMBus()
     mux = bus.add_switch(0x70)
