@@ -7,7 +7,9 @@
 - `bandwidth`: BW code 0..3 (measurement time 8 / 4 / 2 / 0.5 ms).
 - `set_reset`: read() does a SET and a RESET measurement and returns H = (H_set - H_reset)/2 with
   the bridge offset (H_set + H_reset)/2 in FieldSample.offset_nt; counts are then the SET codes.
-- `read_temperature`: read() also measures the die temperature (about 0.8 degC resolution).
+- `read_temperature`: read() also measures the die temperature (about 0.8 degC resolution); with
+  `set_reset`, between the two halves, while the RESET settles (TM_M and TM_T only may not be high
+  together), so that it is the pair's temperature and costs no wait of its own.
 
 Control registers 0x09..0x0C are write-only (they read back 0), so the driver keeps shadow copies.
 Register facts: hardware-notes 1.1 (MMC5983MA datasheet rev A).
