@@ -185,6 +185,8 @@ class SessionReader:
 
     # --- samples ----------------------------------------------------------------------------------------
     def pick_dut(self, dut: str | None) -> str:
+        if dut is not None and self._rows("SELECT 1 FROM samples WHERE dut = ? LIMIT 1", dut):
+            return dut  # one look in the index, not the list of every DUT (a fit reads 64 in turn)
         duts = self.duts()
         if not duts:
             raise SessionError(f"{self.path}: the session holds no samples yet")
