@@ -228,6 +228,8 @@ def exchange(x, n: int, criterion: str = "D", prediction=None, *, start: np.ndar
     x = _checked_candidates(x)
     if not x.shape[1] <= n <= len(x):
         raise DataError(f"design: {n} points from {len(x)} candidates; need {x.shape[1]} .. {len(x)}")
+    if n == len(x):  # every candidate: nothing is left to exchange
+        return np.arange(len(x))
     scale = np.sqrt(np.mean(x * x, axis=0))
     xs = x / np.where(scale > 0, scale, 1.0)
     p_mom = _prediction(x, None if prediction is None else np.asarray(prediction, float))

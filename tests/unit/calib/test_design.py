@@ -165,3 +165,10 @@ def test_exchange_finds_a_balanced_isotropic_sweep_among_many_directions(criteri
     np.testing.assert_allclose(chosen.T @ chosen / 12, np.eye(3) / 3, atol=0.03)
     m_start, m_end = (x[i].T @ x[i] for i in (start, design))
     assert np.linalg.slogdet(m_end)[1] > np.linalg.slogdet(m_start)[1]
+
+
+@pytest.mark.parametrize("criterion", ["D", "I"])
+def test_exchange_asked_for_every_candidate_takes_them_all(criterion):
+    """A plan whose fields were designed already is designed again: its sweep is every one of them."""
+    x = np.column_stack([np.ones(12), 50_000 * fibonacci(12)])
+    assert exchange(x, 12, criterion).tolist() == list(range(12))
