@@ -51,6 +51,8 @@ BATCH_DRAWS = 2000
 VALIDATION_DRAWS = 100  # exact scalar refits that check its first-order map
 SCALAR_BATCH, SCALAR_MAX_DRAWS = 500, 2000  # a scalar Monte Carlo refitting every draw stops there
 VALIDATION_SHARE = 0.5  # of the numerical tolerance: how far they may stray from the map
+# rows a scalar fit's Monte Carlo refits at most: beyond, an evenly spaced subset (_thinned_scalar)
+SCALAR_MC_ROWS = 2048
 
 
 def needs_monte_carlo(ds: Dataset, cal: Calibration, lin, linear: LinearBudget, sources: list[InputSource],
@@ -275,17 +277,30 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
         lin.sigma2 = np.broadcast_to(np.asarray(noise_nt, float) ** 2, (3,)).copy()
     linear = propagate_linear(ds, cal, sources, grid, statistical=statistical, lin=lin)
     notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
+    whole = (ds, lin, linear, sources)
+    refitting = whole  # what the scalar fit's refits (its check and its draws) are made on
+    if isinstance(lin, ScalarGaussNewton) and len(ds) > SCALAR_MC_ROWS and monte_carlo != "never":
+        refitting = _thinned_scalar(ds, cal, weights, lin, sources, grid, statistical)
+        notes.append(f"the scalar fit's refits are made on {len(refitting[0])} of its {len(ds)} rows, evenly "
+                     "spaced, their noise scaled so that its spread in the parameters is the whole data's")
+    r_ds, r_lin, r_linear, r_sources = refitting
     checked_failed, refit_temperature = 0, True
     if monte_carlo == "auto":
-        why, checked, checked_failed = needs_monte_carlo(ds, cal, lin, linear, sources, rng,
+        why, checked, checked_failed = needs_monte_carlo(r_ds, cal, r_lin, r_linear, r_sources, rng,
                                                          statistical=statistical, ndig=ndig, notes=notes)
         scalar_refits = checked if scalar_refits is None else scalar_refits
         refit_temperature = any("temperature" in w for w in why)
     else:
         why = ["asked for"] if monte_carlo == "always" else []
     if why:
-        figures = _monte_carlo(ds, cal, lin, linear, sources, rng, statistical=statistical, ndig=ndig,
-                               batch_draws=batch_draws, max_draws=max_draws, why=why, notes=notes,
+        if isinstance(lin, ScalarGaussNewton) and scalar_refits is None:  # checked on the refits' rows
+            holds, found, bad = validate_scalar(r_lin, r_linear, r_sources, rng, statistical=statistical,
+                                                ndig=ndig)
+            notes.append(found)
+            scalar_refits, checked_failed = not holds, checked_failed + bad
+        mc_ds, mc_lin, mc_linear, mc_sources = refitting if scalar_refits else whole  # maps: the whole's
+        figures = _monte_carlo(mc_ds, cal, mc_lin, mc_linear, mc_sources, rng, statistical=statistical,
+                               ndig=ndig, batch_draws=batch_draws, max_draws=max_draws, why=why, notes=notes,
                                scalar_refits=scalar_refits, refit_temperature=refit_temperature,
                                checked_failed=checked_failed)
     else:
@@ -318,14 +333,29 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
         monte_carlo=mc, linear=linear)
 
 
+def _thinned_scalar(ds: Dataset, cal: Calibration, weights, lin: ScalarGaussNewton, sources, grid,
+                    statistical: bool) -> tuple[Dataset, ScalarGaussNewton, LinearBudget, list[InputSource]]:
+    """The scalar fit's problem on SCALAR_MC_ROWS rows evenly spaced through the data (in the order taken,
+    so every point and temperature keeps its share): (dataset, linearisation, linear budget, sources).
+    Its noise variance is the whole data's times M/N: the fit of M rows then spreads as the fit of N does
+    (its normal matrix is M/N of theirs). Its solution is its own least squares, which draws move from."""
+    from calib.mcrefit import ScalarRefit
+
+    rows = np.unique(np.linspace(0, len(ds) - 1, SCALAR_MC_ROWS).round().astype(int))
+    thin_ds = ds.subset(rows)
+    thin = ScalarGaussNewton(thin_ds, cal, None if weights is None else np.asarray(weights)[rows])
+    thin.sigma2 = lin.sigma2 * len(rows) / len(ds)
+    thin.theta = ScalarRefit(thin).own_solution()
+    thin_sources = [source.take(rows) for source in sources]
+    thin_linear = propagate_linear(thin_ds, cal, thin_sources, grid, statistical=statistical, lin=thin)
+    return thin_ds, thin, thin_linear, thin_sources
+
+
 def _monte_carlo(ds, cal, lin, linear, sources, rng, *, statistical, ndig, batch_draws, max_draws, why,
                  notes, scalar_refits, refit_temperature=True, checked_failed=0) -> dict:
-    """The figures of the adaptive Monte Carlo (u, interval offsets, radius per grid point, ...)."""
+    """The figures of the adaptive Monte Carlo (u, interval offsets, radius per grid point, ...); for a
+    scalar fit, whether its draws are refitted is decided already (budget)."""
     refits = bool(scalar_refits)
-    if isinstance(lin, ScalarGaussNewton) and scalar_refits is None:
-        holds, found, bad = validate_scalar(lin, linear, sources, rng, statistical=statistical, ndig=ndig)
-        notes.append(found)
-        refits, checked_failed = not holds, checked_failed + bad
     draws = _Draws(ds, cal, lin, linear, sources, statistical, refits, refit_temperature)
     if draws.scalar_refits:  # each draw a scalar refit (~1 ms): limited; the result says if it converged
         batch_draws = min(batch_draws or SCALAR_BATCH, SCALAR_BATCH)

@@ -143,8 +143,21 @@ class ScalarRefit:
         g_kc = -(np.einsum("mji,mj->mi", a, sut) + np.einsum("mji,mj->mi", ka, sutt))
         return np.column_stack([g_a, g_c, g_ka, g_kc])
 
+    def own_solution(self) -> np.ndarray:
+        """The least-squares solution (P free,) of the data as they are, by the same steps from lin.theta:
+        what draws move from where lin.theta is not that data's own solution (a thinned dataset)."""
+        theta, failed = self._refitted(np.zeros((1, len(self.lin.ds), 3)), None, None)
+        if failed[0]:
+            raise FitError("scalar refit: the thinned data's own solution did not converge")
+        return theta[0]
+
     def __call__(self, dh=None, dref=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
         """(parameter changes (m,P) in the layout's order, failed (m,))."""
+        theta, failed = self._refitted(dh, dref, dt)
+        return (theta - self.lin.theta) @ self.lin.select.T, failed
+
+    def _refitted(self, dh, dref, dt) -> tuple[np.ndarray, np.ndarray]:
+        """(the drawn datasets' solutions (m,P free), failed (m,))."""
         lin = self.lin
         m = next(x.shape[0] for x in (dh, dref, dt) if x is not None)
         h = lin.ds.h_nt[None] if dh is None else lin.ds.h_nt[None] + dh
@@ -166,7 +179,7 @@ class ScalarRefit:
         failed = np.zeros(m, bool)
         failed[moving] = True  # still moving after MAX_SCALAR_STEPS: not converged
         failed |= ~np.all(np.isfinite(theta), axis=1)
-        return (theta - lin.theta) @ lin.select.T, failed
+        return theta, failed
 
 
 def _times(mat: np.ndarray, x: np.ndarray) -> np.ndarray:

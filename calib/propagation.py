@@ -35,7 +35,7 @@ expanded vector error at that point (calib.distributions.gaussian_radius).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -100,6 +100,17 @@ class InputSource:
             raise DataError(f"source {self.name!r}: it changes neither the references, the temperatures nor "
                             "the true field")
         return out[0], out[1]
+
+    def take(self, rows: np.ndarray) -> InputSource:
+        """The source for the dataset's rows `rows` alone (ds.subset(rows)); a sensitivity given as a
+        function of the dataset is asked of that subset in its turn."""
+
+        def pick(a):
+            if a is None or callable(a):
+                return a
+            return a.take(rows) if isinstance(a, RowGroups) else np.asarray(a, float)[rows]
+
+        return replace(self, ref_nt=pick(self.ref_nt), temp_c=pick(self.temp_c))
 
     def grid_effect(self, grid_h_nt: np.ndarray, grid_temp_c: np.ndarray | None) -> np.ndarray | None:
         """a_grid (G,3,Q) at the grid's raw readings and temperatures, checked (None: no direct effect)."""

@@ -52,6 +52,10 @@ class RowGroups:
         per = np.einsum("kiq,mq->mki", self.per_group, q)  # (m,K,3)
         return per[:, self.index]
 
+    def take(self, rows: np.ndarray) -> RowGroups:
+        """The same groups for the rows `rows` alone."""
+        return RowGroups(self.index[rows], self.per_group)
+
     def dense(self) -> np.ndarray:
         """(N,3,Q): the full array (for small data and for checks)."""
         return self.per_group[self.index]

@@ -355,3 +355,27 @@ def test_a_badly_described_source_is_one_line_naming_it():
     known = r"distribution 'triangular' \(known: normal, rectangular, two-point\)"
     with pytest.raises(DataError, match=known):
         propagate_linear(ds, cal, [odd], grid())
+
+
+def test_a_long_scalar_recording_is_refitted_on_a_thinned_share_that_spreads_as_the_whole(monkeypatch):
+    """Refits of every draw cost as many rows as the data hold: beyond SCALAR_MC_ROWS they are made on an
+    evenly spaced share, its noise scaled by M/N and its own solution the origin. Its u and its intervals
+    are then the whole data's (the map's, which holds here), not sqrt(N/M) wider, nor shifted by the
+    share's own solution."""
+    import calib.budgeting as budgeting
+
+    monkeypatch.setattr(budgeting, "SCALAR_MC_ROWS", 512)
+    ds, currents = scalar_case(23, n=4096)
+    cal = calib.fit(ds, "scalar", temperature_terms=False, balance_orientations=False)
+    sources = coil_sources(ds, currents)
+    whole = budget(ds, cal, sources, grid(), rng=np.random.default_rng(24), monte_carlo="never")
+    thinned = budget(ds, cal, sources, grid(), rng=np.random.default_rng(25), scalar_refits=True,
+                     monte_carlo="always")
+    assert thinned.monte_carlo["refits"] == "every draw" and thinned.failed_draws == 0
+    assert any("512 of its 4096 rows" in n for n in thinned.notes)
+    for key in ("A", "c_nt"):
+        np.testing.assert_allclose(thinned.standard[key], whole.standard[key], rtol=0.1, atol=1e-12)
+        low, high = thinned.interval[key]
+        middle = (np.asarray(low) + np.asarray(high)) / 2 - np.asarray(cal.params[key])
+        assert np.all(np.abs(middle) <= 0.2 * np.asarray(whole.standard[key]) + 1e-12)
+    assert thinned.expanded_vector_error_nt == pytest.approx(whole.expanded_vector_error_nt, rel=0.1)
