@@ -279,9 +279,12 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
     notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
     whole = (ds, lin, linear, sources)
     refitting = whole  # what the scalar fit's refits (its check and its draws) are made on
+    thinned = None
     if isinstance(lin, ScalarGaussNewton) and len(ds) > SCALAR_MC_ROWS and monte_carlo != "never":
-        refitting = _thinned_scalar(ds, cal, weights, lin, sources, grid, statistical)
-        notes.append(f"the scalar fit's refits are made on {len(refitting[0])} of its {len(ds)} rows, evenly "
+        thinned = _thinned_scalar(ds, cal, weights, lin, sources, grid, statistical)
+    if thinned is not None:
+        refitting = thinned
+        notes.append(f"the scalar fit's refits are made on {len(thinned[0])} of its {len(ds)} rows, evenly "
                      "spaced, their noise scaled so that its spread in the parameters is the whole data's")
     r_ds, r_lin, r_linear, r_sources = refitting
     checked_failed, refit_temperature = 0, True
@@ -333,19 +336,26 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
         monte_carlo=mc, linear=linear)
 
 
+Problem = tuple[Dataset, ScalarGaussNewton, LinearBudget, list[InputSource]]
+
+
 def _thinned_scalar(ds: Dataset, cal: Calibration, weights, lin: ScalarGaussNewton, sources, grid,
-                    statistical: bool) -> tuple[Dataset, ScalarGaussNewton, LinearBudget, list[InputSource]]:
+                    statistical: bool) -> Problem | None:
     """The scalar fit's problem on SCALAR_MC_ROWS rows evenly spaced through the data (in the order taken,
     so every point and temperature keeps its share): (dataset, linearisation, linear budget, sources).
     Its noise variance is the whole data's times M/N: the fit of M rows then spreads as the fit of N does
-    (its normal matrix is M/N of theirs). Its solution is its own least squares, which draws move from."""
+    (its normal matrix is M/N of theirs). Its solution is its own least squares, which draws move from;
+    None where that solution is not found (the whole data are refitted then)."""
     from calib.mcrefit import ScalarRefit
 
     rows = np.unique(np.linspace(0, len(ds) - 1, SCALAR_MC_ROWS).round().astype(int))
     thin_ds = ds.subset(rows)
     thin = ScalarGaussNewton(thin_ds, cal, None if weights is None else np.asarray(weights)[rows])
     thin.sigma2 = lin.sigma2 * len(rows) / len(ds)
-    thin.theta = ScalarRefit(thin).own_solution()
+    theta = ScalarRefit(thin).own_solution()
+    if theta is None:
+        return None
+    thin.theta = theta
     thin_sources = [source.take(rows) for source in sources]
     thin_linear = propagate_linear(thin_ds, cal, thin_sources, grid, statistical=statistical, lin=thin)
     return thin_ds, thin, thin_linear, thin_sources

@@ -143,13 +143,12 @@ class ScalarRefit:
         g_kc = -(np.einsum("mji,mj->mi", a, sut) + np.einsum("mji,mj->mi", ka, sutt))
         return np.column_stack([g_a, g_c, g_ka, g_kc])
 
-    def own_solution(self) -> np.ndarray:
-        """The least-squares solution (P free,) of the data as they are, by the same steps from lin.theta:
-        what draws move from where lin.theta is not that data's own solution (a thinned dataset)."""
+    def own_solution(self) -> np.ndarray | None:
+        """The least-squares solution (P free,) of the data as they are, by the same steps from lin.theta
+        (None if they do not converge): what draws move from where lin.theta is not that data's own
+        solution (a thinned dataset)."""
         theta, failed = self._refitted(np.zeros((1, len(self.lin.ds), 3)), None, None)
-        if failed[0]:
-            raise FitError("scalar refit: the thinned data's own solution did not converge")
-        return theta[0]
+        return None if failed[0] else theta[0]
 
     def __call__(self, dh=None, dref=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
         """(parameter changes (m,P) in the layout's order, failed (m,))."""

@@ -379,3 +379,16 @@ def test_a_long_scalar_recording_is_refitted_on_a_thinned_share_that_spreads_as_
         middle = (np.asarray(low) + np.asarray(high)) / 2 - np.asarray(cal.params[key])
         assert np.all(np.abs(middle) <= 0.2 * np.asarray(whole.standard[key]) + 1e-12)
     assert thinned.expanded_vector_error_nt == pytest.approx(whole.expanded_vector_error_nt, rel=0.1)
+
+
+def test_a_thinned_share_whose_own_solution_is_not_found_leaves_the_whole_data_to_refit(monkeypatch):
+    import calib.budgeting as budgeting
+
+    monkeypatch.setattr(budgeting, "SCALAR_MC_ROWS", 256)
+    monkeypatch.setattr(ScalarRefit, "own_solution", lambda self: None)
+    ds, currents = scalar_case(26, n=400)
+    cal = calib.fit(ds, "scalar", temperature_terms=False, balance_orientations=False)
+    b = budget(ds, cal, coil_sources(ds, currents), grid(), rng=np.random.default_rng(27), scalar_refits=True,
+               monte_carlo="always")
+    assert b.stated and b.monte_carlo["refits"] == "every draw"
+    assert not any("rows, evenly spaced" in n for n in b.notes)
