@@ -75,6 +75,23 @@ def open_read_only(path: Path) -> tuple[sqlite3.Connection, tempfile.TemporaryDi
     return conn, tmp
 
 
+# One DUT's samples of the done points in collection order (sample_rows, dataset)
+SAMPLE_ROWS_COLUMNS = ("point", "temp_index", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c",
+                       "dut_temp", "ref_temp", "ox", "oy", "oz", "flags")
+SAMPLE_ROWS_SQL = (
+    "SELECT s.point_id AS point, p.temp_index, s.t, s.hx, s.hy, s.hz, "
+    "coalesce(s.temp_c, s.ref_temp_c) AS temp, s.bx, s.by, s.bz, p.setpoint_c, "
+    "s.temp_c AS dut_temp, s.ref_temp_c AS ref_temp, s.ox, s.oy, s.oz, s.flags "
+    "FROM samples s JOIN points p ON p.id = s.point_id "
+    "WHERE s.dut = ? AND p.state = 'done' ORDER BY p.idx, s.id"
+)
+
+
+def _group(temp_index: int, setpoint_c: float) -> str:
+    """A sample's temperature step as a label, e.g. "T03 25.0C"."""
+    return f"T{temp_index:02d} {setpoint_c:.1f}C"
+
+
 class SessionReader:
     """A session file opened read-only (see the module docstring)."""
 
@@ -204,16 +221,9 @@ class SessionReader:
         `temp` is the DUT's own temperature, or the reference sensor's where that is missing (`dut_temp`
         and `ref_temp` keep both); `group` labels the temperature step, e.g. "T03 25.0C"."""
         dut = self.pick_dut(dut)
-        rows = self._rows(
-            "SELECT s.point_id AS point, p.temp_index, s.t, s.hx, s.hy, s.hz, "
-            "coalesce(s.temp_c, s.ref_temp_c) AS temp, s.bx, s.by, s.bz, p.setpoint_c, "
-            "s.temp_c AS dut_temp, s.ref_temp_c AS ref_temp, s.ox, s.oy, s.oz, s.flags "
-            "FROM samples s JOIN points p ON p.id = s.point_id "
-            "WHERE s.dut = ? AND p.state = 'done' ORDER BY p.idx, s.id",
-            dut,
-        )
+        rows = self._rows(SAMPLE_ROWS_SQL, dut)
         for r in rows:
-            r["group"] = f"T{r['temp_index']:02d} {r['setpoint_c']:.1f}C"
+            r["group"] = _group(r["temp_index"], r["setpoint_c"])
         return dut, rows
 
     def dataset(self, dut: str | None = None):
@@ -221,21 +231,35 @@ class SessionReader:
         out and counted in source["rows_rejected"]."""
         from calib.dataset import Dataset
 
-        dut, rows = self.sample_rows(dut)
-        good = [r for r in rows if not r["flags"]]
-        missing_temp = [r["point"] for r in good if r["temp"] is None]
+        dut = self.pick_dut(dut)
+        try:  # the rows as tuples, one column at a time (a long recording's dicts cost more than its fit)
+            cursor = self._conn.cursor()
+            cursor.row_factory = None  # plain tuples
+            rows = cursor.execute(SAMPLE_ROWS_SQL, (dut,)).fetchall()
+        except sqlite3.DatabaseError as exc:
+            raise SessionError(f"{self.path}: damaged session file: {exc}") from None
+        at = {name: k for k, name in enumerate(SAMPLE_ROWS_COLUMNS)}
+        good = [r for r in rows if not r[at["flags"]]]
+        missing_temp = [r[at["point"]] for r in good if r[at["temp"]] is None]
         if missing_temp:
             raise SessionError(f"{self.path}: DUT {dut}: point {missing_temp[0]} has samples without a "
                                "temperature")
+        cols = list(zip(*good, strict=True)) if good else [()] * len(SAMPLE_ROWS_COLUMNS)
 
         def col(name: str, dtype=float) -> np.ndarray:
-            return np.array([r[name] for r in good], dtype=dtype)
+            return np.array(cols[at[name]], dtype=dtype)
 
+        def vector(*names: str) -> np.ndarray:
+            return np.column_stack([col(n) for n in names]) if good else np.zeros((0, 3))
+
+        groups = {key: _group(*key) for key in set(zip(cols[at["temp_index"]], cols[at["setpoint_c"]],
+                                                      strict=True))}
         return Dataset(
-            h_nt=np.column_stack([col("hx"), col("hy"), col("hz")]) if good else np.zeros((0, 3)),
+            h_nt=vector("hx", "hy", "hz"),
             temp_c=col("temp"),
-            ref_nt=np.column_stack([col("bx"), col("by"), col("bz")]) if good else np.zeros((0, 3)),
-            group=col("group", object),
+            ref_nt=vector("bx", "by", "bz"),
+            group=np.array([groups[key] for key in zip(cols[at["temp_index"]], cols[at["setpoint_c"]],
+                                                      strict=True)], dtype=object),
             columns={"point": col("point", object), "t": col("t"), "setpoint_c": col("setpoint_c")},
             source={
                 "path": str(self.path), "sha256": self.sha256, "kind": "session", "dut": dut,

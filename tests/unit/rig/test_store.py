@@ -178,6 +178,24 @@ def test_ctrl_c_during_the_commit_is_held_until_the_point_is_stored(tmp_path, ca
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_the_dataset_holds_the_unflagged_sample_rows_in_their_order(tmp_path, campaign, points):
+    s = new_session(tmp_path, campaign, points)
+    s.record_point(points[0].id, rows_for(points[0], n=3) + rows_for(points[0], n=1, flags={"overflow"}))
+    s.record_point(points[40].id, rows_for(points[40], n=2) + rows_for(points[40], n=1, temp_c=None))
+    s.close()
+    with SessionReader(tmp_path / "s.magrig") as reader:
+        _, rows = reader.sample_rows("mmc0")
+        ds = reader.dataset("mmc0")
+    good = [r for r in rows if not r["flags"]]
+    assert ds.n == len(good) == 6
+    assert np.array_equal(ds.h_nt, [[r["hx"], r["hy"], r["hz"]] for r in good])
+    assert np.array_equal(ds.ref_nt, [[r["bx"], r["by"], r["bz"]] for r in good])
+    assert np.array_equal(ds.temp_c, [r["temp"] for r in good])
+    assert list(ds.group) == [r["group"] for r in good]
+    assert list(ds.columns["point"]) == [r["point"] for r in good]
+    assert np.array_equal(ds.columns["t"], [r["t"] for r in good])
+
+
 def test_read_dataset_round_trip(tmp_path, campaign, points):
     s = new_session(tmp_path, campaign, points)
     fs = FieldSample(t=5.0, field_nt=(11.0, 12.0, 13.0), counts=(7, 8, 9), temp_c=-19.5,
