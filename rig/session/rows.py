@@ -43,11 +43,11 @@ class SampleRow:
 
     def as_params(self, point_id: str) -> tuple:
         """Values for INSERT_SAMPLE, as plain Python numbers (numpy scalars in, SQLite types out)."""
-        c = (None,) * 3 if self.counts is None else tuple(int(x) for x in self.counts)
-        o = (None,) * 3 if self.offset_nt is None else tuple(float(x) for x in self.offset_nt)
+        c = (None,) * 3 if self.counts is None else map(int, self.counts)
+        o = (None,) * 3 if self.offset_nt is None else map(float, self.offset_nt)
         return (point_id, self.dut, float(self.t), *map(float, self.field_nt), *c, *o,
                 _opt_float(self.temp_c), _opt_float(self.ref_temp_c), *map(float, self.ref_field_nt),
-                ",".join(sorted(self.flags)))
+                ",".join(sorted(self.flags)) if self.flags else "")
 
 
 def _opt_float(value) -> float | None:
