@@ -252,14 +252,13 @@ class SessionReader:
         def vector(*names: str) -> np.ndarray:
             return np.column_stack([col(n) for n in names]) if good else np.zeros((0, 3))
 
-        groups = {key: _group(*key) for key in set(zip(cols[at["temp_index"]], cols[at["setpoint_c"]],
-                                                      strict=True))}
+        steps = list(zip(cols[at["temp_index"]], cols[at["setpoint_c"]], strict=True))
+        labels = {step: _group(*step) for step in set(steps)}  # each step's label made once
         return Dataset(
             h_nt=vector("hx", "hy", "hz"),
             temp_c=col("temp"),
             ref_nt=vector("bx", "by", "bz"),
-            group=np.array([groups[key] for key in zip(cols[at["temp_index"]], cols[at["setpoint_c"]],
-                                                      strict=True)], dtype=object),
+            group=np.array([labels[step] for step in steps], dtype=object),
             columns={"point": col("point", object), "t": col("t"), "setpoint_c": col("setpoint_c")},
             source={
                 "path": str(self.path), "sha256": self.sha256, "kind": "session", "dut": dut,
