@@ -38,7 +38,7 @@ from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
 from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
-from calib.mcrefit import draw_chunks, refit_for
+from calib.mcrefit import ScalarRefit, draw_chunks, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.rowgroups import RowGroups
 from calib.uncertainty import COVERAGE_FACTOR, Budget
@@ -346,8 +346,6 @@ def _thinned_scalar(ds: Dataset, cal: Calibration, weights, lin: ScalarGaussNewt
     Its noise variance is the whole data's times M/N: the fit of M rows then spreads as the fit of N does
     (its normal matrix is M/N of theirs). Its solution is its own least squares, which draws move from;
     None where that solution is not found (the whole data are refitted then)."""
-    from calib.mcrefit import ScalarRefit
-
     rows = np.unique(np.linspace(0, len(ds) - 1, SCALAR_MC_ROWS).round().astype(int))
     thin_ds = ds.subset(rows)
     thin = ScalarGaussNewton(thin_ds, cal, None if weights is None else np.asarray(weights)[rows])

@@ -195,7 +195,7 @@ class MMC5983MA(Device):
             yield from self._pulse_steps(CONTROL0_SET)
             codes = yield from self._measure_steps()
             if self.read_temperature:  # the die temperature between the pair's halves, as the RESET settles
-                self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_RESET, "control 0 (SET/RESET)")
+                self._write_pulse(CONTROL0_RESET)
                 temp_c = yield from self._temp_steps(settle_s=SET_RESET_WAIT_S)
             else:
                 yield from self._pulse_steps(CONTROL0_RESET)
@@ -243,8 +243,11 @@ class MMC5983MA(Device):
         return run_steps(self._temp_steps(), self.clock)
 
     def _pulse_steps(self, set_or_reset: int) -> Steps[None]:
-        self.link.write_byte(REG_CONTROL0, self._control0 | set_or_reset, "control 0 (SET/RESET)")
+        self._write_pulse(set_or_reset)
         yield SET_RESET_WAIT_S
+
+    def _write_pulse(self, set_or_reset: int) -> None:
+        self.link.write_byte(REG_CONTROL0, self._control0 | set_or_reset, "control 0 (SET/RESET)")
 
     def _measure_steps(self) -> Steps[tuple[int, int, int]]:
         self.link.write_byte(REG_CONTROL0, self._control0 | CONTROL0_TM_M, "control 0 (TM_M)")

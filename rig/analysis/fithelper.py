@@ -186,11 +186,11 @@ def fitted_duts(session_path: str | Path, models: tuple[str, ...], robust: bool,
     """(dut, its fits) for every DUT as they end; `started(dut)` is told as each DUT's fits begin.
     `helper`: one started with the run (run_helper), else one is started here where it is worth it."""
     with SessionFits(session_path, models, robust) as here:
-        if helper is None and Helper.wanted(len(duts) * len(models)):
-            with run_helper(session_path, models, robust, len(duts)) as helper:
-                yield from _fitted(here, helper, duts, started)
-        else:
+        if helper is not None:
             yield from _fitted(here, helper, duts, started)
+            return
+        with run_helper(session_path, models, robust, len(duts)) as own:  # None where not worth one
+            yield from _fitted(here, own, duts, started)
 
 
 def _fitted(here: SessionFits, helper: Helper | None, duts: list[str],
