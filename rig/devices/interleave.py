@@ -6,10 +6,11 @@ Drivers that offer `read_steps()` (drivers/steps.py: MMC5983MA, HMC5883L) are in
 each starts its conversion, and whichever is due next is resumed (one bus is one lock, so transfers still
 go one at a time). The others (the serial magnetometers, which wait for their line) are read in worker
 threads meanwhile, one per device; a shared serial line's lock keeps its devices' exchanges apart. On a
-simulated clock no device waits on its wire, so the workers start after the interleave instead: running
-beside it they would only take turns at the interpreter with it, and cost more than they overlap. The
-workers are kept between calls (starting threads for every sample cost more than a serial reading), and
-every reading has ended, done or failed, before read_all returns or raises.
+simulated clock no device waits on its wire, so they are read after the interleave, one after another in
+this thread: beside it, or in threads of their own, they would only take turns at the interpreter, and
+cost more than they overlap. The workers are kept between calls (starting threads for every sample cost
+more than a serial reading), and every reading has ended, done or failed, before read_all returns or
+raises.
 """
 
 from __future__ import annotations
@@ -43,15 +44,15 @@ def read_all(duts: dict[str, Any], clock: Clock) -> dict[str, Any]:
     if not blocking:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
         return {name: got[name] for name in duts}
+    if getattr(clock, "simulated", False):  # nothing waits on a wire: threads would only share the GIL
+        got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
+        got.update({name: dev.read() for name, dev in blocking.items()})
+        return {name: got[name] for name in duts}
     pool = _pool(len(blocking))
-    overlap = not getattr(clock, "simulated", False)  # nothing waits on a wire: it would only share the GIL
-    futures = {name: pool.submit(dev.read) for name, dev in blocking.items()} if overlap else {}
+    futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
     try:
         got = interleave({name: dev.read_steps() for name, dev in stepped.items()}, clock)
     finally:
         wait(futures.values())  # no reading goes on behind a failure
-    if not overlap:
-        futures = {name: pool.submit(dev.read) for name, dev in blocking.items()}
-        wait(futures.values())
     got.update({name: future.result() for name, future in futures.items()})
     return {name: got[name] for name in duts}

@@ -1,6 +1,7 @@
 """rig/devices/interleave.py: a blocking device (a serial magnetometer) is read beside the interleaved ones
-on a real clock, where both wait on their wires, and after them on a simulated clock, where nothing does;
-either way every reading comes back in the devices' order."""
+on a real clock, where both wait on their wires (in a worker thread), and after them on a simulated clock,
+where nothing does (in the calling thread: threads would only take turns at the interpreter); either way
+every reading comes back in the devices' order."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ from rig.devices.interleave import read_all
 class Blocking:
     def __init__(self):
         self.started = threading.Event()
+        self.thread = None
 
     def read(self):
+        self.thread = threading.current_thread()
         self.started.set()
         return "serial"
 
@@ -44,3 +47,4 @@ def test_blocking_devices_overlap_the_interleave_on_a_real_clock_only(clock, ove
     got = read_all({"mmc": stepped, "ser": serial}, clock)
     assert list(got.items()) == [("mmc", "i2c"), ("ser", "serial")]
     assert stepped.saw is overlapped and serial.started.is_set()
+    assert (serial.thread is threading.current_thread()) is not overlapped
