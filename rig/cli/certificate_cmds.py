@@ -18,17 +18,14 @@ def certificate_cmd(session: Path, duts: tuple[str, ...], output_dir: Path, pdf:
     """Write the calibration certificate of a session's DUT: identification, method, conditions, results
     with expanded uncertainty, traceability, model checks, software (ISO/IEC 17025 7.8)."""
     from rig.core.errors import DataError
-    from rig.report.certificate import write_certificate
-    from rig.session.reader import SessionReader
+    from rig.report.certificate import session_record, write_certificate
     from rig.session.schema import looks_like_session
 
     if not session.is_file() or not looks_like_session(session):
         raise DataError(f"{session}: not a session file")
-    if not duts:
-        with SessionReader(session) as reader:
-            duts = tuple(reader.duts())
-    for dut in duts:
-        written, said = write_certificate(session, dut, output_dir, pdf=pdf)
+    recorded = session_record(session)  # once for every DUT certified
+    for dut in duts or recorded["duts"]:
+        written, said = write_certificate(session, dut, output_dir, pdf=pdf, recorded=recorded)
         click.echo(f"wrote {written[0]}" + (f" and {written[1].name}" if len(written) > 1 else f"; {said}"))
 
 

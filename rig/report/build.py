@@ -6,6 +6,10 @@ collect data-quality warnings, draw the figures and write one self-contained HTM
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from rig.core.errors import DataError
@@ -29,9 +33,10 @@ def build_report(
     return write_report(read_inputs(source, data=data, dut=dut), out_dir)[0]
 
 
-def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
-    """Analyse, draw and write: returns [the HTML page, *the PNG figures]."""
-    sections = report_sections(inputs)
+def write_report(inputs: ReportInputs, out_dir: str | Path, progress: Callable[[str], None] | None = None
+                 ) -> list[Path]:
+    """Analyse, draw and write: returns [the HTML page, *the PNG figures]; `progress` hears of each DUT."""
+    sections = report_sections(inputs, progress)
     out = Path(out_dir)
     written = [out / "report.html"]
     try:
@@ -54,12 +59,13 @@ def write_report(inputs: ReportInputs, out_dir: str | Path) -> list[Path]:
 def write_certificates(session: Path, duts: list[str], out: Path) -> list[tuple[str, str]]:
     """Each DUT's calibration certificate (HTML; rig certificate prints PDFs too) in `out`: (text, name)."""
     from rig.core.paths import calibration_file
-    from rig.report.certificate import write_certificate
+    from rig.report.certificate import session_record, write_certificate
 
-    links = []
+    links, recorded = [], None
     for dut in duts:
         if any(calibration_file(session, dut, m).is_file() for m in ("t24", "t36", "p12", "scalar")):
-            page = write_certificate(session, dut, out, pdf=False)[0][0]
+            recorded = recorded or session_record(session)
+            page = write_certificate(session, dut, out, pdf=False, recorded=recorded)[0][0]
             links.append((f"{dut}: calibration certificate", page.name))
     return links
 
@@ -92,7 +98,34 @@ def _subtitle(inputs: ReportInputs) -> str:
     return "; ".join(f"{k}: {v}" for k, v in inputs.provenance[:2])
 
 
-def report_sections(inputs: ReportInputs) -> list[Section]:
+POOL_MIN_DUTS = 4  # a worker's start (a new interpreter importing matplotlib) costs about one DUT's figures
+
+
+def each_dut_sections(results: list, steps: dict, progress: Callable[[str], None] | None = None
+                      ) -> list[list[Section]]:
+    """Each DUT's sections, in order. Their figures are most of a report's time (64 DUTs' 384 took a
+    minute on one core), so with several DUTs they are drawn on every core, each DUT in a new process
+    (spawned, not forked: a cockpit builds reports beside its threads). `progress` hears of each DUT."""
+    workers = min(len(results), os.cpu_count() or 1)
+    if len(results) < POOL_MIN_DUTS or workers < 2:
+        out = []
+        for n, r in enumerate(results, 1):
+            out.append(dut_sections(r, steps))
+            _tell(progress, f"report: {r.name} ({n} of {len(results)})")
+        return out
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(dut_sections, r, steps): r.name for r in results}
+        for n, done in enumerate(as_completed(futures), 1):
+            _tell(progress, f"report: {futures[done]} ({n} of {len(results)})")
+        return [future.result() for future in futures]
+
+
+def _tell(progress: Callable[[str], None] | None, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def report_sections(inputs: ReportInputs, progress: Callable[[str], None] | None = None) -> list[Section]:
     clash = collision(d.name for d in inputs.duts)
     if clash:
         raise DataError(f"report: DUT names {clash[1].removesuffix('; rename one')}, so their figures would "
@@ -105,7 +138,7 @@ def report_sections(inputs: ReportInputs) -> list[Section]:
     ]
     if inputs.acceptance:
         sections.insert(1, acceptance_section(inputs.acceptance))
-    for r in results:
-        sections += dut_sections(r, inputs.steps)
+    for dut_part in each_dut_sections(results, inputs.steps, progress):
+        sections += dut_part
     sections.append(Section("Provenance", [Table(["item", "value"], [list(p) for p in inputs.provenance])]))
     return sections

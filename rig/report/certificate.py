@@ -44,38 +44,53 @@ def _fig(x, spec: str = ".6g") -> str:
     return "-" if x is None else format(float(x), spec)
 
 
-def _gather(session: Path, dut: str) -> dict:
-    """Everything the certificate states, read from the session and the calibration files beside it."""
+def session_record(session: str | Path) -> dict:
+    """What every certificate of a session states alike, read once for all its DUTs: the session's
+    information, reference chain, sha256, points, verdicts, and its recorded plan and station parsed."""
     from rig.reference import chain_record
     from rig.session.reader import SessionReader
 
+    session = Path(session)
     with SessionReader(session) as reader:
-        if dut not in reader.duts():
-            raise SessionError(f"{session}: no DUT named {dut!r} (DUTs: {', '.join(reader.duts())})")
         info, chain = reader.info(), reader.snapshot(chain_record.SNAPSHOT) or {}
+        points = [p for p in reader.points() if p["state"] == "done"]
+        record = {"duts": reader.duts(), "sha256": reader.sha256, "acceptance": reader.acceptance(),
+                  "setpoints_c": sorted({round(p["setpoint_c"], 2) for p in points}),
+                  "targets": len({p["target_json"] for p in points}), "points": len(points)}
+    plan, station = chain_record.recorded_plan_and_station(session, info, chain)
+    com = chain.get("commissioning")
+    return record | {"session": session, "info": info, "chain": chain, "plan": plan, "station": station,
+                     "commissioning_record": None if com is None else _commissioning_record(com)}
+
+
+def _gather(session: Path, dut: str, recorded: dict | None = None) -> dict:
+    """Everything the certificate states: the session's record (session_record) and the DUT's own, read
+    from the session and the calibration files beside it."""
+    from rig.session.reader import SessionReader
+
+    recorded = recorded or session_record(session)
+    if dut not in recorded["duts"]:
+        raise SessionError(f"{session}: no DUT named {dut!r} (DUTs: {', '.join(recorded['duts'])})")
+    with SessionReader(session) as reader:
         identity = reader.snapshot(dut) or {}
         ds = reader.dataset(dut)
-        sha = reader.sha256
-        points = [p for p in reader.points() if p["state"] == "done"]
-        verdicts = [r for r in reader.acceptance() if r["dut"] == dut]
-    plan, station = chain_record.recorded_plan_and_station(session, info, chain)
     cals = {}
-    for model in dict.fromkeys([*plan.fit.models, "t36"]):  # and a T36 added where T24's linearity failed
+    for model in dict.fromkeys([*recorded["plan"].fit.models, "t36"]):  # a T36 where T24's linearity failed
         path = calibration_file(session, dut, model)
         if path.is_file():
             cals[model] = (path, calfile.load(path))
     if not cals:
         raise DataError(f"{session}: DUT {dut} has no calibration file beside the session (the run's "
                         "post-run fits write them): nothing to certify")
-    return {"session": session, "dut": dut, "info": info, "chain": chain, "identity": identity, "ds": ds,
-            "sha256": sha, "plan": plan, "station": station, "cals": cals, "verdicts": verdicts,
-            "setpoints_c": sorted({round(p["setpoint_c"], 2) for p in points}),
-            "targets": len({p["target_json"] for p in points}), "points": len(points)}
+    return recorded | {"dut": dut, "identity": identity, "ds": ds, "cals": cals,
+                       "verdicts": [r for r in recorded["acceptance"] if r["dut"] == dut]}
 
 
-def certificate_sections(session: str | Path, dut: str) -> tuple[str, list[Section]]:
-    """(title, sections) of the certificate of `dut` in `session`."""
-    g = _gather(Path(session), dut)
+def certificate_sections(session: str | Path, dut: str, recorded: dict | None = None
+                         ) -> tuple[str, list[Section]]:
+    """(title, sections) of the certificate of `dut` in `session` (`recorded`: its session_record, when
+    certificates of several DUTs are made)."""
+    g = _gather(Path(session), dut, recorded)
     info, station, plan = g["info"], g["station"], g["plan"]
     config = station.dut(dut)
     number = f"{Path(session).name.removesuffix('.session')}/{dut}"
@@ -184,7 +199,7 @@ def _traceability(g) -> Section:
     com = chain.get("commissioning")
     rows = []
     cals = chain.get("reference_calibrations") or {}
-    record = None if com is None else _commissioning_record(com)
+    record = g["commissioning_record"]
     for name, data in cals.items():
         ref = next((r for r in station.reference_magnetometers if r.name == name), None)
         measured = record["reference_magnetometer"] if record else {}
@@ -227,8 +242,8 @@ def _checks(g) -> Section:
     return Section("Model checks", blocks)
 
 
-def certificate_html(session: str | Path, dut: str) -> str:
-    title, sections = certificate_sections(session, dut)
+def certificate_html(session: str | Path, dut: str, recorded: dict | None = None) -> str:
+    title, sections = certificate_sections(session, dut, recorded)
     return render_html(title, sections, subtitle=f"issued by magrig from {Path(session).name}") \
         .replace("</style>", PRINT_CSS + "</style>", 1)
 
@@ -246,16 +261,17 @@ def certificate_file(out_dir: str | Path, session: str | Path, dut: str, suffix:
     return inside(out_dir, f"{stem}.{dut}.certificate.{suffix}")
 
 
-def write_certificate(session: str | Path, dut: str, out_dir: str | Path, *, pdf: bool = True
-                      ) -> tuple[list[Path], str]:
-    """([the HTML file, the PDF when one could be printed], what happened to the PDF)."""
+def write_certificate(session: str | Path, dut: str, out_dir: str | Path, *, pdf: bool = True,
+                      recorded: dict | None = None) -> tuple[list[Path], str]:
+    """([the HTML file, the PDF when one could be printed], what happened to the PDF); `recorded`: the
+    session's session_record, read once for several DUTs."""
     from rig.report.pdf import print_pdf
 
     out = Path(out_dir)
     page = certificate_file(out, session, dut, "html")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        page.write_text(certificate_html(session, dut), encoding="utf-8")
+        page.write_text(certificate_html(session, dut, recorded), encoding="utf-8")
     except OSError as exc:
         raise DataError(f"{out}: cannot write the certificate: {exc.strerror or exc}") from None
     if not pdf:

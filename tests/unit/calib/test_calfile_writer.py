@@ -4,6 +4,7 @@ dumper writes, for every kind of float and for strings that look like floats, an
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import yaml
 
 from calib.calfile import _Dumper
@@ -32,3 +33,21 @@ def test_the_float_lists_are_written_as_pyyamls_own_dumper_writes_them():
         assert back["look_alike"] == doc["look_alike"] and back["note"] == "0.5"  # strings stay strings
         assert np.array_equal(back["covariance"], doc["covariance"])
         assert np.isnan(back["specials"][5]) and back["specials"][6:8] == [float("inf"), float("-inf")]
+
+
+def test_a_file_without_anchors_reads_the_same_through_libyaml_and_an_undefined_alias_is_refused(tmp_path):
+    """calfile reads a text without "&" with libyaml's parser (no anchor, so no alias to refuse): the same
+    data as the pure-Python loader that refuses aliases; an alias with no anchor is still a DataError."""
+    from calib import calfile
+    from calib.errors import DataError
+
+    text = yaml.dump(_document(np.random.default_rng(5)), Dumper=_Dumper, sort_keys=False,
+                     default_flow_style=None, width=120)
+    assert "&" not in text
+    fast, checked = calfile._parse_yaml(text), yaml.load(text, Loader=calfile._NoAliasLoader)
+    assert repr(fast) == repr(checked)  # nan == nan is False: compared as text
+    path = tmp_path / "alias.yaml"
+    path.write_text("format: magrig-calibration\nmodel: t24\nparams: *nowhere\n")
+    with pytest.raises(DataError, match="line 3") as caught:
+        calfile.load(path)
+    assert str(path) in str(caught.value)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 import re
 from html import unescape
@@ -140,3 +141,20 @@ def test_a_session_without_samples_is_one_line(tmp_path, capsys):
     assert main(["report", str(path), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err == f"error: {path}: the session holds no samples yet; nothing to report\n"
+
+
+def test_many_duts_are_drawn_on_every_core_in_order(session, monkeypatch):
+    """Four DUTs or more: each DUT's sections come from a worker process, the same as drawn here and in the
+    DUTs' order, and the progress names each DUT once."""
+    from rig.report import build
+
+    inputs = from_session(session)
+    first = analyse_dut(inputs.duts[0], inputs.steps)
+    results = [dataclasses.replace(first, name=f"dut{n}") for n in range(build.POOL_MIN_DUTS)]
+    here = [build.dut_sections(r, inputs.steps) for r in results]
+    monkeypatch.setattr(build.os, "cpu_count", lambda: 2)  # a pool even on a one-core machine
+    said = []
+    pooled = build.each_dut_sections(results, inputs.steps, said.append)
+    assert pooled == here
+    assert sorted(s.split()[1] for s in said) == [r.name for r in results]
+    assert [s.split(" (")[1] for s in said] == [f"{n} of 4)" for n in range(1, 5)]
