@@ -30,6 +30,10 @@ UNEVEN_COVERAGE_SHARE = 0.8  # balancing is a candidate when its weights leave f
 # coverage, so sampling noise alone does not make the coverage look uneven
 MIN_SAMPLES_TO_BALANCE = 700
 BALANCE_CHUNK = 128  # samples per pass of the direction-density count
+# The starting ellipsoid takes |B| as constant (its mean) when it spreads by less than this share: fitted to a
+# nearly constant |B|, the quadric's scale would follow the reference's jitter, not the readings (a zero
+# quadric and a constant fit it best). Levenberg-Marquardt then fits each sample's own |B|.
+NORM_SPREAD_CONSTANT = 0.01
 
 
 def field_norm(ds: Dataset, field_norm_nt: float | None) -> tuple[np.ndarray, str]:
@@ -54,7 +58,7 @@ def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarra
     x, y, z = hn.T
     quad = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, -2 * x, -2 * y, -2 * z])
     sw = np.sqrt(w)[:, None]
-    constant_norm = np.ptp(fn) <= 1e-9 * np.max(fn)
+    constant_norm = np.ptp(fn) <= NORM_SPREAD_CONSTANT * np.max(fn)
     d = np.column_stack([quad, np.ones(len(hn))]) * sw
     if constant_norm:
         # homogeneous: the quadric through the points, its scale fixed afterwards by the known norm
@@ -72,7 +76,7 @@ def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarra
         denom = c @ wm @ c - v[9]
         if denom <= 0:
             raise FitError(_coverage_message())
-        wm = wm * (fn[0] ** 2 / denom)
+        wm = wm * (np.average(fn**2, weights=w) / denom)
     try:
         a = np.linalg.cholesky(wm).T  # W = A'A, A upper-triangular with positive diagonal
     except np.linalg.LinAlgError:

@@ -111,6 +111,22 @@ def test_scalar_with_temperature_terms():
     assert plain.stats["rms_after_nt"] > 3 * cal.stats["rms_after_nt"]
 
 
+@pytest.mark.parametrize("jitter_nt", [0.0, 0.05, 20.0])
+def test_scalar_with_one_magnitude_whose_reference_jitters(jitter_nt):
+    """A sphere at one magnitude whose per-sample reference |B| wanders a little (a coil reference: current
+    noise, the ambient): the starting ellipsoid takes |B| as constant, as it is within 1 %. Fitting the
+    jitter itself, a zero quadric and a constant fitted best and the fit was refused as not an ellipsoid."""
+    rng = np.random.default_rng(11)
+    ds, truth = synthetic.scalar_dataset(rng, n=600, noise_nt=20.0)
+    ds.ref_norm_nt = ds.ref_norm_nt + rng.normal(0, jitter_nt, len(ds))
+    a, c = scalar._algebraic(ds.h_nt / 5e4, ds.ref_norm_nt / 5e4, np.ones(len(ds)))  # the start
+    assert np.linalg.norm((ds.h_nt / 5e4 - c) @ a.T, axis=1) == pytest.approx(ds.ref_norm_nt / 5e4, rel=0.01)
+    cal = calib.fit(ds, "scalar")
+    z_c = (cal.params["c_nt"] - truth.params["c_nt"]) / cal.std_errors["c_nt"]
+    assert np.max(np.abs(z_c)) < 4.5
+    assert cal.stats["rms_after_nt"] == pytest.approx(np.hypot(20.0, jitter_nt), rel=0.15)
+
+
 def test_scalar_unknown_norm_is_scaled_and_says_so():
     ds, _ = synthetic.scalar_dataset(np.random.default_rng(8), n=1000)
     ds.ref_norm_nt = None
