@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -113,11 +114,21 @@ def each_dut_sections(results: list, steps: dict, progress: Callable[[str], None
             out.append(dut_sections(r, steps))
             _tell(progress, f"report: {r.name} ({n} of {len(results)})")
         return out
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_leave_interrupts_to_the_caller)
+    try:
         futures = {pool.submit(dut_sections, r, steps): r.name for r in results}
         for n, done in enumerate(as_completed(futures), 1):
             _tell(progress, f"report: {futures[done]} ({n} of {len(results)})")
         return [future.result() for future in futures]
+    finally:  # after a failure or a Ctrl-C, the DUTs not begun are dropped, not drawn
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _leave_interrupts_to_the_caller() -> None:
+    """In a worker: a Ctrl-C at the terminal reaches the whole process group; the caller stops the report,
+    and the worker ends with the pool, without a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _tell(progress: Callable[[str], None] | None, message: str) -> None:
