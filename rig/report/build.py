@@ -29,9 +29,11 @@ def build_report(
     data: str | Path | None = None,
     dut: str | None = None,
     out_dir: str | Path = "report",
+    progress: Callable[[str], None] | None = None,
 ) -> Path:
-    """Write report.html and its PNG figures into out_dir; return the HTML path."""
-    return write_report(read_inputs(source, data=data, dut=dut), out_dir)[0]
+    """Write report.html and its PNG figures into out_dir; return the HTML path. `progress` hears of each
+    DUT drawn."""
+    return write_report(read_inputs(source, data=data, dut=dut), out_dir, progress)[0]
 
 
 def write_report(inputs: ReportInputs, out_dir: str | Path, progress: Callable[[str], None] | None = None

@@ -87,30 +87,65 @@ def samples_download(path: Path, dut: str) -> Download:
     return Download(f"{stem}.{file_stem(dut)}.csv", text.getvalue().encode(), "text/csv; charset=utf-8")
 
 
+REPORT_WAIT_S = 10.0  # a request waits this long for a report being built, then gets a page of its progress
+
+
 class Reports:
-    """HTML reports of sessions, built on first request in the scratch folder and kept until the session
-    file changes (a running campaign's report is of the points taken so far)."""
+    """HTML reports of sessions, built in a thread of their own on first request, in the scratch folder,
+    and kept until the session file changes (a running campaign's report is of the points taken so far).
+    A request waits `wait_s` for a build; a longer one (64 DUTs take most of a minute) answers with how far
+    the build is, and the page asks again."""
 
-    def __init__(self, scratch: Path):
+    def __init__(self, scratch: Path, wait_s: float = REPORT_WAIT_S):
         self.scratch = scratch
+        self.wait_s = wait_s
         self.lock = threading.Lock()
-        self.building: dict[Path, threading.Lock] = {}
-        self.built: dict[Path, tuple[tuple, Path]] = {}
+        self.builds: dict[Path, _Build] = {}
 
-    def html(self, path: Path) -> bytes:
-        from rig.report.build import build_report
-
+    def html(self, path: Path) -> bytes | str:
+        """The report's page as bytes, or, while it is being built, a line saying how far it is. A build
+        that failed raises its error here, once; the next request builds again."""
         key = _file_key(path)
         with self.lock:
-            guard = self.building.setdefault(path, threading.Lock())
-        with guard:  # one build per session at a time; a second request waits for it
-            found = self.built.get(path)
-            if found is None or found[0] != key:
-                if found is not None:
-                    shutil.rmtree(found[1].parent, ignore_errors=True)
-                out = Path(tempfile.mkdtemp(prefix="report-", dir=self.scratch))
-                self.built[path] = (key, build_report(path, out_dir=out))
-            return self.built[path][1].read_bytes()
+            build = self.builds.get(path)
+            if build is None or (build.key != key and not build.thread.is_alive()):
+                if build is not None:
+                    shutil.rmtree(build.folder, ignore_errors=True)
+                build = self.builds[path] = _Build(path, key, Path(tempfile.mkdtemp(prefix="report-",
+                                                                                    dir=self.scratch)))
+        build.thread.join(self.wait_s)
+        if build.thread.is_alive():
+            return build.progress
+        if build.error is not None:
+            with self.lock:
+                if self.builds.get(path) is build:
+                    del self.builds[path]
+            shutil.rmtree(build.folder, ignore_errors=True)
+            raise build.error
+        return build.page.read_bytes()
+
+
+class _Build:
+    """One report being built in a thread (rig.report.build.build_report), and what it has said."""
+
+    def __init__(self, path: Path, key: tuple, folder: Path):
+        self.path, self.key, self.folder = path, key, folder
+        self.progress = "reading the session and fitting its DUTs"
+        self.page: Path | None = None
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name=f"report {path.name}", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        from rig.report.build import build_report
+
+        try:
+            self.page = build_report(self.path, out_dir=self.folder, progress=self._said)
+        except BaseException as exc:  # handed to the request that asks next
+            self.error = exc
+
+    def _said(self, message: str) -> None:
+        self.progress = "DUTs drawn: " + message.removeprefix("report: ")
 
 
 def _file_key(path: Path) -> tuple:

@@ -379,6 +379,17 @@ def verdict_chart(rows: list[dict], width: int = 720, height: int = 200) -> str:
     return "".join(parts)
 
 
+# --- a report being built ----------------------------------------------------------------------------------
+def report_building_page(app, ref: SessionRef, progress: str) -> str:
+    """What the report's address shows while the report is built (the response's Refresh header reloads it
+    until the report itself comes)."""
+    return layout(app, f"report of {ref.name}",
+                  f"<h1>Report of {esc(ref.name)}</h1>"
+                  f'<p id="report-progress">Building the report: {esc(progress)}.</p>'
+                  "<p>This page reloads itself until the report is ready.</p>"
+                  f'<p><a href="{esc(ref.url())}">back to the session</a></p>', page="report-building")
+
+
 # --- errors -----------------------------------------------------------------------------------------------
 def error_page(app, status: int, message: str) -> str:
     return layout(app, f"{status}", f'<h1>{status}</h1><p class="bad">{esc(message)}</p>'

@@ -48,6 +48,7 @@ KEEPALIVE_S = 15.0
 MAX_FORM_BYTES = 4096
 PAGE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; "
             "form-action 'self'; base-uri 'none'; frame-ancestors 'none'")
+REPORT_REFRESH_S = 2  # how often a page of a report being built asks again (its Refresh header)
 REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src data:; base-uri 'none'; "
               "frame-ancestors 'none'")  # rig report's page: inline CSS, figures as data: URLs, no script
 STATIC = {"cockpit.js": "text/javascript; charset=utf-8", "cockpit.css": "text/css; charset=utf-8",
@@ -181,8 +182,11 @@ class Handler(BaseHTTPRequestHandler):
         if tail == "/state":
             return self._state(ref)
         if tail == "/report":
-            html = self.app.reports.html(ref.path)
-            return self._send(200, html, "text/html; charset=utf-8", csp=REPORT_CSP)
+            got = self.app.reports.html(ref.path)
+            if isinstance(got, str):  # still being built: how far, and the browser asks again
+                return self._send(200, pages.report_building_page(self.app, ref, got).encode("utf-8"),
+                                  "text/html; charset=utf-8", extra={"Refresh": str(REPORT_REFRESH_S)})
+            return self._send(200, got, "text/html; charset=utf-8", csp=REPORT_CSP)
         if tail == "/certificate":
             return self._certificate(ref, query.get("dut", ""))
         if tail.endswith(".certificate.html"):  # the report's link: <session stem>.<dut>.certificate.html

@@ -106,3 +106,30 @@ def test_pages_show_hostile_text_as_text_and_fit_a_phone(tmp_path):
             assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1"), path
         assert errors == []
 
+
+
+def test_a_report_being_built_shows_its_progress_and_becomes_the_report(tmp_path):
+    """The report's address, while the report is built: a page of its progress that reloads itself (its
+    Refresh header) until the report comes, without a script or a console error."""
+    from rig.web.server import Cockpit
+    from tests.helpers.synthetic_session import SynthOptions, build_session
+    from tests.system.test_cockpit_http import start
+
+    folder = tmp_path / "sessions"
+    folder.mkdir()
+    build_session(folder / "run.session",
+                  SynthOptions(temps_c=(-20.0, 40.0), directions=14, samples=3, seed=3))
+    app = Cockpit(roots=[folder])
+    app.reports.wait_s = 0.0  # every build outlasts the wait
+    srv = start(app)
+    try:
+        with browser.headless_page() as (page, errors):
+            page.goto(f"http://127.0.0.1:{srv.server_address[1]}/s/0/run.session/report")
+            assert "Building the report: " in page.inner_text("#report-progress")
+            # a locator's wait goes on across the page's reloads (an evaluate would die with its page)
+            page.locator("h2", has_text="Summary").first.wait_for(timeout=120_000)
+            assert page.locator("script").count() == 0
+            assert errors == []
+    finally:
+        srv.shutdown()
+        srv.server_close()

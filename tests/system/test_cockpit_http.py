@@ -7,6 +7,7 @@ import http.client
 import json
 import os
 import threading
+import time
 import urllib.parse
 from pathlib import Path
 from types import SimpleNamespace
@@ -265,6 +266,39 @@ def test_session_report_and_live_pages(server):
     assert state["summary"]["progress"]["done"] == state["summary"]["progress"]["planned"] == 12
     assert state["summary"]["run"]["state"] == "completed" and state["telemetry"]
     assert {d["name"] for d in state["summary"]["duts"]} == {"mmc0", "serial0"}
+
+
+def test_a_report_still_being_built_answers_with_its_progress_and_then_comes(folders, tmp_path):
+    """A report that takes longer than the request's wait (a 64-DUT session: most of a minute) answers with
+    how far it is and a Refresh header; asked again, the report itself comes, and then at once. A build
+    that fails says why once, as one line, and the next request builds again."""
+    app = Cockpit(roots=[folders.root, tmp_path])
+    app.reports.wait_s = 0.0  # every build outlasts the wait
+    srv = start(app)
+    try:
+        first = request(srv, "GET", "/s/0/run.session/report")
+        assert first.status == 200 and first.headers["Refresh"] == "2"
+        assert "Building the report: " in first.body and "script-src 'self'" in first.headers[
+            "Content-Security-Policy"]
+        deadline = time.monotonic() + 120
+        got = first
+        while "<h2>Summary</h2>" not in got.body and time.monotonic() < deadline:
+            time.sleep(0.2)
+            got = request(srv, "GET", "/s/0/run.session/report")
+        assert got.status == 200 and "<h2>Summary</h2>" in got.body and "Refresh" not in got.headers
+        again = request(srv, "GET", "/s/0/run.session/report")
+        assert again.body == got.body
+        with Session.create(tmp_path / "empty.session", plan_text="name: x\n", station_text="name: y\n",
+                            plan_name="x", station_name="y", points=[], simulated={}, clock=SimClock()):
+            pass
+        app.reports.wait_s = 60.0
+        failed = request(srv, "GET", "/s/1/empty.session/report")
+        assert failed.status == 400 and "holds no samples yet" in failed.body
+        assert "Traceback" not in failed.body
+        assert request(srv, "GET", "/s/1/empty.session/report").status == 400  # built again, the same answer
+    finally:
+        srv.shutdown()
+        srv.server_close()
 
 
 # --- fleet ------------------------------------------------------------------------------------------------
