@@ -87,7 +87,8 @@ def time_report(session: Path, out_dir: Path) -> None:
     t_figures = time.perf_counter() - t0
     print(
         f"  where it goes (measured again, piece by piece): read the session {t_read:.2f} s, "
-        f"fits + 5-fold comparison {t_analyse:.2f} s, figures {t_figures:.2f} s (one DUT after another, on one core)"
+        f"fits + 5-fold comparison {t_analyse:.2f} s, "
+        f"figures {t_figures:.2f} s (one DUT after another, on one core)"
     )
 
 
