@@ -102,6 +102,7 @@ def _subtitle(inputs: ReportInputs) -> str:
 
 
 POOL_MIN_DUTS = 4  # a worker's start (a new interpreter importing matplotlib) costs about one DUT's figures
+POOL_MAX_WORKERS = 8  # each holds about 120 MB (numpy, matplotlib: measured); 64 DUTs need no more
 
 
 def each_dut_sections(results: list, steps: dict, progress: Callable[[str], None] | None = None
@@ -109,7 +110,7 @@ def each_dut_sections(results: list, steps: dict, progress: Callable[[str], None
     """Each DUT's sections, in order. Their figures are most of a report's time (64 DUTs' 384 took a
     minute on one core), so with several DUTs they are drawn on every core, each DUT in a new process
     (spawned, not forked: a cockpit builds reports beside its threads). `progress` hears of each DUT."""
-    workers = min(len(results), os.cpu_count() or 1)
+    workers = min(len(results), os.cpu_count() or 1, POOL_MAX_WORKERS)
     if len(results) < POOL_MIN_DUTS or workers < 2:
         out = []
         for n, r in enumerate(results, 1):
