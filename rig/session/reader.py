@@ -122,8 +122,16 @@ class SessionReader:
         self.close()
 
     def _rows(self, sql: str, *params) -> list[dict]:
+        return [dict(r) for r in self._fetch(sql, params)]
+
+    def _fetch(self, sql: str, params: tuple, *, plain: bool = False) -> list:
+        """The rows of `sql`, as sqlite3.Row or, with `plain`, tuples (cheaper for a long recording); a
+        damaged file raises SessionError."""
         try:
-            return [dict(r) for r in self._conn.execute(sql, params)]
+            cursor = self._conn.cursor()
+            if plain:
+                cursor.row_factory = None
+            return cursor.execute(sql, params).fetchall()
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"{self.path}: damaged session file: {exc}") from None
 
@@ -232,12 +240,8 @@ class SessionReader:
         from calib.dataset import Dataset
 
         dut = self.pick_dut(dut)
-        try:  # the rows as tuples, one column at a time (a long recording's dicts cost more than its fit)
-            cursor = self._conn.cursor()
-            cursor.row_factory = None  # plain tuples
-            rows = cursor.execute(SAMPLE_ROWS_SQL, (dut,)).fetchall()
-        except sqlite3.DatabaseError as exc:
-            raise SessionError(f"{self.path}: damaged session file: {exc}") from None
+        # the rows as tuples, one column at a time (a long recording's dicts cost more than its fit)
+        rows = self._fetch(SAMPLE_ROWS_SQL, (dut,), plain=True)
         at = {name: k for k, name in enumerate(SAMPLE_ROWS_COLUMNS)}
         good = [r for r in rows if not r[at["flags"]]]
         missing_temp = [r[at["point"]] for r in good if r[at["temp"]] is None]
