@@ -3,6 +3,8 @@ configs/stations/sim-lab.yaml whose systematic errors are drawn afresh, from dis
 what the station states for the budget to see: where the station states a tolerance +-a (the budget
 takes a rectangular distribution, u = a / sqrt(3)), the world draws from a normal distribution of
 standard deviation WIDER x u: larger and with tails beyond the stated bound (beyond +-a for 1 draw in 5).
+`bench/uncertainty.py coverage --wider X` draws them at X x u instead, to see how the coverage falls where
+a bench is worse than its station file says.
 
 What each station states (the budget's inputs) and what its world is drawn from:
 
@@ -44,15 +46,15 @@ STATED = {"position_mm": 1.0, "geometry_mm": 0.5, "tilt_deg": 0.1, "turns_ppm": 
 DUTS = 5
 
 
-def _wider(rng, half, shape=None):
-    """A draw for a stated +-half: normal, WIDER x its rectangular standard uncertainty."""
-    return rng.normal(0.0, WIDER * half / np.sqrt(3.0), shape)
+def _wider(rng, half, shape=None, wider=WIDER):
+    """A draw for a stated +-half: normal, `wider` x its rectangular standard uncertainty."""
+    return rng.normal(0.0, wider * half / np.sqrt(3.0), shape)
 
 
-def _gradient(rng, bound: float) -> list[list[float]]:
+def _gradient(rng, bound: float, wider: float) -> list[list[float]]:
     """A source-free gradient (symmetric, traceless): five independent components, each drawn as for a
     stated +-bound."""
-    xx, yy, xy, xz, yz = _wider(rng, bound, 5)
+    xx, yy, xy, xz, yz = _wider(rng, bound, 5, wider)
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, -xx - yy]]).round(1).tolist()
 
 
@@ -80,8 +82,13 @@ def _dut_truth(rng, scale: float) -> dict:
 QUIET = set(filter(None, os.environ.get("MAGRIG_QUIET", "").split(",")))
 
 
-def random_world(rng: np.random.Generator, index: int, reference_cal: Path) -> dict:
-    """One station (as data) with its world drawn afresh (module docstring)."""
+def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wider: float = WIDER) -> dict:
+    """One station (as data) with its world drawn afresh (module docstring), its systematic errors `wider`
+    x the standard uncertainties the station states."""
+
+    def draw(half, shape=None):
+        return _wider(rng, half, shape, wider)
+
     base = yaml.safe_load(BASE.read_text())
     data = copy.deepcopy(base)
     data["name"] = f"world{index:02d}"
@@ -105,20 +112,20 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path) -> d
         "seed": int(rng.integers(1, 2**31)),
         "coil_constants_nt_per_a": true.round(3).tolist(),
         "coil_geometry": {"shape": geometry["shape"],
-                          "size_m": [s + float(_wider(rng, tol_m)) for s in geometry["size_m"]],
-                          "spacing_m": [s + float(_wider(rng, tol_m)) for s in geometry["spacing_m"]]},
-        "coil_loops": {axis: {"turns_error_ppm": _wider(rng, STATED["turns_ppm"], 2).round(1).tolist(),
-                              "offset_mm": _wider(rng, STATED["geometry_mm"], (2, 3)).round(3).tolist(),
-                              "tilt_deg": _wider(rng, STATED["tilt_deg"], 2).round(4).tolist()}
+                          "size_m": [s + float(draw(tol_m)) for s in geometry["size_m"]],
+                          "spacing_m": [s + float(draw(tol_m)) for s in geometry["spacing_m"]]},
+        "coil_loops": {axis: {"turns_error_ppm": draw(STATED["turns_ppm"], 2).round(1).tolist(),
+                              "offset_mm": draw(STATED["geometry_mm"], (2, 3)).round(3).tolist(),
+                              "tilt_deg": draw(STATED["tilt_deg"], 2).round(4).tolist()}
                        for axis in "xyz"},
         "ambient_nt": (rng.normal(0, 1, 3) * [4000, 2000, 2500] + [16000, 0, 43000]).round(1).tolist(),
         "ambient_drift_nt_per_h": rng.normal(0, 5, 3).round(2).tolist(),
-        "ambient_gradient_nt_per_m": _gradient(rng, STATED["gradient"]),
+        "ambient_gradient_nt_per_m": _gradient(rng, STATED["gradient"], wider),
         "current_source": {
-            "gain_error_ppm": _wider(rng, STATED["gain_ppm"], 3).round(1).tolist(),
-            "offset_ma": _wider(rng, STATED["offset_ma"], 3).round(3).tolist(),
+            "gain_error_ppm": draw(STATED["gain_ppm"], 3).round(1).tolist(),
+            "offset_ma": draw(STATED["offset_ma"], 3).round(3).tolist(),
             "noise_ma": [0.1, 0.1, 0.1],
-            "readback_error_ppm": _wider(rng, STATED["gain_ppm"], 3).round(1).tolist()},
+            "readback_error_ppm": draw(STATED["gain_ppm"], 3).round(1).tolist()},
     })
     if world > 0.05 and "chamber" not in QUIET:
         sim["ambient_steps"] = {"mean_interval_h": 2.0, "size_nt": round(30.0 * world, 1)}
@@ -133,7 +140,7 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path) -> d
     ref = data["reference_magnetometers"][0]
     ref_cal = calfile.load(reference_cal)
     k = ref_cal.uncertainty["coverage_factor"]
-    drawn = {name: (np.asarray(v, float) + rng.normal(0, 1, np.shape(v)) * WIDER
+    drawn = {name: (np.asarray(v, float) + rng.normal(0, 1, np.shape(v)) * wider
                     * np.asarray(ref_cal.uncertainty["expanded"][name], float) / k).tolist()
              for name, v in ref_cal.params.items()}
     duts, sensors, sim_duts, placed = [], [], {ref["name"]: {**sim["duts"][ref["name"]],
@@ -155,7 +162,7 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path) -> d
                           "random_walk_nt_per_sqrt_h": round(2.0 * scale, 2),
                           "flicker_nt": round(15.0 * scale, 1),
                           "air_offset_c": round(float(rng.normal(0, 0.15)), 2),
-                          "position_error_mm": _wider(rng, STATED["position_mm"], 3).round(3).tolist()}
+                          "position_error_mm": draw(STATED["position_mm"], 3).round(3).tolist()}
     for name, spec in sim_duts.items():
         if name.startswith("dut") and "slow" in QUIET:
             spec["random_walk_nt_per_sqrt_h"] = spec["flicker_nt"] = 0.0

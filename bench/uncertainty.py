@@ -12,7 +12,8 @@
    against 2 (bench/uncertainty_timing.py).
 3. certificates: the demo's DUTs (rig certificate).
 
-    .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--out DIR] [--jobs 2]
+    .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
+                                                   [--jobs 2]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
@@ -32,7 +33,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import calib  # noqa: E402
-from bench.coverage_worlds import BASE, random_world  # noqa: E402
+from bench.coverage_worlds import BASE, WIDER, random_world  # noqa: E402
 from bench.reference_chain import prepared, run, validation_grid  # noqa: E402
 from calib import calfile  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
@@ -82,12 +83,12 @@ def one_world(args) -> dict:
         return {"index": args[1], "rows": [], "error": f"{type(exc).__name__}: {exc}"}
 
 
-def _one_world(seed: int, index: int, out: str) -> dict:
+def _one_world(seed: int, index: int, out: str, wider: float) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
     reference = BASE.parent / "sim-reference-cal.yaml"
-    station = prepared(random_world(rng, index, reference), BASE.parent, folder)
+    station = prepared(random_world(rng, index, reference, wider), BASE.parent, folder)
     session = run(station, plan_t24(folder), folder)
     truths = dut_truths(load_station(station))
     out_rows = []
@@ -116,9 +117,9 @@ def _one_world(seed: int, index: int, out: str) -> dict:
     return {"index": index, "rows": out_rows}
 
 
-def coverage(worlds: int, seed: int, out: Path, jobs: int) -> None:
+def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER) -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out)) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider) for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
@@ -128,7 +129,8 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int) -> None:
     for res in results:
         if res.get("error"):
             print(f"  world {res['index']} not run: {res['error']}")
-    print(f"coverage: {len(rows)} DUTs on {worlds} worlds (seed {seed}; sessions in {out}; "
+    print(f"coverage: {len(rows)} DUTs on {worlds} worlds (seed {seed}; systematic errors {wider:g} x the "
+          f"standard uncertainties stated; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
     print("  true T24 parameters within U (k = 2):")
     total = []
@@ -161,13 +163,15 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, default=20)
     parser.add_argument("--seed", type=int, default=24)
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--wider", type=float, default=WIDER,
+                        help="coverage: the worlds' systematic errors, x the standard uncertainties stated")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
-        coverage(args.worlds, args.seed, out, args.jobs)
+        coverage(args.worlds, args.seed, out, args.jobs, args.wider)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 
