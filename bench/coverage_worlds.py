@@ -46,7 +46,7 @@ STATED = {"position_mm": 1.0, "geometry_mm": 0.5, "tilt_deg": 0.1, "turns_ppm": 
 DUTS = 5
 
 
-def _wider(rng, half, shape=None, wider=WIDER):
+def _wider(rng, half, shape, wider):
     """A draw for a stated +-half: normal, `wider` x its rectangular standard uncertainty."""
     return rng.normal(0.0, wider * half / np.sqrt(3.0), shape)
 

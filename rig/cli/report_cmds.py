@@ -36,7 +36,7 @@ def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Pat
 
     try:
         page, *figures = write_report(read_inputs(source, data=data, dut=dut), output_dir,
-                                      progress=lambda said: click.echo(said, err=True))
+                                      progress=lambda said: click.echo(f"report: {said}", err=True))
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # numbers the checks let through
         raise DataError(f"{source}: cannot build the report: {exc}") from None
     click.echo(f"wrote {page} ({len(figures)} figures beside it)")

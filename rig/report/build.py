@@ -109,20 +109,21 @@ def each_dut_sections(results: list, steps: dict, progress: Callable[[str], None
                       ) -> list[list[Section]]:
     """Each DUT's sections, in order. Their figures are most of a report's time (64 DUTs' 384 took a
     minute on one core), so with several DUTs they are drawn on every core, each DUT in a new process
-    (spawned, not forked: a cockpit builds reports beside its threads). `progress` hears of each DUT."""
+    (spawned, not forked: a cockpit builds reports beside its threads). `progress` hears of each DUT done,
+    as "name (n of N)"."""
     workers = min(len(results), os.cpu_count() or 1, POOL_MAX_WORKERS)
     if len(results) < POOL_MIN_DUTS or workers < 2:
         out = []
         for n, r in enumerate(results, 1):
             out.append(dut_sections(r, steps))
-            _tell(progress, f"report: {r.name} ({n} of {len(results)})")
+            _tell(progress, f"{r.name} ({n} of {len(results)})")
         return out
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_leave_interrupts_to_the_caller)
     try:
         futures = {pool.submit(dut_sections, r, steps): r.name for r in results}
         for n, done in enumerate(as_completed(futures), 1):
-            _tell(progress, f"report: {futures[done]} ({n} of {len(results)})")
+            _tell(progress, f"{futures[done]} ({n} of {len(results)})")
         return [future.result() for future in futures]
     finally:  # after a failure or a Ctrl-C, the DUTs not begun are dropped, not drawn
         pool.shutdown(wait=True, cancel_futures=True)

@@ -145,7 +145,7 @@ class _Build:
             self.error = exc
 
     def _said(self, message: str) -> None:
-        self.progress = "DUTs drawn: " + message.removeprefix("report: ")
+        self.progress = f"DUTs drawn: {message}"
 
 
 def _file_key(path: Path) -> tuple:

@@ -156,5 +156,5 @@ def test_many_duts_are_drawn_on_every_core_in_order(session, monkeypatch):
     said = []
     pooled = build.each_dut_sections(results, inputs.steps, said.append)
     assert pooled == here
-    assert sorted(s.split()[1] for s in said) == [r.name for r in results]
+    assert sorted(s.split()[0] for s in said) == [r.name for r in results]
     assert [s.split(" (")[1] for s in said] == [f"{n} of 4)" for n in range(1, 5)]
