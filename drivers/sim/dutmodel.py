@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.synthetic import random_t24_params
+from drivers.sim.dutthermal import DutTemperatures
 
 B0_NT = 50_000.0  # where cubic_ppm_at_50ut is stated
 CUBIC_ITERATIONS = 50  # at most; each gains a factor ~2 c (|B| / B0)^2 (~1e-4): two or three suffice
@@ -175,19 +176,6 @@ def solve3(m: np.ndarray, y: np.ndarray) -> np.ndarray:
     ]) / det
 
 
-class ThermalPlay:
-    """The hysteresis state p in [-1, 1] of a play of width band_c on the element temperature."""
-
-    def __init__(self, band_c: float, temp_c: float):
-        self.band_c = band_c
-        self.temp_c = temp_c
-        self.state = 0.0
-
-    def follow(self, temp_c: float) -> None:
-        self.state = min(1.0, max(-1.0, self.state + 2.0 * (temp_c - self.temp_c) / self.band_c))
-        self.temp_c = temp_c
-
-
 class OffsetNoise:
     """A random walk plus a flicker noise per axis, advanced exactly over any interval (time may jump by
     hours): the walk by a normal step of variance rate^2 dt, the flicker as a sum of Ornstein-Uhlenbeck
@@ -218,28 +206,41 @@ class OffsetNoise:
 
 
 class DutState:
-    """A DUT's state in the world: its element's and its sensors' temperatures, its offset's (hysteresis,
-    slow noise), and the generator of the coil current noise it sees."""
+    """A DUT's state in the world: its element's and its sensors' temperatures (kept with every other
+    DUT's in the world's DutTemperatures), its offset's (hysteresis, slow noise), and the generator of the
+    coil current noise it sees."""
 
-    def __init__(self, truth: DutTruth, temp_c: float, t: float, offset_rng: np.random.Generator,
-                 current_rng: np.random.Generator):
+    def __init__(self, truth: DutTruth, temps: DutTemperatures, temp_c: float, t: float,
+                 offset_rng: np.random.Generator, current_rng: np.random.Generator):
         self.truth = truth
-        self.temp_c = temp_c  # the element's
-        self.sensor_c = temp_c  # what its temperature sensors report
+        self._temps = temps
         dev = truth.deviations
-        self.play = None if dev is None or not np.any(dev.hysteresis_offset_nt) else \
-            ThermalPlay(dev.hysteresis_band_c, temp_c)
+        hysteresis = dev is not None and bool(np.any(dev.hysteresis_offset_nt))
+        self._index = temps.add(start_c=temp_c, lag_s=truth.thermal_lag_s, sensor_lag_s=truth.sensor_lag_s,
+                                air_offset_c=truth.air_offset_c,
+                                play_band_c=dev.hysteresis_band_c if hysteresis else None)
+        self.has_play = hysteresis
         noisy = truth.random_walk_nt_per_sqrt_h > 0 or truth.flicker_nt > 0
         walk = truth.random_walk_nt_per_sqrt_h
         self.offset_noise = OffsetNoise(offset_rng, t, random_walk_nt_per_sqrt_h=walk,
                                         flicker_nt=truth.flicker_nt) if noisy else None
         self.current_rng = current_rng
 
+    @property
+    def temp_c(self) -> float:
+        """The element's temperature."""
+        return float(self._temps.element_c[self._index])
+
+    @property
+    def sensor_c(self) -> float:
+        """What its temperature sensors report."""
+        return float(self._temps.sensor_c[self._index])
+
     def extra_offset_nt(self, t: float) -> np.ndarray | None:
         """The offset's state beyond the truth's temperature terms (None: nothing beyond them)."""
         parts = []
-        if self.play is not None:
-            parts.append(self.play.state * self.truth.deviations.hysteresis_offset_nt)
+        if self.has_play:
+            parts.append(self._temps.play[self._index] * self.truth.deviations.hysteresis_offset_nt)
         if self.offset_noise is not None:
             parts.append(self.offset_noise.value_nt(t))
         return sum(parts) if parts else None

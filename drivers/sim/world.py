@@ -38,6 +38,7 @@ from drivers.sim.chamberair import ChamberAir, ChamberTruth
 from drivers.sim.coilfield import CoilGeometry, LoopErrors, coil_matrix_at
 from drivers.sim.currentsource import CurrentSource, CurrentSourceErrors
 from drivers.sim.dutmodel import DutState, DutTruth
+from drivers.sim.dutthermal import DutTemperatures
 from drivers.sim.labfield import AmbientSteps, LabField
 from drivers.turntable import rotation_deg
 
@@ -159,6 +160,7 @@ class World:
         self.table_fault = False
         # DUTs and fixed temperature probes
         self.duts: dict[str, DutState] = {}
+        self._temps = DutTemperatures()  # every DUT's, advanced as one
         # the fault schedules of the simulated devices, by device name (drivers/sim/faults.py)
         self.faults: dict[str, object] = {}
 
@@ -174,17 +176,13 @@ class World:
             dt = min(MAX_THERMAL_STEP_S, dt_total - t)
             if self.chamber_running:
                 self.air_c = self.chamber.step(self.air_c, self.setpoint_c, self.ramp_c_per_min, dt)
-            for d in self.duts.values():
-                place_c = self.air_c + d.truth.air_offset_c
-                d.temp_c = place_c + (d.temp_c - place_c) * math.exp(-dt / d.truth.thermal_lag_s)
-                lag = d.truth.sensor_lag_s
-                d.sensor_c = d.temp_c + (d.sensor_c - d.temp_c) * math.exp(-dt / lag) if lag > 0 else d.temp_c
-                if d.play is not None:
-                    d.play.follow(d.temp_c)
+            self._temps.step(self.air_c, dt)
             t += dt
         self._t = now
 
     def _advance_table(self, dt: float) -> None:
+        if self.table_deg.tolist() == self.table_target_deg.tolist():  # at rest: every reading comes here
+            return
         move = self.table_target_deg - self.table_deg
         reach = self.turntable_rate_deg_s * dt
         dist = float(np.max(np.abs(move)))
@@ -214,7 +212,8 @@ class World:
         with self._lock:
             self._advance()
             start_c = self.air_c + truth.air_offset_c if temp_c is None else temp_c
-            self.duts[name] = DutState(truth, start_c, self._t, _stream(self.seed, OFFSET_NOISE_STREAM, name),
+            self.duts[name] = DutState(truth, self._temps, start_c, self._t,
+                                       _stream(self.seed, OFFSET_NOISE_STREAM, name),
                                        _stream(self.seed, CURRENT_NOISE_STREAM, name))
             self._coil_matrix[name] = coil_matrix_at(self.coil_constants, self.coil_geometry,
                                                      truth.position_m, self.coil_loops)

@@ -28,4 +28,4 @@ def test_the_lab_station_turns_every_deviation_on():
         truth = state.truth
         assert truth.deviations is not None and np.all(truth.deviations.hysteresis_offset_nt != 0)
         assert np.any(truth.deviations.K2_per_c2) and np.any(truth.deviations.cubic_ppm_at_50ut)
-        assert state.play is not None and state.offset_noise is not None and truth.air_offset_c != 0
+        assert state.has_play and state.offset_noise is not None and truth.air_offset_c != 0
