@@ -245,6 +245,12 @@ class Station(Strict):
         """{DUT or reference magnetometer name: its stated position (None: the centre)}."""
         return {d.name: d.position_mm for d in (*self.duts, *self.reference_magnetometers)}
 
+    def ambient_position_mm(self) -> tuple[float, float, float] | None:
+        """Where the field source's ambient is measured: its measuring reference magnetometer's position
+        (None: the centre, and where the ambient is stated)."""
+        name = self.field_source.measuring_magnetometer([r.name for r in self.reference_magnetometers])
+        return self.positions_mm().get(name) if name is not None else None
+
     def _named_devices(self):
         yield ("chamber",), self.chamber
         yield ("field_source",), self.field_source

@@ -116,7 +116,7 @@ class FieldSourceConfig(DeviceConfig):
         return 0.0
 
     # --- run ----------------------------------------------------------------------------------------
-    def reference(self, measured_nt=None):
+    def reference(self, measured_nt=None, positions_mm=None, ambient_at_mm=None):
         raise NotImplementedError
 
     def settle_timeout_s(self) -> float:

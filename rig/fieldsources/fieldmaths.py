@@ -66,27 +66,35 @@ def site_field_ned_nt(lat_deg: float, lon_deg: float, alt_km: float, date: dt.da
 
 class CoilReference:
     """Targets are total fields at the centre (lab frame); the device's setting is three currents.
-    `matrices` ({DUT name: coil matrix where it sits}) gives each DUT the field at its own position."""
+    `matrices` ({DUT name: coil matrix where it sits}) gives each DUT the field at its own position, and
+    `ambient_offsets` ({DUT name: nT}) the lab field's gradient between where the ambient was measured and
+    the DUT, where the commissioning measured it."""
 
-    def __init__(self, coil_constants_nt_per_a, ambient_nt, matrices: dict[str, np.ndarray] | None = None):
+    def __init__(self, coil_constants_nt_per_a, ambient_nt, matrices: dict[str, np.ndarray] | None = None,
+                 ambient_offsets: dict[str, np.ndarray] | None = None):
         self.coil_constants = np.asarray(coil_constants_nt_per_a, float)
         self.ambient_nt = np.asarray(ambient_nt, float)
         self.matrices = matrices or {}
+        self.ambient_offsets = ambient_offsets or {}
 
     def field_nt(self, currents_a, where: str | None = None) -> np.ndarray:
         """The field at DUT `where` (at the centre for None or a DUT without a matrix of its own)."""
-        return coil_field_nt(self.matrices.get(where, self.coil_constants), currents_a, self.ambient_nt)
+        field = coil_field_nt(self.matrices.get(where, self.coil_constants), currents_a, self.ambient_nt)
+        offset = self.ambient_offsets.get(where)
+        return field if offset is None else field + offset
 
     def fields_nt(self, currents_a, duts) -> dict[str, tuple[float, ...]]:
         """field_nt at each of `duts`, as tuples: worked out once per coil matrix (the DUTs without a
         position share the centre's), not once per DUT."""
-        by_matrix: dict[int, tuple[float, ...]] = {}
+        by_matrix: dict[int, np.ndarray] = {}
         out = {}
         for dut in duts:
             matrix = self.matrices.get(dut, self.coil_constants)
             if id(matrix) not in by_matrix:
-                by_matrix[id(matrix)] = tuple(coil_field_nt(matrix, currents_a, self.ambient_nt).tolist())
-            out[dut] = by_matrix[id(matrix)]
+                by_matrix[id(matrix)] = coil_field_nt(matrix, currents_a, self.ambient_nt)
+            offset = self.ambient_offsets.get(dut)
+            field = by_matrix[id(matrix)] if offset is None else by_matrix[id(matrix)] + offset
+            out[dut] = tuple(field.tolist())
         return out
 
     def record(self) -> dict:
@@ -147,6 +155,7 @@ def reference_for(station, measured_nt=None):
     """The station's reference. `measured_nt` (the ambient for coils, the site field for a turntable)
     must be given when the station says to measure it; when given, it overrides the station's value."""
     try:
-        return station.field_source.reference(measured_nt, station.positions_mm())
+        return station.field_source.reference(measured_nt, station.positions_mm(),
+                                              station.ambient_position_mm())
     except ConfigError as exc:
         raise ConfigError(f"station {station.name}: {exc}") from None

@@ -91,6 +91,21 @@ class LoopsRecord(Strict):
     dof: int
 
 
+class GradientRecord(Strict):
+    """The lab field's gradient fitted to the ambient at the centre and every place
+    (rig/fieldsources/coils/gradientfit.py): G (nT/m), the 5x5 covariance of its independent components
+    (Gxx, Gyy, Gxy, Gxz, Gyz: it is symmetric and traceless), the components the places leave at the
+    stated bound, and the stated bound it started from."""
+
+    nt_per_m: tuple[Vec3, Vec3, Vec3]
+    covariance: list[list[FiniteFloat]]
+    unidentified: list[str]
+    chi2: FiniteFloat
+    dof: int
+    places: int
+    prior_nt_per_m: FiniteFloat | None = None
+
+
 class CoilsRecord(Strict):
     matrix_nt_per_a: tuple[NT_VEC, NT_VEC, NT_VEC]
     ambient_nt: NT_VEC
@@ -109,6 +124,7 @@ class CoilsRecord(Strict):
         "the commanded ones)")
     places: list[PlaceRecord] = Field(default_factory=list, description="further places of the reference")
     loops: LoopsRecord | None = None  # fitted once there are places off the centre
+    gradient: GradientRecord | None = None  # fitted with the loops, from the places' ambients
 
 
 class TableRecord(Strict):
@@ -292,6 +308,9 @@ def read(path: Path, text: str | None = None) -> Commissioning:
     loops = getattr(section, "loops", None)
     if loops is not None:
         _check_covariance(loops.covariance, 30, (key, "loops", "covariance"), refuse)
+    gradient = getattr(section, "gradient", None)
+    if gradient is not None:
+        _check_covariance(gradient.covariance, 5, (key, "gradient", "covariance"), refuse)
     return Commissioning(Path(path), text, record)
 
 

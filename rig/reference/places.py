@@ -6,8 +6,10 @@ cannot show (rig/fieldsources/coils/loops.py). With the reference moved to a pla
 there; a simulated station puts it there, off by the reference's own position error), the same settings
 are driven and the matrix as measured there is added to the file (`coils.places`); the loops are then
 fitted to the centre's matrix and every place's (rig/fieldsources/coils/loopfit.py), and the file is
-written again whole and sealed, with what the places leave unidentified. Every DUT's reference field then
-comes from the fitted loops, and the budget's "coil loops" line from their covariance.
+written again whole and sealed, with what the places leave unidentified. The ambient each place measured
+gives the lab field's gradient (rig/fieldsources/coils/gradientfit.py). Every DUT's reference field then
+comes from the fitted loops and the gradient between the reference and the DUT, and the budget's "coil
+loops" and "ambient gradient" lines from their covariances.
 
 Places that identify the loops: the centre and +-x, +-y, +-z at 60-80 mm (a shift across a loop's
 axis shows at the places across it, a loop's lean and turns at the places along its pair's axis). Both

@@ -7,8 +7,9 @@ ambient, from the sample's currents I, and every source below moves it linearly 
 - reference magnetometer (and its temperature): what it measured (the commissioned matrix, the ambient)
   carries its calibration's error (rig/reference/budget.py RunInputs.reference_sources);
 - ambient: the run's best estimate from all its measurements and its covariance (rig/reference/ambient.py);
-- ambient gradient: the lab field between the reference magnetometer and the DUT
-  (`ambient_gradient_nt_per_m`);
+- ambient gradient: the lab field between the reference magnetometer and the DUT: measured by the
+  commissioning's places (carried into the references; the line its covariance), else
+  `ambient_gradient_nt_per_m`;
 - position, coil geometry, coil loops: the DUT's place, the loops' sizes and spacings, and each loop's place,
   lean and turns (rig/fieldsources/coils/loops.py), within their tolerances (rectangular);
 - current source: none where the matrix and the measured ambient are both referred to the read-back
@@ -28,6 +29,7 @@ import numpy as np
 from calib.propagation import InputSource, matrix_source
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.geometry import pair_field, rotation_between
+from rig.fieldsources.coils.gradientfit import by_position
 from rig.fieldsources.coils.loops import loop_sensitivity
 
 POSITION_STEP_MM = 0.5
@@ -53,7 +55,10 @@ class CoilChain:
         self.centre = np.asarray(self.source.constants, float)
         self.matrix = self.source.matrices_at({dut: tuple(self.position)})[dut]  # as the run made its refs
         self.ambient = self._ambient_of(run, ds)
-        self.currents = np.linalg.solve(self.matrix, (ds.ref_nt - self.ambient).T).T
+        # the measured gradient's share of the ambient where the DUT sits, as the run's references added it
+        offset = self.source.gradient_offsets_nt({dut: tuple(self.position)},
+                                                 run.station.ambient_position_mm()).get(dut, 0.0)
+        self.currents = np.linalg.solve(self.matrix, (ds.ref_nt - self.ambient - offset).T).T
         self.measured = self.source.needs_measurement() and bool(run.site)
         self.by_centre = self._centre_sensitivity()
 
@@ -182,11 +187,23 @@ class CoilChain:
 
     def _gradient(self, notes: list[str]) -> list[InputSource]:
         """The lab field's gradient between the reference magnetometer that measured the ambient and the
-        DUT: B_i changes by G_ij (r_dut - r_ref)_j, every G_ij within +-ambient_gradient_nt_per_m."""
+        DUT: B_i changes by G_ij (r_dut - r_ref)_j. Measured at commissioning (its places' ambients) the
+        references carry it, and its covariance is the line; else every G_ij within
+        +-ambient_gradient_nt_per_m."""
         bound = self.source.ambient_gradient_nt_per_m
         offset_m = (self.position - self.run.reference_position_mm()) / 1000.0
         if not np.any(offset_m):
             return []
+        measured = self.source.measured_gradient
+        if measured is not None:  # its five independent components (gradientfit.py)
+            unseen = "" if not measured.unidentified else \
+                f"; {', '.join(measured.unidentified)} at the stated +-{measured.prior_nt_per_m:g} nT/m"
+            a = np.broadcast_to(by_position(offset_m), (len(self.times), 3, 5))
+            return [InputSource("ambient gradient", np.asarray(measured.covariance, float), ref_nt=a,
+                                shared="ambient gradient",
+                                origin=f"measured at commissioning from the ambient at the centre and "
+                                f"{measured.places - 1} place(s), carried into the references: its "
+                                f"covariance{unseen}")]
         if bound is None:
             notes.append(f"ambient gradient over the {np.linalg.norm(offset_m) * 1000:.0f} mm between the "
                          "reference magnetometer and the DUT: not stated (field_source."

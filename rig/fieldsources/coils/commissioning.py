@@ -21,6 +21,7 @@ from calib.coilfit import fit_coil_matrix
 from calib.errors import FitError
 from rig.core.errors import ConfigError, DeviceFault
 from rig.fieldsources.coils.commissioned import fit_readback
+from rig.fieldsources.coils.gradientfit import element_std_errors, fit_gradient
 from rig.fieldsources.coils.loopfit import Place, fit_loops, quantity_names
 from rig.fieldsources.commissioning import Reading, arrays, drift_nt, floats, rows
 
@@ -106,16 +107,29 @@ def fit_place(source, readings: list[Reading], position_mm, created_utc: str, se
 
 
 def with_loops(source, coils: dict, reference_tolerance_mm: float) -> dict:
-    """The `coils:` section with its loops fitted to the centre's matrix and every place's."""
+    """The `coils:` section with its loops fitted to the centre's matrix and every place's, and the lab
+    field's gradient to the ambient at each (rig/fieldsources/coils/gradientfit.py)."""
     centre = np.asarray(coils["matrix_nt_per_a"], float)
     places = [Place(np.asarray(p["position_mm"], float), np.asarray(p["matrix_nt_per_a"], float),
                     np.asarray(p["covariance"], float)[:9, :9]) for p in coils["places"]]
     fitted = fit_loops(centre, np.asarray(coils["covariance"], float)[:9, :9], source.geometry, places,
                        reference_tolerance_mm)
-    return {**coils, "loops": {
+    out = {**coils, "loops": {
         "deviations": fitted.deviations.tolist(), "covariance": rows(_symmetric(fitted.covariance)),
         "reference_offset_mm": floats(fitted.reference_offset_mm), "unidentified": fitted.unidentified,
         "chi2": fitted.chi2, "dof": fitted.dof}}
+    out.pop("gradient", None)
+    # the file's own ambient was measured at the centre (places are added only to such a file)
+    ambients = [((0.0, 0.0, 0.0), coils["ambient_nt"], np.asarray(coils["covariance"], float)[9:, 9:])]
+    ambients += [(p["position_mm"], p["ambient_nt"], np.asarray(p["covariance"], float)[9:, 9:])
+                 for p in coils["places"]]
+    gradient = fit_gradient(ambients, source.ambient_gradient_nt_per_m)
+    if gradient is not None:
+        out["gradient"] = {
+            "nt_per_m": rows(gradient.nt_per_m), "covariance": rows(_symmetric(gradient.covariance)),
+            "unidentified": gradient.unidentified, "chi2": gradient.chi2, "dof": gradient.dof,
+            "places": gradient.places, "prior_nt_per_m": source.ambient_gradient_nt_per_m}
+    return out
 
 
 def loop_lines(section) -> list[str]:
@@ -136,6 +150,23 @@ def loop_lines(section) -> list[str]:
     if loops.unidentified:
         out.append("  not identified by these places (their tolerance stays in the budget): "
                    + ", ".join(loops.unidentified))
+    return out + gradient_lines(section)
+
+
+def gradient_lines(section) -> list[str]:
+    """The lab field's gradient the places' ambients show, with its standard errors."""
+    gradient = getattr(section, "gradient", None)
+    if gradient is None:
+        return []
+    g = np.asarray(gradient.nt_per_m, float).ravel()
+    se = element_std_errors(gradient.covariance).ravel()
+    cells = ", ".join(f"G{'xyz'[k // 3]}{'xyz'[k % 3]} {g[k]:+.0f} +- {se[k]:.0f}"
+                      for k in (0, 1, 2, 4, 5, 8))  # the symmetric tensor's upper triangle
+    out = [f"  ambient gradient from the ambient at the centre and {gradient.places - 1} place(s) (nT/m; "
+           f"chi2 {gradient.chi2:.1f} for {gradient.dof} degrees of freedom): {cells}"]
+    if gradient.unidentified:
+        out.append("  not identified by these places (the stated ambient_gradient_nt_per_m stays): "
+                   + ", ".join(gradient.unidentified))
     return out
 
 

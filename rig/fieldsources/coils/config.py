@@ -102,7 +102,8 @@ class Coils(FieldSourceConfig, CoilOptions):
         "the budget's 'coil drift since commissioning', times the commissioning's age")
     ambient_gradient_nt_per_m: bounded(lo=0, hi=1e6) | None = Field(
         None, description="the largest lab-field gradient dB_i/dx_j over the DUT positions (+-, nT/m): the "
-        "budget's 'ambient gradient' between the reference magnetometer and each DUT")
+        "budget's 'ambient gradient' between the reference magnetometer and each DUT, where the "
+        "commissioning's places (rig commission --position) do not measure it")
 
     @model_validator(mode="after")
     def _invertible(self):
@@ -143,6 +144,24 @@ class Coils(FieldSourceConfig, CoilOptions):
                                               np.asarray(p, float) / 1000.0, loops) for p in stated.values()]
             out.update(zip(stated, matrices, strict=True))
         return out
+
+    @property
+    def measured_gradient(self):
+        """The lab field's gradient the commissioning's places measured (a GradientRecord; None: not)."""
+        com = self._commissioned
+        return None if com is None else com.record.coils.gradient
+
+    def gradient_offsets_nt(self, positions_mm: dict[str, tuple | None],
+                            ambient_at_mm: tuple | None) -> dict[str, np.ndarray]:
+        """{device name: G (r - r_ambient)}: what the measured gradient adds to the ambient, measured at
+        `ambient_at_mm` (None: the centre), where each device sits; {} without a measured gradient."""
+        gradient = self.measured_gradient
+        if gradient is None:
+            return {}
+        g = np.asarray(gradient.nt_per_m, float)
+        origin = np.zeros(3) if ambient_at_mm is None else np.asarray(ambient_at_mm, float)
+        return {name: g @ ((np.zeros(3) if p is None else np.asarray(p, float)) - origin) / 1000.0
+                for name, p in positions_mm.items()}
 
     @property
     def fitted_loops(self) -> np.ndarray | None:
@@ -194,13 +213,16 @@ class Coils(FieldSourceConfig, CoilOptions):
         return largest
 
     # --- run ----------------------------------------------------------------------------------------
-    def reference(self, measured_nt=None, positions_mm=None) -> CoilReference:
+    def reference(self, measured_nt=None, positions_mm=None, ambient_at_mm=None) -> CoilReference:
         """`measured_nt`: the ambient field measured at the start (needed when ambient_nt is 'measure');
-        `positions_mm`: {DUT name: position} for the field where each DUT sits."""
+        `positions_mm`: {DUT name: position} for the field where each DUT sits; `ambient_at_mm`: where the
+        ambient was measured (None: the centre), from which a measured gradient carries it to each DUT."""
         ambient = measured_nt if measured_nt is not None else self.ambient_nt
         if isinstance(ambient, str):
             raise ConfigError("field_source.ambient_nt is 'measure': measure it first")
-        return CoilReference(self.constants, ambient, self.matrices_at(positions_mm or {}))
+        positions = positions_mm or {}
+        return CoilReference(self.constants, ambient, self.matrices_at(positions),
+                             self.gradient_offsets_nt(positions, ambient_at_mm))
 
     # --- a measured ambient -------------------------------------------------------------------------
     def needs_measurement(self) -> bool:

@@ -133,7 +133,7 @@ class Turntable(FieldSourceConfig, TurntableOptions):
         return float(np.abs(np.diff(angles, axis=0)).max(axis=1).sum()) / self.rate_deg_s
 
     # --- run ----------------------------------------------------------------------------------------
-    def reference(self, measured_nt=None, positions_mm=None) -> TableReference:
+    def reference(self, measured_nt=None, positions_mm=None, ambient_at_mm=None) -> TableReference:
         """`measured_nt`: the site field measured at the start (needed with a reference magnetometer).
         The field is uniform: every DUT on the table sees the same, whatever its position."""
         axes = None if self._commissioned is None else self._commissioned.table_params

@@ -1,0 +1,55 @@
+"""The lab field's gradient from the ambients at several places (rig/fieldsources/coils/gradientfit.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig.fieldsources.coils.gradientfit import NAMES, by_position, element_std_errors, fit_gradient
+
+G = np.array([[120.0, 40.0, -60.0], [40.0, -200.0, 90.0], [-60.0, 90.0, 80.0]])  # symmetric, traceless
+A0 = np.array([16_000.0, 300.0, 43_000.0])
+SIX = [(0, 0, 0), (70, 0, 0), (-70, 0, 0), (0, 70, 0), (0, -70, 0), (0, 0, 70), (0, 0, -70)]
+
+
+def ambients(places, rng, se=0.3, extra=0.0):
+    """The ambient at each place with its own noise `se` and, beyond what its covariance says, `extra`."""
+    return [(p, A0 + G @ (np.asarray(p, float) / 1000.0) + rng.normal(0, np.hypot(se, extra), 3),
+             np.eye(3) * se**2) for p in places]
+
+
+def test_the_places_measure_every_component_within_its_standard_error():
+    rng = np.random.default_rng(1)
+    fit = fit_gradient(ambients(SIX, rng), 300.0)
+    assert fit.unidentified == [] and fit.places == 7 and fit.dof == 21 - 8
+    sd = element_std_errors(fit.covariance)
+    assert np.all(np.abs(fit.nt_per_m - G) <= 5 * sd) and np.all(sd < 5.0)
+
+
+def test_by_position_is_the_gradient_times_the_offset():
+    g = np.array([G[0, 0], G[1, 1], G[0, 1], G[0, 2], G[1, 2]])  # in NAMES' order
+    assert NAMES == ("Gxx", "Gyy", "Gxy", "Gxz", "Gyz")
+    r = np.array([0.03, -0.05, 0.07])
+    np.testing.assert_allclose(by_position(r) @ g, G @ r, atol=1e-12)
+
+
+def test_places_on_one_axis_leave_the_rest_at_the_stated_bound_or_nothing_without_one():
+    rng = np.random.default_rng(2)
+    on_x = ambients([(0, 0, 0), (70, 0, 0), (-70, 0, 0)], rng)
+    fit = fit_gradient(on_x, 300.0)
+    assert fit.unidentified == ["Gyy", "Gyz"]
+    sd = np.sqrt(np.diag(fit.covariance))
+    assert sd[NAMES.index("Gyy")] == pytest.approx(300.0 / np.sqrt(3), rel=1e-3)
+    assert sd[NAMES.index("Gxy")] < 10.0
+    assert fit_gradient(on_x, None) is None  # nothing to keep for what they do not show
+    assert fit_gradient(on_x[:1], 300.0) is None  # one place shows no gradient
+
+
+def test_a_lab_field_moving_between_places_widens_the_covariance():
+    quiet = fit_gradient(ambients(SIX, np.random.default_rng(3)), 300.0)
+    moving = fit_gradient(ambients(SIX, np.random.default_rng(3), extra=3.0), 300.0)
+    assert moving.chi2 > 3 * moving.dof  # 3 nT of scatter against 0.3 nT stated
+    ratio = element_std_errors(moving.covariance) / element_std_errors(quiet.covariance)
+    assert np.all(ratio > 3.0)  # about the scatter's ratio, 10
+    sd = element_std_errors(moving.covariance)
+    assert np.all(np.abs(moving.nt_per_m - G) <= 5 * sd)  # and still covers the truth
