@@ -127,6 +127,7 @@ class FieldSourceConfig(DeviceConfig):
 
     # --- a measured ambient / site field ------------------------------------------------------------
     measured_name: ClassVar[str] = "field"
+    measures_gradient: ClassVar[bool] = False  # whether `rig commission` reads the other references too
 
     def needs_measurement(self) -> bool:
         """True when `reference()` needs a value measured at the start of the campaign."""

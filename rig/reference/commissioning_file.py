@@ -91,6 +91,16 @@ class LoopsRecord(Strict):
     dof: int
 
 
+class OtherReferenceRecord(Strict):
+    """Another reference read at 0 A beside the commissioning's own (rig/reference/otherrefs.py): its
+    reading less that one's, with the covariance of both readings and both calibrations."""
+
+    name: str
+    position_mm: Vec3
+    difference_nt: Vec3
+    covariance: list[list[FiniteFloat]]
+
+
 class GradientRecord(Strict):
     """The lab field's gradient fitted to the ambient at the centre and every place
     (rig/fieldsources/coils/gradientfit.py): G (nT/m), the 5x5 covariance of its independent components
@@ -124,7 +134,9 @@ class CoilsRecord(Strict):
         "the commanded ones)")
     places: list[PlaceRecord] = Field(default_factory=list, description="further places of the reference")
     loops: LoopsRecord | None = None  # fitted once there are places off the centre
-    gradient: GradientRecord | None = None  # fitted with the loops, from the places' ambients
+    other_references: list[OtherReferenceRecord] = Field(
+        default_factory=list, description="the station's other reference magnetometers, read at 0 A")
+    gradient: GradientRecord | None = None  # fitted to the ambient at every place and other reference
 
 
 class TableRecord(Strict):
@@ -308,6 +320,8 @@ def read(path: Path, text: str | None = None) -> Commissioning:
     loops = getattr(section, "loops", None)
     if loops is not None:
         _check_covariance(loops.covariance, 30, (key, "loops", "covariance"), refuse)
+    for i, other in enumerate(getattr(section, "other_references", [])):
+        _check_covariance(other.covariance, 3, (key, "other_references", i, "covariance"), refuse)
     gradient = getattr(section, "gradient", None)
     if gradient is not None:
         _check_covariance(gradient.covariance, 5, (key, "gradient", "covariance"), refuse)

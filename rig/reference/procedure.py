@@ -31,6 +31,7 @@ from rig.core.yamlload import load_model, locate_in_text, read_text
 from rig.devices.build import open_rig
 from rig.fieldsources.commissioning import Reading, floats
 from rig.reference import commissioning_file
+from rig.reference.otherrefs import other_ambients
 from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, readback_mean, settle_at
 
 SETTLE_S = 0.5
@@ -59,11 +60,15 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
         reader = ReferenceReader(rig, ref_config, calibrations[ref_config.name])
         identity = rig.built.devices[ref_config.name].describe()
         readings = drive(rig, source, reader, design)
+        # the station's other reference magnetometers show the lab field's gradient (coils)
+        others = other_ambients(rig, station, ref_config, calibrations) if source.measures_gradient else []
         if thermal:
             thermal_section = measure_thermal(rig, station, step_c=step_c, start_air_c=start_air_c)
     finally:
         rig.close()  # safe: coils at 0 A, table stopped, chamber at its safe setpoint
     section = source.fit_commissioning(readings, ref_config.position_mm)
+    if others:
+        section = source.commissioning_with_others(section, others, ref_config.position_mm)
     fitted = {source.commissioning_section: {**section, "repeats": repeats}}
     if thermal_section is not None:
         fitted["thermal"] = _plain(thermal_section)

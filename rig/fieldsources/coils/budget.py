@@ -201,9 +201,9 @@ class CoilChain:
             a = np.broadcast_to(by_position(offset_m), (len(self.times), 3, 5))
             return [InputSource("ambient gradient", np.asarray(measured.covariance, float), ref_nt=a,
                                 shared="ambient gradient",
-                                origin=f"measured at commissioning from the ambient at the centre and "
-                                f"{measured.places - 1} place(s), carried into the references: its "
-                                f"covariance{unseen}")]
+                                origin=f"measured at commissioning from the ambient at {measured.places} "
+                                "places (the reference's and other reference magnetometers'), carried "
+                                f"into the references: its covariance{unseen}")]
         if bound is None:
             notes.append(f"ambient gradient over the {np.linalg.norm(offset_m) * 1000:.0f} mm between the "
                          "reference magnetometer and the DUT: not stated (field_source."

@@ -118,11 +118,26 @@ def with_loops(source, coils: dict, reference_tolerance_mm: float) -> dict:
         "deviations": fitted.deviations.tolist(), "covariance": rows(_symmetric(fitted.covariance)),
         "reference_offset_mm": floats(fitted.reference_offset_mm), "unidentified": fitted.unidentified,
         "chi2": fitted.chi2, "dof": fitted.dof}}
-    out.pop("gradient", None)
-    # the file's own ambient was measured at the centre (places are added only to such a file)
-    ambients = [((0.0, 0.0, 0.0), coils["ambient_nt"], np.asarray(coils["covariance"], float)[9:, 9:])]
+    return with_gradient(source, out, (0.0, 0.0, 0.0))  # places are added only to a file from the centre
+
+
+def with_other_references(source, coils: dict, others: list[dict], reference_position_mm) -> dict:
+    """The `coils:` section with the other reference magnetometers' ambients (rig/reference/otherrefs.py)
+    and the gradient they show."""
+    return with_gradient(source, {**coils, "other_references": others}, reference_position_mm)
+
+
+def with_gradient(source, coils: dict, reference_position_mm) -> dict:
+    """The `coils:` section with the lab field's gradient fitted to every ambient it holds: its own (where
+    the reference sat), each place's, each other reference's (rig/fieldsources/coils/gradientfit.py)."""
+    out = {key: value for key, value in coils.items() if key != "gradient"}
+    own = np.asarray(coils["ambient_nt"], float)
+    where = reference_position_mm or (0.0, 0.0, 0.0)
+    ambients = [(where, own, np.asarray(coils["covariance"], float)[9:, 9:])]
     ambients += [(p["position_mm"], p["ambient_nt"], np.asarray(p["covariance"], float)[9:, 9:])
-                 for p in coils["places"]]
+                 for p in coils.get("places", [])]
+    ambients += [(o["position_mm"], own + np.asarray(o["difference_nt"], float), o["covariance"])
+                 for o in coils.get("other_references", [])]
     gradient = fit_gradient(ambients, source.ambient_gradient_nt_per_m)
     if gradient is not None:
         out["gradient"] = {
@@ -137,7 +152,7 @@ def loop_lines(section) -> list[str]:
     they leave unidentified."""
     loops = section.loops
     if loops is None:
-        return []
+        return gradient_lines(section)
     values = np.asarray(loops.deviations, float).ravel()
     se = np.sqrt(np.diag(np.asarray(loops.covariance, float)))
     names = quantity_names()
@@ -162,8 +177,8 @@ def gradient_lines(section) -> list[str]:
     se = element_std_errors(gradient.covariance).ravel()
     cells = ", ".join(f"G{'xyz'[k // 3]}{'xyz'[k % 3]} {g[k]:+.0f} +- {se[k]:.0f}"
                       for k in (0, 1, 2, 4, 5, 8))  # the symmetric tensor's upper triangle
-    out = [f"  ambient gradient from the ambient at the centre and {gradient.places - 1} place(s) (nT/m; "
-           f"chi2 {gradient.chi2:.1f} for {gradient.dof} degrees of freedom): {cells}"]
+    out = [f"  ambient gradient from the ambient at {gradient.places} places (nT/m; chi2 {gradient.chi2:.1f} "
+           f"for {gradient.dof} degrees of freedom): {cells}"]
     if gradient.unidentified:
         out.append("  not identified by these places (the stated ambient_gradient_nt_per_m stays): "
                    + ", ".join(gradient.unidentified))

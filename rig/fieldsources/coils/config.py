@@ -103,7 +103,8 @@ class Coils(FieldSourceConfig, CoilOptions):
     ambient_gradient_nt_per_m: bounded(lo=0, hi=1e6) | None = Field(
         None, description="the largest lab-field gradient dB_i/dx_j over the DUT positions (+-, nT/m): the "
         "budget's 'ambient gradient' between the reference magnetometer and each DUT, where the "
-        "commissioning's places (rig commission --position) do not measure it")
+        "commissioning's places (rig commission --position) or other reference magnetometers do not "
+        "measure it")
 
     @model_validator(mode="after")
     def _invertible(self):
@@ -281,6 +282,11 @@ class Coils(FieldSourceConfig, CoilOptions):
 
     def fit_commissioning(self, readings, reference_position_mm) -> dict:
         return commissioning.fit(self, readings, reference_position_mm)
+
+    measures_gradient: ClassVar[bool] = True
+
+    def commissioning_with_others(self, section: dict, others: list[dict], reference_position_mm) -> dict:
+        return commissioning.with_other_references(self, section, others, reference_position_mm)
 
     @classmethod
     def commissioning_section_problem(cls, section):

@@ -85,7 +85,7 @@ def fit_gradient(ambients, bound_nt_per_m: float | None) -> GradientFit | None:
     g_sd = np.sqrt(np.diag(cov)[3:])  # in units of the prior's
     unidentified = [] if prior_u is None else [
         name for name, sd in zip(NAMES, g_sd, strict=True) if sd >= IDENTIFIED]
-    dof = 3 * len(ambients) - 3 - (5 - len(unidentified))
+    dof = 3 * len(ambients) - int(np.linalg.matrix_rank(np.vstack(rows), tol=1e-9))  # what they can show
     if dof > 0 and chi2 > dof:
         x, cov, _ = solve(chi2 / dof)
     g, g_cov = x[3:] * scale, cov[3:, 3:] * np.outer(scale, scale)
