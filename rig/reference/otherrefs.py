@@ -13,14 +13,18 @@ reference_source), besides both readings' standard errors.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from calib.propagation import reference_source
+from rig.core.errors import DeviceError
 from rig.reference.budget import reference_covariance
 from rig.reference.sitefield import ReferenceReader, readback_mean, settle_at
 
 SETTLE_S = 0.5
 SAME_PLACE_MM = 1.0  # as rig/reference/places.py: closer than this shows nothing of a gradient
+log = logging.getLogger("magrig.commission")
 
 
 def _position(ref) -> np.ndarray:
@@ -45,7 +49,8 @@ def _calibration_covariance(ref, calibration, measured_nt, temp_c) -> np.ndarray
 
 def other_ambients(rig, station, primary, calibrations) -> list[dict]:
     """Each other reference's reading less the commissioning reference's, taken together with the coils
-    at 0 A (their own field as the supply's read-back says taken out of each), with its covariance."""
+    at 0 A (their own field as the supply's read-back says taken out of each), with its covariance. One
+    that cannot be read is left out with a warning: the commissioning does not depend on it."""
     others = elsewhere(station, primary)
     if not others:
         return []
@@ -64,7 +69,11 @@ def other_ambients(rig, station, primary, calibrations) -> list[dict]:
         primary, calibrations[primary.name], main.vector_nt, main.temp_c)
     out = []
     for ref in others:
-        m = read(ref)
+        try:
+            m = read(ref)
+        except DeviceError as exc:  # the commissioning stands without it: the gradient keeps the rest
+            log.warning("commission: %s left out of the ambient gradient: %s", ref.name, exc)
+            continue
         cov = main_cov + np.diag(np.square(m.std_error_nt)) + _calibration_covariance(
             ref, calibrations[ref.name], m.vector_nt, m.temp_c)
         out.append({"name": ref.name, "position_mm": [float(v) for v in _position(ref)],

@@ -116,3 +116,18 @@ def test_a_second_reference_shows_the_gradient_along_the_line_between_them(tmp_p
         assert abs(g[i, 2] - TRUE_GRADIENT[i, 2]) <= 4 * sd[i, 2], (i, g[i, 2], sd[i, 2])
     # two instruments: their calibrations' errors (a few nT over 75 mm) stay in what the line shows
     assert 5.0 < sd[0, 2] < 0.5 * BOUND / np.sqrt(3)
+
+
+def test_a_second_reference_that_cannot_be_read_is_left_out_and_the_commissioning_stands(tmp_path, caplog):
+    def unplugged_second(data):
+        _second_reference(data)
+        second = data["reference_magnetometers"][1]
+        # opened at the start, gone by the time the coils' settings are done
+        second["transport"] = {**second["transport"], "faults": {"unplug": {"after_s": 1.0, "for_s": 1e6}}}
+
+    station = write_station(tmp_path, unplugged_second)
+    path = commission(station, tmp_path, repeats=1)
+    coils = commissioning_file.read(path).record.coils
+    assert coils.other_references == [] and coils.gradient is None  # the primary's ambient alone
+    assert np.asarray(coils.matrix_nt_per_a).shape == (3, 3)
+    assert any("ref1 left out of the ambient gradient" in r.getMessage() for r in caplog.records)
