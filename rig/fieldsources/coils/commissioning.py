@@ -177,8 +177,10 @@ def gradient_lines(section) -> list[str]:
     se = element_std_errors(gradient.covariance).ravel()
     cells = ", ".join(f"G{'xyz'[k // 3]}{'xyz'[k % 3]} {g[k]:+.0f} +- {se[k]:.0f}"
                       for k in (0, 1, 2, 4, 5, 8))  # the symmetric tensor's upper triangle
-    out = [f"  ambient gradient from the ambient at {gradient.places} places (nT/m; chi2 {gradient.chi2:.1f} "
-           f"for {gradient.dof} degrees of freedom): {cells}"]
+    others = [o.name for o in getattr(section, "other_references", [])]
+    where = f"{gradient.places} places" + (f", {', '.join(others)} among them" if others else "")
+    out = [f"  ambient gradient from the ambient at {where} (nT/m; chi2 {gradient.chi2:.1f} for "
+           f"{gradient.dof} degrees of freedom): {cells}"]
     if gradient.unidentified:
         out.append("  not identified by these places (the stated ambient_gradient_nt_per_m stays): "
                    + ", ".join(gradient.unidentified))
