@@ -78,7 +78,9 @@ def _dut_truth(rng, scale: float) -> dict:
             "cubic_ppm_at_50ut": dev.cubic_ppm_at_50ut.round(2).tolist()}
 
 
-# families switched off for a diagnosis: "slow" (the DUTs' slow noise), "chamber", "hysteresis"
+# families switched off for a diagnosis: "slow" (the DUTs' slow noise), "chamber", "hysteresis",
+# "reference" (its truth exactly its calibration file), "position" (every DUT where the station says),
+# "geometry" (the coils' sizes and spacings as drawn)
 QUIET = set(filter(None, os.environ.get("MAGRIG_QUIET", "").split(",")))
 
 
@@ -108,12 +110,13 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wide
     source["current_accuracy"] = {"gain_ppm": STATED["gain_ppm"], "offset_ma": STATED["offset_ma"]}
     source.pop("commissioning", None)
     world = rng.uniform(0.0, 1.5)  # the ambient's and the chamber's unkindness, x sim-lab's
+    shape_off = 0.0 if "geometry" in QUIET else 1.0  # a family off is drawn all the same: the rest stay
     sim.update({
         "seed": int(rng.integers(1, 2**31)),
         "coil_constants_nt_per_a": true.round(3).tolist(),
         "coil_geometry": {"shape": geometry["shape"],
-                          "size_m": [s + float(draw(tol_m)) for s in geometry["size_m"]],
-                          "spacing_m": [s + float(draw(tol_m)) for s in geometry["spacing_m"]]},
+                          "size_m": [s + shape_off * float(draw(tol_m)) for s in geometry["size_m"]],
+                          "spacing_m": [s + shape_off * float(draw(tol_m)) for s in geometry["spacing_m"]]},
         "coil_loops": {axis: {"turns_error_ppm": draw(STATED["turns_ppm"], 2).round(1).tolist(),
                               "offset_mm": draw(STATED["geometry_mm"], (2, 3)).round(3).tolist(),
                               "tilt_deg": draw(STATED["tilt_deg"], 2).round(4).tolist()}
@@ -140,7 +143,9 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wide
     ref = data["reference_magnetometers"][0]
     ref_cal = calfile.load(reference_cal)
     k = ref_cal.uncertainty["coverage_factor"]
-    drawn = {name: (np.asarray(v, float) + rng.normal(0, 1, np.shape(v)) * wider
+    off = 0.0 if "reference" in QUIET else 1.0
+    place_off = 0.0 if "position" in QUIET else 1.0
+    drawn = {name: (np.asarray(v, float) + off * rng.normal(0, 1, np.shape(v)) * wider
                     * np.asarray(ref_cal.uncertainty["expanded"][name], float) / k).tolist()
              for name, v in ref_cal.params.items()}
     duts, sensors, sim_duts, placed = [], [], {ref["name"]: {**sim["duts"][ref["name"]],
@@ -162,7 +167,7 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wide
                           "random_walk_nt_per_sqrt_h": round(2.0 * scale, 2),
                           "flicker_nt": round(15.0 * scale, 1),
                           "air_offset_c": round(float(rng.normal(0, 0.15)), 2),
-                          "position_error_mm": draw(STATED["position_mm"], 3).round(3).tolist()}
+                          "position_error_mm": (place_off * draw(STATED["position_mm"], 3)).round(3).tolist()}
     for name, spec in sim_duts.items():
         if name.startswith("dut") and "slow" in QUIET:
             spec["random_walk_nt_per_sqrt_h"] = spec["flicker_nt"] = 0.0
