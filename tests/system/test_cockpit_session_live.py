@@ -123,7 +123,7 @@ def test_the_session_page_of_a_running_campaign_moves_in_the_browser(tmp_path):
     folder = tmp_path / "sessions"
     folder.mkdir()
     session = folder / "run.session"
-    plan = small_plan(tmp_path, samples=40)  # long enough to be watched while it runs
+    plan = small_plan(tmp_path, samples=100)  # long enough to be watched while it runs, on a fast machine too
     with browser.cockpit(str(folder)) as url, browser.headless_page() as (page, errors):
         run = popen_rig("run", str(plan), "--station", str(SIM_STATION), "--session", str(session),
                         "--no-live")
