@@ -102,7 +102,7 @@ class OtherReferenceRecord(Strict):
 
 
 class GradientRecord(Strict):
-    """The lab field's gradient fitted to the ambient at the centre and every place
+    """The lab field's gradient fitted to the ambient at every place and other reference
     (rig/fieldsources/coils/gradientfit.py): G (nT/m), the 5x5 covariance of its independent components
     (Gxx, Gyy, Gxy, Gxz, Gyz: it is symmetric and traceless), the components the places leave at the
     stated bound, and the stated bound it started from."""

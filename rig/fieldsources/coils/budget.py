@@ -8,8 +8,8 @@ ambient, from the sample's currents I, and every source below moves it linearly 
   carries its calibration's error (rig/reference/budget.py RunInputs.reference_sources);
 - ambient: the run's best estimate from all its measurements and its covariance (rig/reference/ambient.py);
 - ambient gradient: the lab field between the reference magnetometer and the DUT: measured by the
-  commissioning's places (carried into the references; the line its covariance), else
-  `ambient_gradient_nt_per_m`;
+  commissioning's places and other reference magnetometers (carried into the references; the line its
+  covariance), else `ambient_gradient_nt_per_m`;
 - position, coil geometry, coil loops: the DUT's place, the loops' sizes and spacings, and each loop's place,
   lean and turns (rig/fieldsources/coils/loops.py), within their tolerances (rectangular);
 - current source: none where the matrix and the measured ambient are both referred to the read-back
@@ -187,7 +187,7 @@ class CoilChain:
 
     def _gradient(self, notes: list[str]) -> list[InputSource]:
         """The lab field's gradient between the reference magnetometer that measured the ambient and the
-        DUT: B_i changes by G_ij (r_dut - r_ref)_j. Measured at commissioning (its places' ambients) the
+        DUT: B_i changes by G_ij (r_dut - r_ref)_j. Measured at commissioning (the ambient at its places) the
         references carry it, and its covariance is the line; else every G_ij within
         +-ambient_gradient_nt_per_m."""
         bound = self.source.ambient_gradient_nt_per_m
