@@ -23,7 +23,7 @@ from rig.reference.budget import reference_covariance
 from rig.reference.sitefield import ReferenceReader, readback_mean, settle_at
 
 SETTLE_S = 0.5
-SAME_PLACE_MM = 1.0  # as rig/reference/places.py: closer than this shows nothing of a gradient
+SAME_PLACE_MM = 1.0  # two readings closer than this are at one place (a move of the reference too)
 log = logging.getLogger("magrig.commission")
 
 

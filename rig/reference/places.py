@@ -35,10 +35,9 @@ from calib.digest import sha256_file
 from rig.core.errors import ConfigError
 from rig.devices.build import open_rig
 from rig.reference import commissioning_file
+from rig.reference.otherrefs import SAME_PLACE_MM
 from rig.reference.procedure import commissioning_inputs, drive, setting_records
 from rig.reference.sitefield import ReferenceReader
-
-SAME_PLACE_MM = 1.0
 
 
 def parse_position(text: str) -> tuple[float, float, float]:
