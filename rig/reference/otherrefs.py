@@ -18,12 +18,12 @@ import logging
 import numpy as np
 
 from calib.propagation import reference_source
+from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import DeviceError
 from rig.reference.budget import reference_covariance
 from rig.reference.sitefield import ReferenceReader, readback_mean, settle_at
 
 SETTLE_S = 0.5
-SAME_PLACE_MM = 1.0  # two readings closer than this are at one place (a move of the reference too)
 log = logging.getLogger("magrig.commission")
 
 
