@@ -21,9 +21,8 @@ from calib.propagation import reference_source
 from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import DeviceError
 from rig.reference.budget import reference_covariance
-from rig.reference.sitefield import ReferenceReader, readback_mean, settle_at
+from rig.reference.sitefield import COMMISSION_SETTLE_S, ReferenceReader, readback_mean, settle_at
 
-SETTLE_S = 0.5
 log = logging.getLogger("magrig.commission")
 
 
@@ -55,7 +54,7 @@ def other_ambients(rig, station, primary, calibrations) -> list[dict]:
     if not others:
         return []
     source = station.field_source
-    settle_at(rig, source, source.measurement_setting(), SETTLE_S)
+    settle_at(rig, source, source.measurement_setting(), COMMISSION_SETTLE_S)
     readback = readback_mean(rig, source)
 
     def read(ref):

@@ -32,9 +32,13 @@ from rig.devices.build import open_rig
 from rig.fieldsources.commissioning import Reading, floats
 from rig.reference import commissioning_file
 from rig.reference.otherrefs import other_ambients
-from rig.reference.sitefield import ReferenceReader, load_reference_calibrations, readback_mean, settle_at
-
-SETTLE_S = 0.5
+from rig.reference.sitefield import (
+    COMMISSION_SETTLE_S,
+    ReferenceReader,
+    load_reference_calibrations,
+    readback_mean,
+    settle_at,
+)
 
 
 def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 2,
@@ -96,7 +100,7 @@ def drive(rig, source, reader, design) -> list[Reading]:
     readings = []
     for setting, what in design:
         try:
-            settle_at(rig, source, setting, SETTLE_S)
+            settle_at(rig, source, setting, COMMISSION_SETTLE_S)
             measured = reader.read_mean(f"commission {what}", flagged_is_fault=True)
             readback = readback_mean(rig, source)
             readings.append(Reading(setting, what, measured, None if readback is None else readback[0]))

@@ -165,6 +165,9 @@ def readback_mean(rig, source, reads: int = READBACK_READS
     return tuple(float(v) for v in values.mean(axis=0)), tuple(float(v) for v in se)
 
 
+COMMISSION_SETTLE_S = 0.5  # `rig commission`: a setting read this long after the source says it settled
+
+
 def settle_at(rig, source, setting, settle_s: float) -> None:
     """Drive the field source to `setting` (currents or table angles) and let it settle."""
     mover = rig.field_source
