@@ -278,17 +278,22 @@ class World:
             if any(self.ambient_drift_nt_per_s.tolist()):
                 field = field + self.drift_nt()
             return field if not self._bent() else field + self._environment_nt(dut)
+        turned = self.turntable_axes.rotation(*self.table_deg)
         site = self.site_field_nt + self.drift_nt()
         if self._bent():
-            site = site + self._environment_nt(dut)
-        return self.turntable_axes.rotation(*self.table_deg).T @ site
+            site = site + self._environment_nt(dut, turned)
+        return turned.T @ site
 
     def _bent(self) -> bool:
         return self.lab is not None or self.chamber.makes_field
 
-    def _environment_nt(self, dut: str | None) -> np.ndarray:
-        """The lab's field beyond its ambient where `dut` sits: gradient, steps, heater and compressor."""
+    def _environment_nt(self, dut: str | None, turned: np.ndarray | None = None) -> np.ndarray:
+        """The lab's field beyond its ambient where `dut` sits: gradient, steps, heater and compressor.
+        On a turntable (`turned`: table frame -> lab) its position is on the table, about the axes'
+        crossing, and turns with it through the lab's gradient."""
         position = np.zeros(3) if dut is None else self.duts[dut].truth.position_m
+        if turned is not None:
+            position = turned @ position
         out = np.zeros(3) if self.lab is None else self.lab.field_nt(position, self._t)
         return out + self.chamber.field_nt(self._t) if self.chamber.makes_field else out
 

@@ -215,8 +215,14 @@ class FieldSourceConfig(DeviceConfig):
         raise NotImplementedError
 
     def measures_ambient(self) -> bool:
-        """True when the ambient the coils add to is measured during the run (its drift is modelled)."""
+        """True when the ambient (the coils add to it; a table turns it) is measured during the run, at the
+        start, each temperature step and the end: its drift is then modelled (rig/reference/ambient.py)."""
         return False
+
+    def ambient_in_references(self, run, ds):
+        """(the ambient each sample's reference was made with (N,3), how a change of it moves the
+        reference (N,3,3), None: one to one), or None when the session does not say."""
+        return None
 
     # --- station and simulation --------------------------------------------------------------------
     def station_problems(self, dut_names: set[str],

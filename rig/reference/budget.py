@@ -11,7 +11,8 @@ origin:
 - fit (statistical): the DUT's own noise (calib: sigma^2 G^-1);
 - the reference field's sources, which each field-source kind supplies (rig/fieldsources/<kind>/budget.py:
   coil matrix, ambient, gradient, position, geometry, loops, current source, the commissioning's
-  non-linearity, hysteresis and drift, the coils' drift since; or a table's axes and its site field), and
+  non-linearity, hysteresis and drift, the coils' drift since; or a table's axes, its site field over the
+  run and the gradient its DUTs turn through), and
   the reference magnetometer that measured them (`reference_sources`: its calibration's covariance, else
   its expanded uncertainty / k; a reference calibration that states no uncertainty is refused, never
   taken as zero);
@@ -217,7 +218,8 @@ class RunInputs:
 
     @functools.cached_property
     def ambient(self) -> AmbientModel | None:
-        """The ambient over the run from all its measurements (coils whose ambient is measured)."""
+        """The ambient over the run from all its measurements (coils whose ambient is measured, a table's
+        site field)."""
         if not self.station.field_source.measures_ambient() or not self.site:
             return None
         return AmbientModel.fit(self.site)
@@ -233,11 +235,14 @@ class RunInputs:
         """(ds, what was done): each reference made with the run's best ambient estimate
         (rig/reference/ambient.py) instead of the value in use when its point was taken; unchanged where
         that cannot be done."""
-        used = self.recorded_ambient(ds)
-        if self.ambient is None or used is None:
+        found = None if self.ambient is None else self.station.field_source.ambient_in_references(self, ds)
+        if found is None:
             return ds, None
-        best = self.ambient.at(ds.columns["t"])
-        return dataclasses.replace(ds, ref_nt=ds.ref_nt + best - used), self.ambient.as_dict()
+        used, by = found
+        change = self.ambient.at(ds.columns["t"]) - used
+        if by is not None:
+            change = np.einsum("nij,nj->ni", by, change)
+        return dataclasses.replace(ds, ref_nt=ds.ref_nt + change), self.ambient.as_dict()
 
 
 def reference_covariance(cal: Calibration) -> np.ndarray:

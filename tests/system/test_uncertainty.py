@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import fcntl
 import json
 
 import numpy as np
@@ -32,6 +31,7 @@ from rig.reference.sitefield import load_reference_calibrations
 from rig.run.campaign import run_campaign
 from rig.session.events import Kind
 from rig.session.reader import SessionReader
+from tests.helpers.once import made_once
 from tests.helpers.reference_station import write_station
 from tests.system import browser
 from tests.system.campaign_helpers import run_rig
@@ -82,23 +82,16 @@ def _world(on: bool):
 def worlds(tmp_path_factory):
     """{"off": (session, inputs, datasets, what the post-run fits told), "on": ...}: each world
     commissioned and run once for every test worker (the first to come makes them, under a lock)."""
-    base = tmp_path_factory.getbasetemp()  # this run's: a worker's is popen-gwN inside it
-    shared = (base.parent if base.name.startswith("popen-gw") else base) / "uncertainty-worlds"
-    shared.mkdir(exist_ok=True)
     out = {}
-    with (shared / "lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        for label in ("off", "on"):
-            folder = shared / label
-            if not (folder / "told.json").is_file():
-                folder.mkdir(exist_ok=True)
-                _make(folder, label == "on")
-            session = folder / "run.session"
-            with SessionReader(session) as reader:
-                inputs = RunInputs.of_session(reader)
-                data = {d: inputs.refined(reader.dataset(d))[0] for d in DUTS}
-            told = [tuple(t) for t in json.loads((folder / "told.json").read_text())]
-            out[label] = (session, inputs, data, told)
+    for label in ("off", "on"):
+        folder = made_once(tmp_path_factory, f"uncertainty-world-{label}",
+                           lambda folder, label=label: _make(folder, label == "on"))
+        session = folder / "run.session"
+        with SessionReader(session) as reader:
+            inputs = RunInputs.of_session(reader)
+            data = {d: inputs.refined(reader.dataset(d))[0] for d in DUTS}
+        told = [tuple(t) for t in json.loads((folder / "told.json").read_text())]
+        out[label] = (session, inputs, data, told)
     return out
 
 
@@ -318,34 +311,3 @@ def test_the_cockpit_links_and_serves_each_certificate(worlds):
         name = urllib.parse.quote(session.name.removesuffix(".session") + ".dut3.certificate.html")
         with urllib.request.urlopen(f"{base}/{name}", timeout=60) as reply:  # the report's own link
             assert "dut3" in reply.read().decode()
-
-
-def test_a_turntable_budget_states_its_axes_site_field_and_reference(tmp_path):
-    def table(data):
-        data["sim"]["turntable_axes"] = {"az_tilt_deg": [0.2, -0.15], "el_tilt_deg": 0.3,
-                                         "zero_offsets_deg": [1.0, -0.4]}
-        data["sim"]["site_field_nt"] = [19_148.0, 894.0, 45_587.0]
-        data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"}, "rate_deg_s": 30,
-                                "site_field": {"reference_magnetometer": "ref0"}}
-        data["duts"] = [d for d in data["duts"] if d["name"] == "dut1"]
-        data["duts"][0].pop("position_mm")
-        data["temperature_sensors"] = [s for s in data["temperature_sensors"] if s["beside"] == "dut1"]
-        data["sim"]["duts"] = {k: v for k, v in data["sim"]["duts"].items() if k in ("dut1", "ref0")}
-        del data["sim"]["coil_geometry"]
-
-    station = write_station(tmp_path, table)
-    com = commission(station, tmp_path, repeats=1)
-    data = yaml.safe_load(station.read_text())
-    data["field_source"]["commissioning"] = com.name
-    station.write_text(yaml.safe_dump(data, sort_keys=False))
-    plan = tmp_path / "plan.yaml"
-    plan.write_text(PLAN.replace("fields: {kind: cube24, magnitude_nt: 50000}",
-                                 "fields: {kind: grid, az_deg: [0, 90, 180, 270], el_deg: [-60, 0, 60]}"))
-    outcome = run_campaign(campaign=load_campaign(plan, station), session_path=tmp_path / "table.session")
-    assert outcome.result.status == "completed", outcome.result.reason
-    cal = calfile.load(calibration_file(outcome.session_path, "dut1", "t24"))
-    lines = {b["source"]: b["contribution_nt"] for b in cal.uncertainty["budget"]}
-    assert {"table axes", "site field", "reference magnetometer"} <= set(lines)
-    assert all(lines[k] > 0 for k in ("table axes", "site field", "reference magnetometer"))
-    total = sum(v**2 for v in lines.values())
-    assert cal.uncertainty["combined_standard_nt"] ** 2 == pytest.approx(total, rel=1e-6)

@@ -31,6 +31,7 @@ from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.geometry import pair_field, rotation_between
 from rig.fieldsources.coils.gradientfit import by_position
 from rig.fieldsources.coils.loops import loop_sensitivity
+from rig.reference.ambient import ambient_source, stated_gradient_source
 
 POSITION_STEP_MM = 0.5
 
@@ -159,31 +160,8 @@ class CoilChain:
                              shared="coil matrix")
 
     def _ambient(self) -> InputSource:
-        """The run's ambient estimate: its coefficients (value at t0 [, slope per s]) per axis; and any
-        excess scatter of its measurements (the lab's field moving by more than the measurements' noise
-        between them: steps, a chamber's heater and compressor) as an offset of its own from each
-        measurement to the next, independent of the others."""
-        model = self.run.ambient
-        p = len(model.coef)
-        x = np.column_stack([np.ones(len(self.times)), self.times - model.t0])[:, :p]  # (N,p)
-        measured_at = np.sort([m["t"] for m in self.run.site])
-        epoch = np.clip(np.searchsorted(measured_at, self.times, side="right") - 1, 0, None)
-        epochs = int(epoch.max()) + 1
-        a = np.zeros((len(self.times), 3, 3 * (p + epochs)))
-        sigma = np.zeros((3 * (p + epochs),) * 2)
-        rows = np.arange(len(self.times))
-        for i in range(3):
-            idx = [3 * k + i for k in range(p)]
-            a[:, i, idx] = x
-            sigma[np.ix_(idx, idx)] = 0.5 * (model.cov[i] + model.cov[i].T)  # pinv's rounding: symmetric
-            a[rows, i, 3 * (p + epoch) + i] = 1.0
-            for e in range(epochs):
-                sigma[3 * (p + e) + i, 3 * (p + e) + i] = model.excess_nt[i] ** 2
-        drift = " with a drift" if model.drifting else ""
-        excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
-        return InputSource("ambient", sigma, ref_nt=a, shared="ambient",
-                           origin=f"measured {model.n} time(s){drift}; scatter beyond their noise ({excess}) "
-                           "nT, an offset of its own between measurements")
+        """The run's ambient estimate where the reference measured it (rig/reference/ambient.py)."""
+        return ambient_source(self.run.ambient, self.times, [m["t"] for m in self.run.site], "ambient")
 
     def _gradient(self, notes: list[str]) -> list[InputSource]:
         """The lab field's gradient between the reference magnetometer that measured the ambient and the
@@ -209,12 +187,7 @@ class CoilChain:
                          "reference magnetometer and the DUT: not stated (field_source."
                          "ambient_gradient_nt_per_m), not in the budget")
             return []
-        a = np.zeros((len(self.times), 3, 9))
-        for i in range(3):
-            a[:, i, 3 * i:3 * i + 3] = offset_m
-        return [InputSource("ambient gradient", _rectangular(np.full(9, bound)), ref_nt=a,
-                            distribution="rectangular", shared="ambient gradient",
-                            origin=f"stated: +-{bound:g} nT/m per component")]
+        return [stated_gradient_source(np.broadcast_to(offset_m, (len(self.times), 3)), bound)]
 
     def _places(self, notes: list[str]) -> list[InputSource]:
         """The DUT's position, the loops' sizes and spacings, and each loop's place, lean and turns."""

@@ -330,6 +330,10 @@ class Coils(FieldSourceConfig, CoilOptions):
     def measures_ambient(self) -> bool:
         return self.needs_measurement()
 
+    def ambient_in_references(self, run, ds):
+        used = run.recorded_ambient(ds)
+        return None if used is None else (used, None)
+
     # --- station and simulation ---------------------------------------------------------------------
     def station_problems(self, dut_names, reference_names=()):
         if self.reference_magnetometer is not None and self.reference_magnetometer not in reference_names:

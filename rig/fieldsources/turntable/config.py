@@ -106,6 +106,10 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     el_limits_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (-180.0, 180.0)
     rate_deg_s: bounded(gt=0, hi=1_000.0) = Field(10.0, description="slew rate, for move-time estimates")
     site_field: SiteField
+    ambient_gradient_nt_per_m: bounded(lo=0, hi=1e6) | None = Field(
+        None, description="the largest lab-field gradient dB_i/dx_j over the table (+-, nT/m): the budget's "
+        "'ambient gradient' between where the reference magnetometer measured the site field and each DUT "
+        "as the table turns")
     def stated_site_field_nt(self) -> np.ndarray | None:
         """The site field the station file states (None when a reference magnetometer must measure it)."""
         return self.site_field.stated_nt()
@@ -194,7 +198,16 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     def budget_chain(self, run, dut: str, ds):
         from rig.fieldsources.turntable.budget import TableChain
 
-        return TableChain(run, ds)
+        return TableChain(run, dut, ds)
+
+    def measures_ambient(self) -> bool:
+        return self.needs_measurement()
+
+    def ambient_in_references(self, run, ds):
+        from rig.fieldsources.turntable.budget import home_readings, home_sensitivity, table_rows
+
+        params, angles = table_rows(run, ds)
+        return home_readings(params), home_sensitivity(params, angles)
 
     # --- station and simulation --------------------------------------------------------------------
     def station_problems(self, dut_names, reference_names=()):

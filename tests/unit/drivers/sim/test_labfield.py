@@ -56,3 +56,21 @@ def test_steps_reach_the_field_and_fall_where_the_seed_says_whenever_asked(tmp_p
     once, clock2 = world_of(tmp_path, sim=sim)
     clock2.sleep(48 * 3600.0)  # one jump of two days
     assert np.array_equal(once.lab_field_nt(), fields[-1])
+
+
+def test_a_dut_on_a_turntable_turns_with_it_through_the_gradient(tmp_path):
+    """On a table its position is on the table: turned to (az, el) it sits at R r in the lab, sees
+    site + G R r there, and reads that in the table's frame, R^T (site + G R r)."""
+    site = np.array([19_148.0, 894.0, 45_587.0])
+    duts = {"a": {"position_mm": [60, 0, 10], "sim": {"truth": IDEAL, "noise_nt": 0}}}
+    table = {"kind": "turntable", "transport": {"kind": "sim"}, "rate_deg_s": 30,
+             "site_field": {"vector_nt": site.tolist()}}
+    sim = {"site_field_nt": site.tolist(), "ambient_gradient_nt_per_m": GRADIENT}
+    world, clock = world_of(tmp_path, sim=sim, duts=duts, field_source=table)
+    r, g = np.array([60.0, 0.0, 10.0]) / 1000, np.asarray(GRADIENT)
+    for az, el in ((0.0, 0.0), (90.0, 0.0), (200.0, -60.0)):
+        world.set_turntable_target(az, el)
+        clock.sleep(30.0)
+        turned = world.turntable_axes.rotation(az, el)
+        np.testing.assert_allclose(world.lab_field_nt("a"), turned.T @ (site + g @ turned @ r), atol=1e-9)
+    assert not np.allclose(world.lab_field_nt("a"), turned.T @ (site + g @ r), atol=1.0)  # not where it was
