@@ -3,8 +3,9 @@ that commissions the coils: each one sitting elsewhere shows the lab field's gra
 (rig/fieldsources/coils/gradientfit.py), as a move of the one reference does (rig/reference/places.py).
 
 With the coils at 0 A, settled, both are read together, so the lab field's drift cancels in their
-difference, and the other's ambient is recorded as the commissioning's own (fitted over the whole run of
-settings) plus that difference. Two instruments do not share their calibration errors as one moved does:
+difference, and it is the difference that is recorded and fitted (G times the offset between the two):
+the commissioning's own ambient, in both, is not counted twice. Two instruments do not share their
+calibration errors as one moved does:
 the difference carries both calibrations' covariance at what each read (calib/propagation.py
 reference_source), besides both readings' standard errors.
 

@@ -136,9 +136,9 @@ def with_gradient(source, coils: dict, reference_position_mm) -> dict:
     ambients = [(where, own, np.asarray(coils["covariance"], float)[9:, 9:])]
     ambients += [(p["position_mm"], p["ambient_nt"], np.asarray(p["covariance"], float)[9:, 9:])
                  for p in coils.get("places", [])]
-    ambients += [(o["position_mm"], own + np.asarray(o["difference_nt"], float), o["covariance"])
-                 for o in coils.get("other_references", [])]
-    gradient = fit_gradient(ambients, source.ambient_gradient_nt_per_m)
+    differences = [(np.subtract(o["position_mm"], where), o["difference_nt"], o["covariance"])
+                   for o in coils.get("other_references", [])]
+    gradient = fit_gradient(ambients, source.ambient_gradient_nt_per_m, differences)
     if gradient is not None:
         out["gradient"] = {
             "nt_per_m": rows(gradient.nt_per_m), "covariance": rows(_symmetric(gradient.covariance)),

@@ -52,19 +52,22 @@ def by_position(r_m) -> np.ndarray:
     return np.array([[x, 0, y, z, 0], [0, y, x, 0, z], [-z, -z, 0, x, y]], float)
 
 
-def fit_gradient(ambients, bound_nt_per_m: float | None) -> GradientFit | None:
-    """`ambients`: [(position_mm, ambient_nt (3,), its covariance (3, 3))], the centre's among them. None
-    where they cannot show a gradient: fewer than two places, or, with no stated bound to keep for what
-    they leave unseen, places that do not show all five components."""
-    if len(ambients) < 2:
+def fit_gradient(ambients, bound_nt_per_m: float | None, differences=()) -> GradientFit | None:
+    """`ambients`: [(position_mm, ambient_nt (3,), its covariance (3, 3))], the centre's among them;
+    `differences`: [(offset_mm, difference_nt (3,), its covariance)], another reference's ambient less the
+    first's, read together (G offset alone: the readings' common part, the first's ambient among it, is
+    not counted twice). None where they cannot show a gradient: fewer than two places, or, with no stated
+    bound to keep for what they leave unseen, places that do not show all five components."""
+    if len(ambients) + len(differences) < 2:
         return None
     prior_u = None if bound_nt_per_m is None else bound_nt_per_m / np.sqrt(3.0)
     scale = np.full(5, 1.0 if prior_u is None else prior_u)  # g in units of its prior: a balanced system
     rows, values, weights = [], [], []
-    for position_mm, ambient, cov in ambients:
-        rows.append(np.hstack([np.eye(3), by_position(np.asarray(position_mm, float) / 1000.0) * scale]))
-        values.append(np.asarray(ambient, float))
-        weights.append(np.linalg.inv(np.asarray(cov, float)))
+    for seen, observed in ((np.eye(3), ambients), (np.zeros((3, 3)), differences)):
+        for position_mm, value, cov in observed:
+            rows.append(np.hstack([seen, by_position(np.asarray(position_mm, float) / 1000.0) * scale]))
+            values.append(np.asarray(value, float))
+            weights.append(np.linalg.inv(np.asarray(cov, float)))
 
     def solve(widen: float):
         normal = sum(a.T @ w @ a for a, w in zip(rows, weights, strict=True)) / widen
@@ -86,11 +89,11 @@ def fit_gradient(ambients, bound_nt_per_m: float | None) -> GradientFit | None:
     g_sd = np.sqrt(np.diag(cov)[3:])  # in units of the prior's
     unidentified = [] if prior_u is None else [
         name for name, sd in zip(NAMES, g_sd, strict=True) if sd >= IDENTIFIED]
-    dof = 3 * len(ambients) - int(np.linalg.matrix_rank(np.vstack(rows), tol=1e-9))  # what they can show
+    dof = 3 * len(rows) - int(np.linalg.matrix_rank(np.vstack(rows), tol=1e-9))  # what they can show
     if dof > 0 and chi2 > dof:
         x, cov, _ = solve(chi2 / dof)
     g, g_cov = x[3:] * scale, cov[3:, 3:] * np.outer(scale, scale)
-    return GradientFit((TO_ELEMENTS @ g).reshape(3, 3), g_cov, unidentified, chi2, dof, len(ambients))
+    return GradientFit((TO_ELEMENTS @ g).reshape(3, 3), g_cov, unidentified, chi2, dof, len(rows))
 
 
 def element_std_errors(covariance) -> np.ndarray:

@@ -53,3 +53,20 @@ def test_a_lab_field_moving_between_places_widens_the_covariance():
     assert np.all(ratio > 3.0)  # about the scatter's ratio, 10
     sd = element_std_errors(moving.covariance)
     assert np.all(np.abs(moving.nt_per_m - G) <= 5 * sd)  # and still covers the truth
+
+
+def test_another_reference_read_with_the_first_counts_its_difference_alone():
+    """Another reference at r from the first, read together with it, gives the difference G r with its own
+    covariance: what it shows of G does not depend on how well the first's ambient is known (that ambient
+    is in both readings and cancels), and a stated prior u combines with it as 1 / (1 / u^2 + r^2 / s^2)."""
+    r_m, s_nt, bound = 0.075, 2.0, 300.0
+    difference = G @ np.array([0.0, 0.0, r_m])
+    other = [((0, 0, 75), difference, np.eye(3) * s_nt**2)]
+    fits = [fit_gradient([((0, 0, 0), A0, np.eye(3) * own_se**2)], bound, differences=other)
+            for own_se in (0.1, 30.0)]
+    prior_var = bound**2 / 3
+    expected = 1.0 / (1.0 / prior_var + r_m**2 / s_nt**2)
+    for fit in fits:
+        assert fit.places == 2 and fit.unidentified == ["Gxx", "Gyy", "Gxy"]
+        assert fit.covariance[NAMES.index("Gxz"), NAMES.index("Gxz")] == pytest.approx(expected, rel=1e-9)
+        assert fit.nt_per_m[0, 2] == pytest.approx(G[0, 2] * r_m**2 / s_nt**2 * expected, rel=1e-9)
