@@ -27,11 +27,11 @@ from __future__ import annotations
 import numpy as np
 
 from calib.propagation import InputSource, matrix_source
+from rig.fieldsources.ambientlines import ambient_source, stated_gradient_source
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.geometry import pair_field, rotation_between
 from rig.fieldsources.coils.gradientfit import by_position
 from rig.fieldsources.coils.loops import loop_sensitivity
-from rig.reference.ambient import ambient_source, stated_gradient_source
 
 POSITION_STEP_MM = 0.5
 

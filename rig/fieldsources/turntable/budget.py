@@ -14,7 +14,7 @@ import numpy as np
 from calib.propagation import InputSource
 from calib.tablefit import site_from_home, table_field_nt
 from drivers.turntable import rotation_deg
-from rig.reference.ambient import ambient_source, stated_gradient_source
+from rig.fieldsources.ambientlines import ambient_source, stated_gradient_source
 
 AXIS_STEPS = np.array([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3, 1e-3])  # nT, deg: central-difference steps
 HOME_STEP_NT = 1.0

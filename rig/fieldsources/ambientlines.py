@@ -1,0 +1,55 @@
+"""The lab field where a field source's references were made, as lines of the budget for every kind of
+field source: the run's model of its ambient (rig/reference/ambient.py: the coils' ambient, a table's site
+field) and a stated bound on its gradient between the reference magnetometer and a DUT."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.propagation import InputSource
+
+
+def ambient_source(model, times, measured_at, name: str, by=None) -> InputSource:
+    """The run's estimate of the ambient (a turntable's: its site field) as a line of the budget: the
+    model's coefficients (value at t0 [, slope per s]) per axis, and any excess scatter of its measurements
+    (the lab's field moving by more than their noise between them: steps, a chamber's heater and
+    compressor) as an offset of its own from each measurement (`measured_at`, s) to the next, independent
+    of the others. `by` (N,3,3): how a change of the ambient moves each sample's reference (None: one to
+    one, as for coils; a turntable turns it into the table's frame)."""
+    times = np.asarray(times, float)
+    p = len(model.coef)
+    x = np.column_stack([np.ones(len(times)), times - model.t0])[:, :p]  # (N,p)
+    epoch = np.clip(np.searchsorted(np.sort(measured_at), times, side="right") - 1, 0, None)
+    epochs = int(epoch.max()) + 1
+    a = np.zeros((len(times), 3, 3 * (p + epochs)))
+    sigma = np.zeros((3 * (p + epochs),) * 2)
+    rows = np.arange(len(times))
+    for i in range(3):
+        idx = [3 * k + i for k in range(p)]
+        a[:, i, idx] = x
+        sigma[np.ix_(idx, idx)] = 0.5 * (model.cov[i] + model.cov[i].T)  # pinv's rounding: symmetric
+        a[rows, i, 3 * (p + epoch) + i] = 1.0
+        for e in range(epochs):
+            sigma[3 * (p + e) + i, 3 * (p + e) + i] = model.excess_nt[i] ** 2
+    if by is not None:
+        a = np.einsum("nij,njq->niq", by, a)
+    drift = " with a drift" if model.drifting else ""
+    excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
+    return InputSource(name, sigma, ref_nt=a, shared=name,
+                       origin=f"measured {model.n} time(s){drift}; scatter beyond their noise ({excess}) "
+                       "nT, an offset of its own between measurements")
+
+
+def stated_gradient_source(offsets_m, bound_nt_per_m: float, by=None) -> InputSource:
+    """The lab field's gradient within a stated +-bound on each of its nine components G_ij (rectangular)
+    as a line of the budget: a sample's reference misses G (offset), `offsets_m` (N,3) being where the DUT
+    was from the reference magnetometer that measured the ambient; `by` as for ambient_source."""
+    offsets_m = np.asarray(offsets_m, float)
+    a = np.zeros((len(offsets_m), 3, 9))
+    for i in range(3):
+        a[:, i, 3 * i:3 * i + 3] = offsets_m
+    if by is not None:
+        a = np.einsum("nij,njq->niq", by, a)
+    return InputSource("ambient gradient", np.eye(9) * bound_nt_per_m**2 / 3.0, ref_nt=a,
+                       distribution="rectangular", shared="ambient gradient",
+                       origin=f"stated: +-{bound_nt_per_m:g} nT/m per component")
