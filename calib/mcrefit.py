@@ -7,9 +7,12 @@
 - `ScalarRefit`: the scalar fit re-solved for every draw by Newton-type steps from the calibration's own
   solution (warm start) with the exact gradient J^T W r of the drawn data and the step matrix
   (J^T W J)^-1 taken once at the solution: the fixed point is the drawn data's least-squares solution;
-  the steps shrink by the factor the Jacobian moves (~1e-4 here), so two or three suffice. A draw stops
-  when its step is below STEP_TOLERANCE of every parameter's uncertainty; one still moving after
-  MAX_SCALAR_STEPS counts as failed.
+  the steps shrink by the factor the Jacobian moves (~1e-4 for noise alone; ~0.05 where an uncommissioned
+  coil matrix moves it by 1 %). A draw stops when its step is below STEP_TOLERANCE of every parameter's
+  scale: its statistical uncertainty, or how far the draws' first steps spread, whichever is larger (a
+  thousandth of what the draws move a parameter by is far inside the Monte Carlo's own numerical
+  tolerance, a significant digit of that spread). One still moving after MAX_SCALAR_STEPS counts as
+  failed.
 """
 
 from __future__ import annotations
@@ -168,11 +171,14 @@ class ScalarRefit:
         t = np.broadcast_to(lin.t, (m, len(lin.t))) if dt is None or not self.temp else lin.t + dt
         theta = np.repeat(lin.theta[None], m, axis=0)
         moving = np.arange(m)  # the draws still taking steps
-        for _ in range(MAX_SCALAR_STEPS):
+        tolerance = STEP_TOLERANCE * self.u
+        for k in range(MAX_SCALAR_STEPS):
             step = self._gradient(theta[moving], h[moving] if h.shape[0] > 1 else h, fn[moving],
                                   t[moving]) @ self.step
             theta[moving] -= step
-            moving = moving[~np.all(np.abs(step) <= STEP_TOLERANCE * self.u, axis=1)]
+            if k == 0 and m > 1:  # the draws' spread: the first step is the first-order map of each draw
+                tolerance = STEP_TOLERANCE * np.maximum(self.u, np.std(step, axis=0))
+            moving = moving[~np.all(np.abs(step) <= tolerance, axis=1)]
             if moving.size == 0:
                 break
         failed = np.zeros(m, bool)
