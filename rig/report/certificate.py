@@ -161,7 +161,9 @@ def _conditions(g) -> Section:
             ["samples", f"{len(ds)} ({ds.source.get('rows_rejected', 0)} flagged and left out)"]]
     if ambient:
         drift = ", drifting" if ambient.get("drift") else ""
-        rows.append(["ambient (measured)", ", ".join(f"{v:.1f}" for v in ambient["value_nt"]) + " nT, "
+        # the coils' ambient field, a turntable's site field (as its reference read it at home)
+        what = getattr(getattr(g["station"], "field_source", None), "measured_name", "ambient field")
+        rows.append([f"{what} (measured)", ", ".join(f"{v:.1f}" for v in ambient["value_nt"]) + " nT, "
                      f"{ambient['measurements']} measurements{drift}"])
     return Section("Conditions", [Table(["item", "value"], rows)])
 

@@ -140,3 +140,13 @@ def test_the_stated_gradient_follows_each_dut_around_the_table(table_run):
     unstated = _budget(with_source(ambient_gradient_nt_per_m=None), "dut1", data["dut1"])
     assert "ambient gradient" not in _lines(unstated)
     assert any("ambient_gradient_nt_per_m" in n for n in unstated.notes)
+
+
+def test_the_certificate_states_the_site_field_as_measured_over_the_run(table_run):
+    from rig.report.certificate import certificate_html
+
+    session, inputs, _ = table_run
+    html = certificate_html(session, "dut1")
+    assert "site field (measured)</td><td>" in html
+    assert f"{inputs.ambient.n} measurements, drifting" in html
+    assert "ambient field (measured)" not in html
