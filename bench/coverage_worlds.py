@@ -4,7 +4,7 @@ what the station states for the budget to see: where the station states a tolera
 takes a rectangular distribution, u = a / sqrt(3)), the world draws from a normal distribution of
 standard deviation WIDER x u: larger and with tails beyond the stated bound (beyond +-a for 1 draw in 5).
 `bench/uncertainty.py coverage --wider X` draws them at X x u instead, to see how the coverage falls where
-a bench is worse than its station file says.
+a bench is worse than its station file says; `--table` puts a turntable in the coils' place (table_world).
 
 What each station states (the budget's inputs) and what its world is drawn from:
 
@@ -174,4 +174,27 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wide
         if name.startswith("dut") and "hysteresis" in QUIET:
             spec["truth"]["hysteresis"]["offset_nt"] = [0.0, 0.0, 0.0]
     data["duts"], data["temperature_sensors"], sim["duts"] = duts, sensors, sim_duts
+    return data
+
+
+TABLE_FIELDS = {"kind": "grid", "az_deg": [0, 45, 90, 135, 180, 225, 270, 315], "el_deg": [-60, 0, 60]}
+
+
+def table_world(data: dict, rng: np.random.Generator) -> dict:
+    """The same world (lab, chamber, reference, DUTs on the table where they sat in the coils) with a
+    two-axis turntable in place of the coils: its axes off the drawing (tilts and encoder zero offsets, which
+    `rig commission` measures), the site field the coils' ambient was, measured at home by the reference;
+    the stated gradient bound as for the coils."""
+    data = copy.deepcopy(data)
+    sim = data["sim"]
+    for key in ("coil_constants_nt_per_a", "coil_geometry", "coil_loops", "current_source"):
+        sim.pop(key, None)
+    sim["site_field_nt"] = list(sim["ambient_nt"])
+    sim["turntable_axes"] = {"az_tilt_deg": rng.normal(0, 0.2, 2).round(3).tolist(),
+                             "el_tilt_deg": round(float(rng.normal(0, 0.2)), 3),
+                             "zero_offsets_deg": rng.normal(0, 1.0, 2).round(3).tolist()}
+    reference = data["reference_magnetometers"][0]["name"]
+    data["field_source"] = {"kind": "turntable", "transport": {"kind": "sim"}, "rate_deg_s": 30,
+                            "site_field": {"reference_magnetometer": reference},
+                            "ambient_gradient_nt_per_m": STATED["gradient"]}
     return data

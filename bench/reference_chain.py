@@ -67,9 +67,10 @@ PLACES_MM = [(s * 70.0 * e).tolist() for e in np.eye(3) for s in (1, -1)]  # bes
 
 
 # --- a station ready to run: its files beside it, commissioned ------------------------------------------
-def prepared(station_data: dict, source_dir: Path, out: Path) -> Path:
+def prepared(station_data: dict, source_dir: Path, out: Path, places=PLACES_MM) -> Path:
     """Write the station into `out` (its reference calibrations copied), commission it there (the reference
-    at the centre, then at +-70 mm on each axis: the loops), and point it at its commissioning file."""
+    at the centre, then at `places`: +-70 mm on each axis, the loops), and point it at its commissioning
+    file."""
     data = copy.deepcopy(station_data)
     for ref in data.get("reference_magnetometers", []):
         cal = Path(ref["calibration"])
@@ -80,7 +81,7 @@ def prepared(station_data: dict, source_dir: Path, out: Path) -> Path:
     path = out / f"{data['name']}.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     com = commission(path, out)
-    for place in PLACES_MM:  # the loops, measured: the reference moved to each place in turn
+    for place in places:  # the loops, measured: the reference moved to each place in turn
         commission_place(path, out, place)
     data["field_source"]["commissioning"] = com.name
     data["field_source"]["max_age_days"] = 1.0

@@ -13,7 +13,7 @@
 3. certificates: the demo's DUTs (rig certificate).
 
     .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
-                                                   [--jobs 2]
+                                                   [--jobs 2] [--table]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
@@ -33,8 +33,8 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import calib  # noqa: E402
-from bench.coverage_worlds import BASE, WIDER, random_world  # noqa: E402
-from bench.reference_chain import prepared, run, validation_grid  # noqa: E402
+from bench.coverage_worlds import BASE, TABLE_FIELDS, WIDER, random_world, table_world  # noqa: E402
+from bench.reference_chain import PLACES_MM, prepared, run, validation_grid  # noqa: E402
 from calib import calfile  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
 from calib.fielderror import expanded_at  # noqa: E402
@@ -48,24 +48,27 @@ GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 WORST_SHARE = 0.05
 
 
-def plan_t24(folder: Path) -> Path:
+def plan_t24(folder: Path, table: bool = False) -> Path:
     data = yaml.safe_load(DEMO.read_text())
     data["fit"] = {"models": ["t24"], "robust": False}
+    if table:
+        data["fields"] = TABLE_FIELDS
     data.pop("station", None)
     path = folder / "plan.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
 
 
-def best_t24(truth, temp_ref_c: float) -> dict:
-    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields at
-    its temperatures, its mean thermal state): what its calibration measures. The truth's own S, K, b, kb
-    when it has no term beyond T24."""
+def best_t24(truth, temp_ref_c: float, fields=None) -> dict:
+    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields,
+    or `fields`, at its temperatures, its mean thermal state): what its calibration measures. The truth's
+    own S, K, b, kb when it has no term beyond T24."""
     if truth.deviations is None:
         return {"S": truth.S, "K": truth.K, "b_nt": truth.b_nt, "kb_nt_per_c": truth.kb_nt_per_c}
     plan = yaml.safe_load(DEMO.read_text())
-    dirs = np.asarray(plan["fields"]["directions"], float)
-    fields = plan["fields"]["magnitude_nt"] * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    if fields is None:
+        dirs = np.asarray(plan["fields"]["directions"], float)
+        fields = plan["fields"]["magnitude_nt"] * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     temps = np.asarray(plan["temperatures"]["steps"], float)
     f = np.tile(fields, (len(temps), 1))
     t = np.repeat(temps, len(fields))
@@ -83,24 +86,38 @@ def one_world(args) -> dict:
         return {"index": args[1], "rows": [], "error": f"{type(exc).__name__}: {exc}"}
 
 
-def _one_world(seed: int, index: int, out: str, wider: float) -> dict:
+def _table_fields(site_nt) -> np.ndarray:
+    """The field on an ideal table at each of TABLE_FIELDS' orientations (the table frame)."""
+    from drivers.turntable import rotation_deg
+
+    return np.array([rotation_deg(az, el).T @ np.asarray(site_nt, float)
+                     for el in TABLE_FIELDS["el_deg"] for az in TABLE_FIELDS["az_deg"]])
+
+
+def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
     reference = BASE.parent / "sim-reference-cal.yaml"
-    station = prepared(random_world(rng, index, reference, wider), BASE.parent, folder)
-    session = run(station, plan_t24(folder), folder)
+    world = random_world(rng, index, reference, wider)
+    if table:  # the table is commissioned at home alone (its axes): no places, no loops
+        world = table_world(world, rng)
+    station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
+    session = run(station, plan_t24(folder, table), folder)
     truths = dut_truths(load_station(station))
+    site = world["sim"].get("site_field_nt")
     out_rows = []
     for dut, truth in truths.items():
         cal = calfile.load(calibration_file(session, dut, "t24"))
         expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
-        true = best_t24(truth, cal.temp_ref_c)
+        true = best_t24(truth, cal.temp_ref_c, _table_fields(site) if table else None)
         inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
                   for g, k in GROUPS.items()}
         z = {g: (np.abs(cal.params[k] - true[k]) / np.maximum(expanded[k] / 2, 1e-300)).ravel().tolist()
              for g, k in GROUPS.items()}
         fields, temps = validation_grid(np.array([-20.0, 0.0, 25.0, 60.0]))
+        if table:  # a table's calibration knows one magnitude, the site field's: it is judged there
+            fields = fields / np.linalg.norm(fields, axis=1, keepdims=True) * np.linalg.norm(site)
         hyst = np.zeros(3) if truth.deviations is None else truth.deviations.hysteresis_offset_nt
         state = rng.choice([-1.0, 1.0], len(fields))
         h = np.array([truth.raw_from_field(f, t, s * hyst)
@@ -117,9 +134,9 @@ def _one_world(seed: int, index: int, out: str, wider: float) -> dict:
     return {"index": index, "rows": out_rows}
 
 
-def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER) -> None:
+def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False) -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out), wider) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider, table) for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
@@ -129,7 +146,8 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER)
     for res in results:
         if res.get("error"):
             print(f"  world {res['index']} not run: {res['error']}")
-    print(f"coverage: {len(rows)} DUTs on {worlds} worlds (seed {seed}; systematic errors {wider:g} x the "
+    print(f"coverage: {len(rows)} DUTs on {worlds} {'turntable ' if table else ''}worlds (seed {seed}; "
+          f"systematic errors {wider:g} x the "
           f"standard uncertainties stated; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
     print("  true T24 parameters within U (k = 2):")
@@ -165,13 +183,14 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--wider", type=float, default=WIDER,
                         help="coverage: the worlds' systematic errors, x the standard uncertainties stated")
+    parser.add_argument("--table", action="store_true", help="coverage: a turntable in the coils' place")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
-        coverage(args.worlds, args.seed, out, args.jobs, args.wider)
+        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 

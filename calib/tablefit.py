@@ -130,4 +130,5 @@ def fit_table_axes(angles_deg, readings_nt, reading_se_nt=None) -> TableFit:
     jac = _jacobian(p, angles)
     scale = np.linalg.norm(jac, axis=0)
     cov_s = np.linalg.pinv((jac / scale).T @ (jac / scale))
+    cov_s = 0.5 * (cov_s + cov_s.T)  # exactly symmetric: pinv's rounding is not, and files check it
     return TableFit(p, sigma2 * cov_s / np.outer(scale, scale), residuals, math.sqrt(sigma2))

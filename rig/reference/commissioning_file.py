@@ -12,8 +12,7 @@ older file still loads): the chamber's real rate and overshoot, each DUT positio
 and the pace of a point on the station's transports (rig/reference/thermal.py). `content_sha256` seals
 all of it: a file edited after it was written is refused, as are one of another station, one older than
 the field source's `max_age_days`, one whose reference calibration has changed since, a singular matrix
-and a covariance that is not positive definite. Each refusal is one line naming the file, the key and its
-line.
+and a covariance that is not positive definite. Each refusal is one line naming the file, key and line.
 """
 
 from __future__ import annotations
@@ -332,7 +331,8 @@ def _check_covariance(matrix, size: int, key: KeyPath, refuse) -> None:
     cov = np.asarray(matrix, float)
     if cov.shape != (size, size):
         raise refuse(key, f"must be {size}x{size}, got {'x'.join(map(str, cov.shape))}")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
+    d = np.sqrt(np.abs(np.diag(cov)))  # symmetric to rounding on the scale of its own variances
+    if np.any(np.abs(cov - cov.T) > 1e-9 * np.outer(d, d)) or np.linalg.eigvalsh(cov + cov.T)[0] <= 0:
         raise refuse(key, "is not positive definite (not a covariance)")
 
 

@@ -94,6 +94,22 @@ def test_a_covariance_that_is_not_positive_definite_is_refused(tmp_path):
     assert message.startswith(f"{com}: coils.covariance: ") and "positive definite" in message
 
 
+def test_a_covariance_is_symmetric_to_its_own_scale_not_to_the_last_bit(tmp_path):
+    """A fit's inverse is symmetric to rounding: an entry near zero may differ from its mirror by far more
+    than its own size and still by nothing against its variances. A real asymmetry is refused."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(12, 60)) * np.r_[np.full(9, 0.1), np.full(3, 30.0)][:, None]
+    cov = a @ a.T
+    cov[2, 10] = 1e-10
+    cov[10, 2] = 1e-10 + 1e-14  # 1e-4 of the entry, 1e-15 of its variances' scale
+    station, _ = commissioned_station(tmp_path, covariance=cov)
+    assert load_campaign(small_plan(tmp_path), station) is not None
+    cov[10, 2] = cov[2, 10] + 1e-3 * np.sqrt(cov[2, 2] * cov[10, 10])
+    station, com = commissioned_station(tmp_path, covariance=cov)
+    message = _refusal(tmp_path, station)
+    assert message.startswith(f"{com}: coils.covariance: ") and "positive definite" in message
+
+
 def test_a_commissioning_file_that_is_not_one_is_refused(tmp_path):
     station, com = commissioned_station(tmp_path)
     com.write_text("format: magrig-commissioning\nkind: coils\n")
