@@ -17,6 +17,8 @@ def ambient_source(model, times, measured_at, name: str, by=None) -> InputSource
     of the others. `by` (N,3,3): how a change of the ambient moves each sample's reference (None: one to
     one, as for coils; a turntable turns it into the table's frame)."""
     times = np.asarray(times, float)
+    if model.anchored:
+        return _anchored_source(model, times, name, by)
     p = len(model.coef)
     x = np.column_stack([np.ones(len(times)), times - model.t0])[:, :p]  # (N,p)
     epoch = np.clip(np.searchsorted(np.sort(measured_at), times, side="right") - 1, 0, None)
@@ -38,6 +40,33 @@ def ambient_source(model, times, measured_at, name: str, by=None) -> InputSource
     return InputSource(name, sigma, ref_nt=a, shared=name,
                        origin=f"measured {model.n} time(s){drift}; scatter beyond their noise ({excess}) "
                        "nT, an offset of its own between measurements")
+
+
+def _anchored_source(model, times, name: str, by) -> InputSource:
+    """ambient_source where each epoch is its own measurement carried on by the drift: an offset per epoch
+    and axis of that measurement's standard error and the excess scatter, and the drift's slope error
+    times the time since."""
+    e = model.epochs(times)
+    epochs = len(model.anchors)
+    drift = model.drifting
+    q = 3 * epochs + (3 if drift else 0)
+    a = np.zeros((len(times), 3, q))
+    sigma = np.zeros((q, q))
+    rows = np.arange(len(times))
+    for i in range(3):
+        a[rows, i, 3 * e + i] = 1.0
+        sigma[np.arange(epochs) * 3 + i, np.arange(epochs) * 3 + i] = model.anchor_se[:, i] ** 2 + \
+            model.excess_nt[i] ** 2
+        if drift:
+            a[:, i, 3 * epochs + i] = times - model.anchor_t[e]
+            sigma[3 * epochs + i, 3 * epochs + i] = model.cov[i][1, 1]
+    if by is not None:
+        a = np.einsum("nij,njq->niq", by, a)
+    excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
+    return InputSource(name, sigma, ref_nt=a, shared=name,
+                       origin=f"measured {model.n} time(s){' with a drift' if drift else ''}; scatter beyond "
+                       f"their noise ({excess}) nT: each epoch its own measurement, the lab moving that much "
+                       "again within it")
 
 
 def stated_gradient_source(offsets_m, bound_nt_per_m: float, by=None) -> InputSource:

@@ -3,13 +3,16 @@ each temperature step, at the end): its best estimate at any time, and how uncer
 
     model = AmbientModel.fit(measurements)     # [{t, vector_nt, std_error_nt}, ...] (the session's events)
     model.at(times)                            # (N,3) best estimate
-    model.draw_error(times, rng)               # (N,3) one draw of its error
 
 A run uses the value in use when each point was taken (rig/reference/sitefield.py); after the run, every
 measurement is known, so the fits use the best estimate from all of them (a weighted mean, or a straight
 line in time when the measurements show a drift beyond their noise): the noise of any single measurement
-no longer sits in the references of the points that used it. Measurements that scatter more than their
-standard errors say (an unsteady lab) widen the uncertainty by that excess.
+no longer sits in the references of the points that used it. Measurements that scatter beyond their
+standard errors (an unsteady lab: the chamber's heater and compressor fields, which follow the
+temperature step, things moved in the building) are not noise about a line: there each epoch's estimate
+is its own measurement (the one at the start of its temperature step), carried on by the line's drift,
+and its uncertainty that measurement's standard error and the excess scatter, as the lab may move that
+much again within the epoch.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SIGNIFICANT = 3.0  # a drift is fitted when its slope is this many standard errors from zero
+SIGNIFICANT = 3.0  # a drift is fitted when its slope is this many standard errors from zero; the scatter
+# is the lab's own when its chi2 per degree of freedom is this many of its standard deviations above 1
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,11 @@ class AmbientModel:
     cov: np.ndarray  # (3,p,p): per axis
     excess_nt: np.ndarray  # (3,): scatter of the measurements beyond their standard errors
     n: int
+    # where that scatter is significant, each epoch's own measurement: times (E,), values and standard
+    # errors (E,3); None: the line (or mean) is the estimate everywhere
+    anchor_t: np.ndarray | None = None
+    anchors: np.ndarray | None = None
+    anchor_se: np.ndarray | None = None
 
     @classmethod
     def fit(cls, measurements: list[dict]) -> AmbientModel:
@@ -35,16 +44,37 @@ class AmbientModel:
         y = np.array([m["vector_nt"] for m in measurements], float)
         se = np.maximum(np.array([m["std_error_nt"] for m in measurements], float), 1e-9)
         t0 = float(np.mean(t))
-        line = cls._weighted(t - t0, y, se, 2) if len(t) > 2 and np.ptp(t) > 0 else None
-        if line is not None and np.any(np.abs(line[0][1]) > SIGNIFICANT * np.sqrt(line[1][:, 1, 1])):
-            coef, cov = line
-        else:
-            coef, cov = cls._weighted(t - t0, y, se, 1)
+        coef, cov = cls._weighted(t - t0, y, se, 1)
+        if len(t) > 2 and np.ptp(t) > 0:
+            line = cls._weighted(t - t0, y, se, 2)
+            # the slope against its scatter, the lab's moving included (Birge), not the readings' noise alone
+            widen = np.maximum(cls._chi2(t - t0, y, se, line[0]), 1.0)
+            if np.any(np.abs(line[0][1]) > SIGNIFICANT * np.sqrt(line[1][:, 1, 1] * widen)):
+                coef, cov = line
         x = np.column_stack([np.ones_like(t), t - t0])[:, : len(coef)]
         residual = y - x @ coef
         dof = max(len(t) - len(coef), 1)
         excess = np.sqrt(np.maximum(np.sum(residual**2, axis=0) / dof - np.mean(se**2, axis=0), 0.0))
-        return cls(t0, coef, cov, excess, len(t))
+        chi2 = cls._chi2(t - t0, y, se, coef)
+        if len(t) < 2 or not np.any(chi2 > 1.0 + SIGNIFICANT * np.sqrt(2.0 / dof)):
+            return cls(t0, coef, cov, excess, len(t))
+        order = np.argsort(t, kind="stable")
+        widened = cov * np.maximum(chi2, 1.0)[:, None, None]
+        return cls(t0, coef, widened, excess, len(t), t[order], y[order], se[order])
+
+    @staticmethod
+    def _chi2(dt: np.ndarray, y: np.ndarray, se: np.ndarray, coef: np.ndarray) -> np.ndarray:
+        """(3,): chi2 per degree of freedom of the measurements about `coef`, per axis."""
+        x = np.column_stack([np.ones_like(dt), dt])[:, : len(coef)]
+        return np.sum(((y - x @ coef) / se) ** 2, axis=0) / max(len(dt) - len(coef), 1)
+
+    @property
+    def anchored(self) -> bool:
+        return self.anchors is not None
+
+    def epochs(self, times) -> np.ndarray:
+        """(N,): the epoch of every time (the last measurement before it; the first before any)."""
+        return np.clip(np.searchsorted(self.anchor_t, np.asarray(times, float), side="right") - 1, 0, None)
 
     @staticmethod
     def _weighted(dt: np.ndarray, y: np.ndarray, se: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
@@ -63,22 +93,17 @@ class AmbientModel:
         return len(self.coef) > 1
 
     def at(self, times) -> np.ndarray:
-        x = np.column_stack([np.ones(len(times)), np.asarray(times, float) - self.t0])[:, : len(self.coef)]
+        times = np.asarray(times, float)
+        if self.anchored:
+            e = self.epochs(times)
+            slope = self.coef[1] if self.drifting else np.zeros(3)
+            return self.anchors[e] + (times - self.anchor_t[e])[:, None] * slope
+        x = np.column_stack([np.ones(len(times)), times - self.t0])[:, : len(self.coef)]
         return x @ self.coef
-
-    def draw_error(self, times, rng: np.random.Generator) -> np.ndarray:
-        """(N,3): one draw of the estimate's error at `times` (its coefficients' covariance, and any
-        excess scatter as a constant offset)."""
-        p = len(self.coef)
-        x = np.column_stack([np.ones(len(times)), np.asarray(times, float) - self.t0])[:, :p]
-        out = np.empty((len(times), 3))
-        for i in range(3):
-            step = np.linalg.cholesky(self.cov[i] + 1e-30 * np.eye(p)) @ rng.normal(0.0, 1.0, p)
-            out[:, i] = x @ step + rng.normal() * self.excess_nt[i]
-        return out
 
     def as_dict(self) -> dict:
         return {"measurements": self.n, "drift": self.drifting,
                 "value_nt": [float(v) for v in self.coef[0]],
                 **({"drift_nt_per_h": [float(v) * 3600.0 for v in self.coef[1]]} if self.drifting else {}),
-                "excess_scatter_nt": [float(v) for v in self.excess_nt]}
+                "excess_scatter_nt": [float(v) for v in self.excess_nt],
+                **({"per_epoch": True} if self.anchored else {})}

@@ -109,7 +109,7 @@ def test_the_site_field_is_the_runs_model_of_it_and_each_reference_is_made_with_
     expected = np.array([table_field_nt(_with_home(p, h), [a])[0] for p, h, a in zip(params, best, angles,
                                                                                    strict=True)])
     np.testing.assert_allclose(refined.ref_nt, expected, atol=1e-6)
-    assert np.max(np.abs(refined.ref_nt - ds.ref_nt)) > 0.5  # the drift between measurements, now followed
+    assert np.max(np.abs(refined.ref_nt - ds.ref_nt)) > 0.1  # the drift since each measurement, now followed
     site = next(c for c in _budget(inputs, "dut1", ds).contributions if c["source"] == "site field")
     assert "measured" in site["note"] and "with a drift" in site["note"]
 
