@@ -88,8 +88,9 @@ class TableChain:
         R(az, el) r_DUT - r_ref from where the field was measured (lab frame; the home reading's frame
         taken as the lab's, within the table's small tilts)."""
         reference_m = self.run.reference_position_mm() / 1000.0
-        offsets = np.einsum("nij,j->ni", np.array([rotation_deg(*a) for a in self.angles]),
-                            self.position_m) - reference_m
+        poses, pose = np.unique(self.angles, axis=0, return_inverse=True)  # a point's samples share one
+        turned = np.array([rotation_deg(*a) @ self.position_m for a in poses])
+        offsets = turned[pose.ravel()] - reference_m
         if not np.any(offsets):
             return []
         bound = self.source.ambient_gradient_nt_per_m
