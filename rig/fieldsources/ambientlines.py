@@ -9,11 +9,11 @@ import numpy as np
 from calib.propagation import InputSource
 
 
-def ambient_source(model, times, measured_at, name: str, by=None) -> InputSource:
+def ambient_source(model, times, name: str, by=None) -> InputSource:
     """The run's estimate of the ambient (a turntable's: its site field) as a line of the budget: the
     model's coefficients (value at t0 [, slope per s]) per axis, and any excess scatter of its measurements
     (the lab's field moving by more than their noise between them: steps, a chamber's heater and
-    compressor) as an offset of its own from each measurement (`measured_at`, s) to the next, independent
+    compressor) as an offset of its own from each measurement to the next, independent
     of the others. `by` (N,3,3): how a change of the ambient moves each sample's reference (None: one to
     one, as for coils; a turntable turns it into the table's frame)."""
     times = np.asarray(times, float)
@@ -21,7 +21,7 @@ def ambient_source(model, times, measured_at, name: str, by=None) -> InputSource
         return _anchored_source(model, times, name, by)
     p = len(model.coef)
     x = np.column_stack([np.ones(len(times)), times - model.t0])[:, :p]  # (N,p)
-    epoch = np.clip(np.searchsorted(np.sort(measured_at), times, side="right") - 1, 0, None)
+    epoch = model.epochs(times)
     epochs = int(epoch.max()) + 1
     a = np.zeros((len(times), 3, 3 * (p + epochs)))
     sigma = np.zeros((3 * (p + epochs),) * 2)
@@ -58,7 +58,7 @@ def _anchored_source(model, times, name: str, by) -> InputSource:
         sigma[np.arange(epochs) * 3 + i, np.arange(epochs) * 3 + i] = model.anchor_se[:, i] ** 2 + \
             model.excess_nt[i] ** 2
         if drift:
-            a[:, i, 3 * epochs + i] = times - model.anchor_t[e]
+            a[:, i, 3 * epochs + i] = times - model.measured_t[e]
             sigma[3 * epochs + i, 3 * epochs + i] = model.cov[i][1, 1]
     if by is not None:
         a = np.einsum("nij,njq->niq", by, a)

@@ -217,7 +217,7 @@ class FieldSourceConfig(DeviceConfig):
     def measures_ambient(self) -> bool:
         """True when the ambient (the coils add to it; a table turns it) is measured during the run, at the
         start, each temperature step and the end: its drift is then modelled (rig/reference/ambient.py)."""
-        return False
+        return self.needs_measurement()
 
     def ambient_in_references(self, run, ds):
         """(the ambient each sample's reference was made with (N,3), how a change of it moves the

@@ -32,9 +32,9 @@ class AmbientModel:
     cov: np.ndarray  # (3,p,p): per axis
     excess_nt: np.ndarray  # (3,): scatter of the measurements beyond their standard errors
     n: int
-    # where that scatter is significant, each epoch's own measurement: times (E,), values and standard
-    # errors (E,3); None: the line (or mean) is the estimate everywhere
-    anchor_t: np.ndarray | None = None
+    measured_t: np.ndarray  # (n,) when the measurements were taken, in order: each begins an epoch
+    # where that scatter is significant, each epoch's own measurement: values and standard errors (n,3);
+    # None: the line (or mean) is the estimate everywhere
     anchors: np.ndarray | None = None
     anchor_se: np.ndarray | None = None
 
@@ -56,9 +56,9 @@ class AmbientModel:
         dof = max(len(t) - len(coef), 1)
         excess = np.sqrt(np.maximum(np.sum(residual**2, axis=0) / dof - np.mean(se**2, axis=0), 0.0))
         chi2 = cls._chi2(t - t0, y, se, coef)
-        if len(t) < 2 or not np.any(chi2 > 1.0 + SIGNIFICANT * np.sqrt(2.0 / dof)):
-            return cls(t0, coef, cov, excess, len(t))
         order = np.argsort(t, kind="stable")
+        if len(t) < 2 or not np.any(chi2 > 1.0 + SIGNIFICANT * np.sqrt(2.0 / dof)):
+            return cls(t0, coef, cov, excess, len(t), t[order])
         widened = cov * np.maximum(chi2, 1.0)[:, None, None]
         return cls(t0, coef, widened, excess, len(t), t[order], y[order], se[order])
 
@@ -74,7 +74,7 @@ class AmbientModel:
 
     def epochs(self, times) -> np.ndarray:
         """(N,): the epoch of every time (the last measurement before it; the first before any)."""
-        return np.clip(np.searchsorted(self.anchor_t, np.asarray(times, float), side="right") - 1, 0, None)
+        return np.clip(np.searchsorted(self.measured_t, np.asarray(times, float), side="right") - 1, 0, None)
 
     @staticmethod
     def _weighted(dt: np.ndarray, y: np.ndarray, se: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +97,7 @@ class AmbientModel:
         if self.anchored:
             e = self.epochs(times)
             slope = self.coef[1] if self.drifting else np.zeros(3)
-            return self.anchors[e] + (times - self.anchor_t[e])[:, None] * slope
+            return self.anchors[e] + (times - self.measured_t[e])[:, None] * slope
         x = np.column_stack([np.ones(len(times)), times - self.t0])[:, : len(self.coef)]
         return x @ self.coef
 

@@ -161,7 +161,7 @@ class CoilChain:
 
     def _ambient(self) -> InputSource:
         """The run's ambient estimate where the reference measured it (rig/reference/ambient.py)."""
-        return ambient_source(self.run.ambient, self.times, [m["t"] for m in self.run.site], "ambient")
+        return ambient_source(self.run.ambient, self.times, "ambient")
 
     def _gradient(self, notes: list[str]) -> list[InputSource]:
         """The lab field's gradient between the reference magnetometer that measured the ambient and the

@@ -327,9 +327,6 @@ class Coils(FieldSourceConfig, CoilOptions):
 
         return CoilChain(run, dut, ds)
 
-    def measures_ambient(self) -> bool:
-        return self.needs_measurement()
-
     def ambient_in_references(self, run, ds):
         used = run.recorded_ambient(ds)
         return None if used is None else (used, None)

@@ -75,8 +75,7 @@ class TableChain:
             notes.append("site field as stated in the station: its uncertainty is not known (0 taken)")
             return out
         by_home = home_sensitivity(self.params, self.angles)
-        out.append(ambient_source(model, self.times, [m["t"] for m in self.run.site], "site field",
-                                  by=by_home))
+        out.append(ambient_source(model, self.times, "site field", by=by_home))
         for source in self.run.reference_sources(model.at(self.times), notes):
             a_home = np.asarray(source.ref_nt, float)  # (N,3,Q): the home reading's change
             out.append(dataclasses.replace(source, ref_nt=np.einsum("nij,njq->niq", by_home, a_home)))

@@ -200,9 +200,6 @@ class Turntable(FieldSourceConfig, TurntableOptions):
 
         return TableChain(run, dut, ds)
 
-    def measures_ambient(self) -> bool:
-        return self.needs_measurement()
-
     def ambient_in_references(self, run, ds):
         from rig.fieldsources.turntable.budget import home_readings, home_sensitivity, table_rows
 

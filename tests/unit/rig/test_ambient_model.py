@@ -36,7 +36,7 @@ def test_a_lab_that_moves_between_measurements_is_taken_epoch_by_epoch():
     assert model.anchored and model.as_dict()["per_epoch"]
     np.testing.assert_allclose(model.at([100.0, 3700.0, 9000.0, 20000.0]), values[[0, 1, 2, 4]], atol=1e-9)
     times = np.array([100.0, 3700.0, 9000.0])
-    source = ambient_source(model, times, TIMES, "ambient")
+    source = ambient_source(model, times, "ambient")
     ds = Dataset(h_nt=np.zeros((3, 3)), temp_c=np.zeros(3), ref_nt=np.zeros((3, 3)))
     a, _ = source.sensitivities(ds)
     variance = np.einsum("niq,qr,njr->nij", a, source.covariance, a)  # each sample's reference error
