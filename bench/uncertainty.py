@@ -88,9 +88,9 @@ def one_world(args) -> dict:
 
 def _table_fields(site_nt) -> np.ndarray:
     """The field on an ideal table at each of TABLE_FIELDS' orientations (the table frame)."""
-    from drivers.turntable import rotation_deg
+    from rig.fieldsources.fieldmaths import table_field_nt
 
-    return np.array([rotation_deg(az, el).T @ np.asarray(site_nt, float)
+    return np.array([table_field_nt(site_nt, az, el)
                      for el in TABLE_FIELDS["el_deg"] for az in TABLE_FIELDS["az_deg"]])
 
 
@@ -106,11 +106,12 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     session = run(station, plan_t24(folder, table), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
+    calibrated_fields = _table_fields(site) if table else None  # None: the demo's
     out_rows = []
     for dut, truth in truths.items():
         cal = calfile.load(calibration_file(session, dut, "t24"))
         expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
-        true = best_t24(truth, cal.temp_ref_c, _table_fields(site) if table else None)
+        true = best_t24(truth, cal.temp_ref_c, calibrated_fields)
         inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
                   for g, k in GROUPS.items()}
         z = {g: (np.abs(cal.params[k] - true[k]) / np.maximum(expanded[k] / 2, 1e-300)).ravel().tolist()
