@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from calib import calfile
+from calib.calibration import standard_uncertainty
 from calib.synthetic import random_t24_params
 from drivers.sim.dutmodel import DutDeviations
 
@@ -142,11 +143,10 @@ def random_world(rng: np.random.Generator, index: int, reference_cal: Path, wide
         sim.pop("chamber", None)
     ref = data["reference_magnetometers"][0]
     ref_cal = calfile.load(reference_cal)
-    k = ref_cal.uncertainty["coverage_factor"]
     off = 0.0 if "reference" in QUIET else 1.0
     place_off = 0.0 if "position" in QUIET else 1.0
     drawn = {name: (np.asarray(v, float) + off * rng.normal(0, 1, np.shape(v)) * wider
-                    * np.asarray(ref_cal.uncertainty["expanded"][name], float) / k).tolist()
+                    * standard_uncertainty(ref_cal.uncertainty, name)).tolist()
              for name, v in ref_cal.params.items()}
     duts, sensors, sim_duts, placed = [], [], {ref["name"]: {**sim["duts"][ref["name"]],
                                                              "truth": {**sim["duts"][ref["name"]]["truth"],

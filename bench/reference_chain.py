@@ -20,7 +20,7 @@ rig knows of its reference, and whether the stated uncertainty covers the truth.
    spacings within their tolerance, DUTs at random positions up to +-70 mm with position errors within
    their tolerance, a reference magnetometer whose truth differs from its calibration file as its stated
    uncertainty allows, a drifting ambient), each commissioned, run and fitted with its uncertainty budget:
-   the share of the true T24 parameters within the stated expanded uncertainty (k = 2), per parameter
+   the share of the true T24 parameters within the stated expanded uncertainty (U = k u), per parameter
    group and in all, and of the validation grid's true vector errors within `expanded_vector_error_nt`.
    Goal: 90-98 %.
 
@@ -282,7 +282,7 @@ def coverage(base: dict, plan_path: Path, campaigns: int, n_duts: int, out: Path
                 ratios.append(float(np.sqrt(np.mean(errors**2))) / b.combined_standard_nt)
         print(f"  campaign {index + 1}/{campaigns}: {n_duts} DUTs, {time.perf_counter() - start:.0f} s")
     total = np.concatenate([np.array(v) for v in inside.values()])
-    print(f"  {campaigns * n_duts} DUTs; true parameters within the expanded uncertainty (k = 2):")
+    print(f"  {campaigns * n_duts} DUTs; true parameters within the expanded uncertainty (U = k u):")
     for group, values in inside.items():
         print(f"    {group:3s} {np.mean(values):6.1%} of {len(values)}")
     print(f"    all {np.mean(total):6.1%} of {len(total)}   (goal 90-98 %)")

@@ -41,7 +41,8 @@ from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
 from calib.mcrefit import ScalarRefit, draw_chunks, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.rowgroups import RowGroups
-from calib.uncertainty import COVERAGE_FACTOR, Budget
+from calib.student import coverage_factor, widening
+from calib.uncertainty import Budget
 
 Z_975 = 1.959963984540054
 NDIG = 1  # significant digits the adaptive Monte Carlo settles (GUM S1 7.9.2: usually 1 or 2)
@@ -263,7 +264,7 @@ def _total(parts):
 def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, rng: np.random.Generator,
            weights: np.ndarray | None = None, statistical: bool = True, monte_carlo: str = "auto",
            ndig: int = NDIG, batch_draws: int | None = BATCH_DRAWS, max_draws: int = MAX_DRAWS,
-           coverage_factor: float = COVERAGE_FACTOR, scalar_refits: bool | None = None,
+           scalar_refits: bool | None = None,
            noise_nt: np.ndarray | None = None) -> Budget:
     """The uncertainty budget of `cal` (fitted to `ds` with row `weights`) over `sources` and the fit's own
     noise (`statistical`), the field error judged over `grid` = (fields (G,3) nT, temperatures (G,) or
@@ -314,12 +315,19 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
                                                  else "exact: a linear model") + checks
         figures = {"u": u, "low": -Z_975 * u, "high": Z_975 * u, "radius": linear.radius_nt,
                    "rms": linear.field_rms_nt, "covariance": linear.covariance, "method": method, "mc": None}
-    layout, radius, mc = linear.layout, figures["radius"], figures["mc"]
+    layout, mc = linear.layout, figures["mc"]
+    dof, dof_field = linear.effective_dof()  # k and the 95 % intervals from them (calib/student.py)
+    k, widen = np.array([coverage_factor(v) for v in dof]), np.array([widening(v) for v in dof])
+    if np.any(np.isfinite(dof)) or np.isfinite(dof_field):
+        figures["method"] += (f"; k from effective degrees of freedom (Welch-Satterthwaite, GUM G.4): the "
+                              f"field's {dof_field:.3g}, k = {coverage_factor(dof_field):.3g}")
+    radius = np.asarray(figures["radius"], float) * widening(dof_field)
     standard = layout.unflatten(figures["u"])
-    low, high = (layout.unflatten(linear.estimate + figures[k]) for k in ("low", "high"))
+    low, high = (layout.unflatten(linear.estimate + widen * figures[name]) for name in ("low", "high"))
     return Budget(
-        coverage_factor=coverage_factor, standard=standard,
-        expanded={k: coverage_factor * v for k, v in standard.items()},
+        coverage_factor=coverage_factor(dof_field), standard=standard,
+        expanded=layout.unflatten(k * figures["u"]),
+        coverage_factors=layout.unflatten(k), effective_dof=layout.unflatten(dof), field_dof=dof_field,
         contributions=[{"source": c.name, "contribution_nt": c.field_rms_nt, "method": c.method,
                         **({"note": c.source.origin} if c.source is not None and c.source.origin else {})}
                        for c in linear.contributions],

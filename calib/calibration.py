@@ -136,6 +136,13 @@ def _read_centre(d: dict, model: str, params: dict, where: str, legacy: bool) ->
     return float(value)
 
 
+def standard_uncertainty(section: dict, name: str) -> np.ndarray:
+    """A parameter's standard uncertainty from a checked `uncertainty:` section: its expanded U over its
+    own coverage factor (`coverage_factors`, from its effective degrees of freedom), else the section's."""
+    k = (section.get("coverage_factors") or {}).get(name, section["coverage_factor"])
+    return np.asarray(section["expanded"][name], float) / np.asarray(k, float)
+
+
 def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
     """The `uncertainty` section, checked: a coverage factor, `expanded` with the keys and shapes of
     `params` (finite, not negative), a `budget` list of {source, contribution_nt}."""
@@ -159,6 +166,21 @@ def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
         if arr.shape != np.shape(value) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
             raise DataError(f"{where}: key 'uncertainty.expanded.{name}' must have shape {np.shape(value)} "
                             "and finite, non-negative values")
+    factors = block.get("coverage_factors")
+    if factors is not None and not isinstance(factors, dict):
+        raise DataError(f"{where}: key 'uncertainty.coverage_factors' must be a mapping")
+    for name, value in (factors or {}).items():
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            arr = np.array(np.nan)
+        if name not in params or arr.shape != np.shape(params[name]) or not np.all(np.isfinite(arr)) \
+                or np.any(arr <= 0):
+            raise DataError(f"{where}: key 'uncertainty.coverage_factors.{name}' must be a parameter's name "
+                            "with positive numbers in its shape")
+    field_dof = block.get("field_effective_dof")
+    if field_dof is not None and (not _is_number(field_dof) or field_dof <= 0):
+        raise DataError(f"{where}: key 'uncertainty.field_effective_dof' must be a positive number or null")
     budget = block.get("budget", [])
     if not isinstance(budget, list) or not all(
             isinstance(b, dict) and isinstance(b.get("source"), str) and _is_number(b.get("contribution_nt"))

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.calibration import Calibration
+from calib.calibration import Calibration, standard_uncertainty
 from calib.distributions import gaussian_radius, shifted_radius
 from calib.errors import DataError
 from calib.linearise import ParamLayout, field_jacobian
+from calib.student import widening
 
 CHUNK_ROWS = 20_000
 STATE_CHUNK_ROWS = 256  # rows per block of the radius with a thermal state (x 4 signs x 200 directions)
@@ -43,8 +44,7 @@ def parameter_covariance(cal: Calibration) -> tuple[np.ndarray, bool]:
     stated = u.get("covariance")
     if stated is not None and stated.get("parameters") == layout.labels():
         return np.asarray(stated["matrix"], float), True
-    k = float(u["coverage_factor"])
-    flat = layout.flatten({n: np.asarray(u["expanded"][n], float) / k for n in cal.params})
+    flat = layout.flatten({n: standard_uncertainty(u, n) for n in cal.params})
     return np.diag(flat**2), False
 
 
@@ -83,7 +83,7 @@ def expanded_at(cal: Calibration, h_nt, temp_c=None) -> tuple[np.ndarray, np.nda
         radius = np.empty(len(normal))
         for lo in range(0, len(normal), CHUNK_ROWS):
             radius[lo:lo + CHUNK_ROWS] = gaussian_radius(normal[lo:lo + CHUNK_ROWS])
-        return axes, radius
+        return axes, radius * _widening(cal)
     # readings of one point differ by their noise alone: covariances rounded to a power-of-two step near
     # SHARED_TO of their trace share one radius (it moves by less than that), so a long session costs its
     # points, not its rows; the radius is the rounded covariance's, whichever rows are asked for
@@ -94,4 +94,11 @@ def expanded_at(cal: Calibration, h_nt, temp_c=None) -> tuple[np.ndarray, np.nda
     unique = np.empty(len(distinct))
     for lo in range(0, len(distinct), STATE_CHUNK_ROWS):
         unique[lo:lo + STATE_CHUNK_ROWS] = shifted_radius(rounded[lo:lo + STATE_CHUNK_ROWS], _SIGNS * state)
-    return axes, unique[which.ravel()]
+    return axes, unique[which.ravel()] * _widening(cal)
+
+
+def _widening(cal: Calibration) -> float:
+    """The factor a 95 % radius made for known inputs widens by where the field's effective degrees of
+    freedom are few (the budget's field_effective_dof): t_97.5(nu) / 1.96; 1 for a file without them."""
+    dof = cal.uncertainty.get("field_effective_dof")
+    return 1.0 if dof is None else widening(float(dof))

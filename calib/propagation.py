@@ -39,12 +39,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calib import models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.distributions import gaussian_radius
 from calib.errors import DataError
 from calib.linearise import ParamLayout, field_jacobian, linearised
 from calib.rowgroups import RowGroups
+from calib.student import effective_dof
 from calib.uncertainty import raw_for
 
 STATISTICAL = "fit (statistical)"
@@ -53,6 +55,19 @@ STATISTICAL = "fit (statistical)"
 DISTRIBUTIONS = ("normal", "rectangular", "two-point")
 Sensitivity = np.ndarray | RowGroups | Callable[[Dataset], np.ndarray | RowGroups] | None
 GridSensitivity = np.ndarray | Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None
+
+
+@dataclass(frozen=True)
+class Estimated:
+    """Variances of some of a source's quantities that were estimated from few readings: the quantities
+    `index` of q, the part `variance` of each one's variance so estimated (those quantities independent of
+    the others), and the estimate's degrees of freedom (GUM G.3.3: readings less fitted constants). One
+    Estimated is one estimate: quantities whose variances come from the same scatter go together, since
+    they are off by the same factor."""
+
+    index: np.ndarray
+    variance: np.ndarray
+    dof: float
 
 
 @dataclass(frozen=True)
@@ -71,6 +86,9 @@ class InputSource:
     # a_grid (G,3,Q), or a function of the grid's raw readings (G,3) and temperatures (G,) or None giving
     # it: the direct effect on the true field at the grid points (a model error), beside any on the data
     field_nt: GridSensitivity = None
+    # parts of Sigma_q estimated from few readings (Type A), with their degrees of freedom; the rest of
+    # Sigma_q is taken as known (infinite degrees of freedom)
+    estimated: tuple[Estimated, ...] = ()
 
     def sensitivities(self, ds: Dataset) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(a_ref (N,3,Q) or None, a_temp (N,Q) or None), checked against the dataset and Sigma_q."""
@@ -191,6 +209,9 @@ class Contribution:
     jacobian: np.ndarray | None = None  # (P,Q), None for the fit's own noise
     source: InputSource | None = None
     grid_effect: np.ndarray | None = None  # a_grid (G,3,Q): its direct effect on the true field
+    # (its parameters' variances (P,), the field's mean square error (nT^2), dof) of each part of it
+    # estimated from few readings: the Welch-Satterthwaite sums (LinearBudget.effective_dof)
+    dof_parts: list = field(default_factory=list)
 
 
 @dataclass
@@ -216,6 +237,16 @@ class LinearBudget:
     def field_rms_nt(self) -> float:
         """The combined standard uncertainty of the calibrated field: RMS over the grid of its error."""
         return float(np.sqrt(np.mean(np.trace(self.field_covariance, axis1=1, axis2=2))))
+
+    def effective_dof(self) -> tuple[np.ndarray, float]:
+        """(each flat parameter's effective degrees of freedom (P,), the calibrated field's): Welch-
+        Satterthwaite (GUM G.4.1) over the parts of the budget estimated from few readings; inf where
+        every input is known."""
+        parts = [p for c in self.contributions for p in c.dof_parts]
+        u2 = np.diag(self.covariance)
+        per_param = np.array([effective_dof(u2[j], [(pv[j], dof) for pv, _, dof in parts])
+                              for j in range(len(u2))])
+        return per_param, effective_dof(self.field_rms_nt ** 2, [(ms, dof) for _, ms, dof in parts])
 
 
 def _field_covariance(jac: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -244,8 +275,10 @@ def propagate_linear(ds: Dataset, cal: Calibration, sources: list[InputSource], 
     contributions = []
     if statistical:
         c = lin.statistical_covariance()
-        contributions.append(Contribution(STATISTICAL, c, _rms(_field_covariance(f_jac, c)),
-                                          "exact (linear)" if lin.exact_in_reference else "first order"))
+        rms = _rms(_field_covariance(f_jac, c))
+        contributions.append(Contribution(STATISTICAL, c, rms,
+                                          "exact (linear)" if lin.exact_in_reference else "first order",
+                                          dof_parts=[(np.diag(c), rms**2, _residual_dof(lin, cal))]))
     direct = np.zeros((len(grid_h), 3, 3))
     for source in sources:
         a_ref, a_temp = source.sensitivities(ds)
@@ -265,12 +298,35 @@ def propagate_linear(ds: Dataset, cal: Calibration, sources: list[InputSource], 
             extra = _direct_part(f_jac, jac, a_grid, sigma_q)
             field_cov, direct = field_cov + extra, direct + extra
         contributions.append(Contribution(source.name, c, _rms(field_cov),
-                                          "exact (linear)" if exact else "first order", jac, source, a_grid))
+                                          "exact (linear)" if exact else "first order", jac, source, a_grid,
+                                          _estimated_parts(source, jac, f_jac, a_grid)))
     total = sum((c.covariance for c in contributions), np.zeros((lin.layout.size,) * 2))
     f_cov = _field_covariance(f_jac, total) + direct
     return LinearBudget(lin.layout, lin.layout.flatten(cal.params), total, contributions, grid_field,
                         grid_temp, grid_h, f_jac, f_cov, gaussian_radius(f_cov),
                         any(c.method == "first order" for c in contributions))
+
+
+def _residual_dof(lin, cal: Calibration) -> float:
+    """The fit's residual degrees of freedom: rows used less the parameters (per axis for a vector model,
+    whose axes are fitted apart)."""
+    size = lin.layout.size / (3 if models.spec(cal.model).vector else 1)
+    return max(float(np.count_nonzero(lin.w)) - size, 1.0)
+
+
+def _estimated_parts(source: InputSource, jac: np.ndarray, f_jac: np.ndarray, a_grid) -> list:
+    """dof_parts of a source: per Estimated, its parameters' variances and the field's mean square."""
+    out = []
+    for part in source.estimated:
+        index, variance = np.asarray(part.index, int), np.asarray(part.variance, float)
+        if not np.any(variance > 0):
+            continue
+        jg = jac[:, index]
+        fj = np.einsum("gip,pk->gik", f_jac, jg)
+        if a_grid is not None:
+            fj = fj - a_grid[:, :, index]
+        out.append(((jg**2) @ variance, float(np.mean(np.einsum("gik,k->g", fj**2, variance))), part.dof))
+    return out
 
 
 def _rms(field_cov: np.ndarray) -> float:

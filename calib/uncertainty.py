@@ -79,6 +79,11 @@ class Budget:
     stated: bool = True  # False: too many refits failed; as_dict refuses
     monte_carlo: dict | None = None
     linear: object | None = field(default=None, repr=False)  # calib.propagation.LinearBudget
+    # per parameter (the shapes of `expanded`): k from its effective degrees of freedom, and those (inf:
+    # every input known); None: one coverage_factor for all
+    coverage_factors: dict[str, np.ndarray] | None = None
+    effective_dof: dict[str, np.ndarray] | None = None
+    field_dof: float = float("inf")  # the calibrated field's effective degrees of freedom (coverage_factor's)
 
     def as_dict(self) -> dict:
         """Plain values for the calibration file; FitError when the uncertainty cannot be stated."""
@@ -95,6 +100,12 @@ class Budget:
             "failed_draws": self.failed_draws,
             "notes": list(self.notes),
         }
+        if self.coverage_factors is not None:
+            out["coverage_factors"] = {k: np.asarray(v, float).tolist()
+                                       for k, v in self.coverage_factors.items()}
+        if self.effective_dof is not None:  # null: infinite (every input known)
+            out["effective_dof"] = {k: _finite_or_none(v) for k, v in self.effective_dof.items()}
+            out["field_effective_dof"] = _finite_or_none(self.field_dof)
         if self.interval is not None:
             out["interval"] = {k: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
                                for k, (lo, hi) in self.interval.items()}
@@ -107,6 +118,14 @@ class Budget:
         if self.monte_carlo is not None:
             out["monte_carlo"] = dict(self.monte_carlo)
         return out
+
+
+def _finite_or_none(values):
+    """An array as nested lists, None where it is not finite (YAML and JSON alike)."""
+    a = np.asarray(values, float)
+    out = np.where(np.isfinite(a), a, np.nan).astype(object)
+    out[~np.isfinite(a)] = None
+    return out.tolist()
 
 
 def with_draw(ds: Dataset, d: Draw) -> Dataset:

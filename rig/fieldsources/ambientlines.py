@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import InputSource
+from calib.propagation import Estimated, InputSource
 
 
 def ambient_source(model, times, name: str, by=None) -> InputSource:
@@ -37,9 +37,17 @@ def ambient_source(model, times, name: str, by=None) -> InputSource:
         a = np.einsum("nij,njq->niq", by, a)
     drift = " with a drift" if model.drifting else ""
     excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
-    return InputSource(name, sigma, ref_nt=a, shared=name,
+    scatter = [(3 * (p + np.arange(epochs)) + i, np.full(epochs, model.excess_nt[i] ** 2)) for i in range(3)]
+    return InputSource(name, sigma, ref_nt=a, shared=name, estimated=_estimated(model, scatter),
                        origin=f"measured {model.n} time(s){drift}; scatter beyond their noise ({excess}) "
                        "nT, an offset of its own between measurements")
+
+
+def _estimated(model, per_axis) -> tuple[Estimated, ...]:
+    """The excess scatter is estimated from the model's n measurements less its p coefficients, one
+    estimate per axis: its parts of the source's variances (`per_axis`: (index, variance) per axis)."""
+    dof = max(model.n - len(model.coef), 1)
+    return tuple(Estimated(index, variance, dof) for index, variance in per_axis if np.any(variance > 0))
 
 
 def _anchored_source(model, times, name: str, by) -> InputSource:
@@ -63,7 +71,11 @@ def _anchored_source(model, times, name: str, by) -> InputSource:
     if by is not None:
         a = np.einsum("nij,njq->niq", by, a)
     excess = ", ".join(f"{v:.1f}" for v in model.excess_nt)
-    return InputSource(name, sigma, ref_nt=a, shared=name,
+    # per axis: the excess in every epoch's offset, and the drift's slope (widened by the same scatter)
+    scatter = [(np.append(3 * np.arange(epochs) + i, [3 * epochs + i] if drift else []).astype(int),
+                np.append(np.full(epochs, model.excess_nt[i] ** 2), [model.cov[i][1, 1]] if drift else []))
+               for i in range(3)]
+    return InputSource(name, sigma, ref_nt=a, shared=name, estimated=_estimated(model, scatter),
                        origin=f"measured {model.n} time(s){' with a drift' if drift else ''}; scatter beyond "
                        f"their noise ({excess}) nT: each epoch its own measurement, the lab moving that much "
                        "again within it")

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.budgeting import budget as calib_budget
-from calib.calibration import Calibration
+from calib.calibration import Calibration, standard_uncertainty
 from calib.linearise import ParamLayout
 from calib.propagation import InputSource, affine_map, reference_source, temperature_source
 from calib.uncertainty import Budget
@@ -251,8 +251,7 @@ def reference_covariance(cal: Calibration) -> np.ndarray:
     stated = cal.uncertainty.get("covariance") or {}
     if stated.get("parameters") == layout.labels():
         return np.asarray(stated["matrix"], float)
-    k = float(cal.uncertainty["coverage_factor"])
-    u = layout.flatten({n: np.asarray(cal.uncertainty["expanded"][n], float) / k for n in cal.params})
+    u = layout.flatten({n: standard_uncertainty(cal.uncertainty, n) for n in cal.params})
     return np.diag(u**2)
 
 
@@ -317,5 +316,4 @@ def standard_uncertainties(cal: Calibration) -> dict[str, np.ndarray]:
     """A calibration's standard uncertainties: its budget's expanded / k (DataError without one)."""
     if cal.uncertainty is None:
         raise DataError("the calibration states no uncertainty")
-    k = float(cal.uncertainty["coverage_factor"])
-    return {name: np.asarray(cal.uncertainty["expanded"][name], float) / k for name in cal.params}
+    return {name: standard_uncertainty(cal.uncertainty, name) for name in cal.params}

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import InputSource
+from calib.propagation import Estimated, InputSource
 from calib.rowgroups import RowGroups
 
 WANDER_FACTOR = 3.0
@@ -74,4 +74,8 @@ def wander_source(ds, resid: np.ndarray, noise_nt: np.ndarray,
     said = (f"consecutive points within a step: Allan deviation ({deviation}) nT beyond the noise; "
             f"{WANDER_FACTOR:g} x its variance per step, {len(labels)} steps")
     sigma = np.diag(np.tile(variance, len(labels)))
-    return InputSource("offset wander", sigma, ref_nt=a, origin=said), said, variance
+    # estimated from the point differences within steps: one estimate per axis, that many degrees of freedom
+    steps = np.arange(len(labels))
+    estimated = tuple(Estimated(3 * steps + i, np.full(len(steps), variance[i]), len(excess))
+                      for i in range(3) if variance[i] > 0)
+    return InputSource("offset wander", sigma, ref_nt=a, origin=said, estimated=estimated), said, variance

@@ -172,13 +172,13 @@ def _results(g) -> list[Section]:
     rows, budgets = [], []
     for model, (path, cal) in g["cals"].items():
         u = cal.uncertainty or {}
-        k = u.get("coverage_factor")
-        expanded = u.get("expanded") or {}
+        expanded, factors = u.get("expanded") or {}, u.get("coverage_factors") or {}
         for name, value in cal.params.items():
             flat, big_u = np.ravel(value), np.ravel(expanded.get(name, np.full(np.shape(value), np.nan)))
+            k = np.broadcast_to(np.ravel(factors.get(name, u.get("coverage_factor", np.nan))), flat.shape)
             for idx, v in enumerate(flat):
                 label = name + (f"[{idx}]" if flat.size > 1 else "")
-                rows.append([model.upper(), label, _fig(v), _fig(big_u[idx], ".3g"), _fig(k, "g")])
+                rows.append([model.upper(), label, _fig(v), _fig(big_u[idx], ".3g"), _fig(k[idx], ".3g")])
         lines = [[b["source"], _fig(b["contribution_nt"], ".3g"), b.get("method", ""), b.get("note", "")]
                  for b in u.get("budget", [])]
         largest = _fig(u.get("expanded_vector_error_nt"), ".4g")
@@ -190,7 +190,8 @@ def _results(g) -> list[Section]:
                           caption=f"{model.upper()} budget"),
                     ItemList(list(u.get("notes", [])), empty_text="no notes")]
     results = Section("Results", [
-        "Parameters with their expanded uncertainty U = k u (coverage probability about 95 %); temperatures "
+        "Parameters with their expanded uncertainty U = k u (coverage probability about 95 %; k from each "
+        "one's effective degrees of freedom, GUM G.4: 2 where every input is well known); temperatures "
         "in degC, fields in nT (the calibration files hold the full covariance).",
         Table(["model", "parameter", "value", "U (expanded)", "k"], rows)])
     return [results, Section("Uncertainty budget", budgets)]

@@ -126,7 +126,10 @@ def test_a_commissioned_campaign_states_its_uncertainty_on_every_calibration(tmp
     for fit in outcome.fits:
         cal = calfile.load(fit["path"])  # the file round-trips its budget
         u = cal.uncertainty
-        assert u["coverage_factor"] == 2.0
+        # k from the effective degrees of freedom: the residual's hundreds and the run's few ambient
+        # measurements leave it a little above 2
+        assert 2.0 <= u["coverage_factor"] < 2.2
+        assert set(u["coverage_factors"]) == set(u["effective_dof"]) == set(cal.params)
         assert set(u["expanded"]) == set(cal.params)
         for key, value in cal.params.items():
             assert np.shape(u["expanded"][key]) == np.shape(value)

@@ -36,7 +36,9 @@ def test_the_field_uncertainty_at_the_grid_is_the_budgets_plus_the_model_error(t
     np.testing.assert_allclose(cov - np.diag([16.0, 25.0, 36.0]), b.linear.field_covariance, rtol=1e-6,
                                atol=1e-9 * np.max(b.linear.field_covariance))
     axes, radius = expanded_at(cal, h, b.linear.grid_temp_c)
-    np.testing.assert_allclose(axes, 2.0 * np.sqrt(np.einsum("gii->gi", cov)), rtol=1e-12)
+    k = cal.uncertainty["coverage_factor"]  # the field's, from its effective degrees of freedom
+    assert 2.0 < k < 2.1
+    np.testing.assert_allclose(axes, k * np.sqrt(np.einsum("gii->gi", cov)), rtol=1e-12)
     # the 3-D radius lies between the largest axis's 1.96 sigma and the isotropic 2.80 sigma of it
     top = np.sqrt(np.max(np.linalg.eigvalsh(cov), axis=1))
     assert np.all(radius >= 1.95 * top) and np.all(radius <= 2.81 * top)
@@ -54,8 +56,9 @@ def test_the_file_round_trips_the_covariance_exactly_and_old_files_load(tmp_path
     del old["uncertainty"]["covariance"], old["uncertainty"]["model_error_nt"]
     legacy = Calibration.from_dict(old)
     cov, correlated = parameter_covariance(legacy)
+    factors = legacy.uncertainty["coverage_factors"]  # each parameter's own k
     assert not correlated and np.allclose(np.diag(cov), np.concatenate(
-        [np.ravel(np.asarray(legacy.uncertainty["expanded"][k]) / 2) for k in legacy.params]) ** 2)
+        [np.ravel(np.asarray(legacy.uncertainty["expanded"][k]) / factors[k]) for k in legacy.params]) ** 2)
     expanded_at(legacy, np.array([[30_000.0, 0.0, 40_000.0]]), np.array([25.0]))  # usable, uncorrelated
 
 

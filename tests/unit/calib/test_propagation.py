@@ -24,6 +24,7 @@ from calib.propagation import (
     propagate_linear,
     temperature_source,
 )
+from calib.student import coverage_factor, t_quantile
 from calib.uncertainty import Draw, Source, monte_carlo
 
 COIL_NT_PER_A = 10_000.0
@@ -217,12 +218,22 @@ def test_a_t24_budget_without_monte_carlo_is_the_law_of_propagation():
     b = budget(ds, cal, sources, grid(), rng=np.random.default_rng(12))
     assert b.monte_carlo is None and b.draws == 0 and "exact" in b.method
     lin = b.linear
-    assert b.expanded_vector_error_nt == pytest.approx(np.max(lin.radius_nt))
+    # the residual scatter is estimated with N - 8 degrees of freedom per axis, the coil matrix is known:
+    # Welch-Satterthwaite gives more than N - 8, the more the coil matrix's share
+    dof, dof_field = lin.effective_dof()
+    assert np.all(dof > len(ds) - 8) and len(ds) - 8 < dof_field < np.max(dof)
+    assert b.coverage_factor == pytest.approx(coverage_factor(dof_field)) and 2.0 < b.coverage_factor < 2.06
+    widen = t_quantile(0.975, dof_field) / 1.959964
+    assert b.expanded_vector_error_nt == pytest.approx(np.max(lin.radius_nt) * widen)
     stated = ParamLayout.of(cal.params).flatten(b.standard)
     np.testing.assert_allclose(stated, np.sqrt(np.diag(lin.covariance)))
+    b_dof = np.ravel(b.effective_dof["b_nt"])
+    k_b = np.array([coverage_factor(v) for v in b_dof])
+    np.testing.assert_allclose(b.expanded["b_nt"], k_b * b.standard["b_nt"], rtol=1e-12)
+    half = np.array([t_quantile(0.975, v) for v in b_dof]) * b.standard["b_nt"]
     low, high = b.interval["b_nt"]
-    np.testing.assert_allclose(high - cal.params["b_nt"], 1.959964 * b.standard["b_nt"], rtol=1e-6)
-    np.testing.assert_allclose(cal.params["b_nt"] - low, 1.959964 * b.standard["b_nt"], rtol=1e-6)
+    np.testing.assert_allclose(high - cal.params["b_nt"], half, rtol=1e-6)
+    np.testing.assert_allclose(cal.params["b_nt"] - low, half, rtol=1e-6)
     back = Calibration.from_dict({**cal.to_dict(), "uncertainty": b.as_dict()})  # the file accepts it
     assert back.uncertainty["covariance"]["parameters"][:2] == ["S[0][0]", "S[0][1]"]
     assert len(back.uncertainty["vector_error_nt"]["per_point"]) == 52

@@ -45,6 +45,12 @@ def test_a_lab_that_moves_between_measurements_is_taken_epoch_by_epoch():
         np.testing.assert_allclose(np.diag(variance[n]), expected, rtol=1e-9)
     assert variance[0, 0, 0] > 20.0**2  # the excess, some 30 nT, not the measurements' 0.7 nT
     np.testing.assert_allclose(np.einsum("iq,qr,jr->ij", a[0], source.covariance, a[1]), 0.0)  # epochs apart
+    # that excess is estimated from five measurements less the mean: 4 degrees of freedom, one estimate per
+    # axis over every epoch (they are all off by the same factor), the measurements' own error known
+    assert [e.dof for e in source.estimated] == [4, 4, 4]
+    for i, e in enumerate(source.estimated):
+        np.testing.assert_allclose(np.diag(source.covariance)[e.index] - e.variance, SE**2, rtol=1e-9)
+        assert len(e.index) == 5 and np.all(e.index % 3 == i)
 
 
 def test_a_drift_carries_each_epochs_measurement_on():

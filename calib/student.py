@@ -1,0 +1,122 @@
+"""Coverage factors from degrees of freedom: Student's t and the Welch-Satterthwaite formula (GUM, JCGM
+100 §G.3, G.4).
+
+    nu = effective_dof(u2, [(part_variance, part_dof), ...])   # G.4.1
+    k = coverage_factor(nu)                                     # t_p(nu), p = 95.45 %: 2 when nu is large
+    t = t_quantile(0.975, nu)                                   # one-sided quantile
+    widening(nu)                                                # t_97.5(nu) / 1.96
+
+An input whose standard uncertainty is estimated from a few readings (Type A: the ambient's scatter from
+its five or six measurements in a run) is itself uncertain; a combined uncertainty that it dominates
+then needs a larger k for the same coverage. The probability 95.45 % is the one for which k = 2 with
+infinite degrees of freedom (GUM Table G.2), so a budget of well-known inputs keeps k = 2.
+
+No scipy: the t distribution's CDF is the regularized incomplete beta function, by its continued
+fraction (modified Lentz), and its quantile is found by bisection. Degrees of freedom are truncated to
+an integer (G.4.1 note 1), so each is worked out once.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+P_K2 = 0.9545  # GUM Table G.2: t_p(inf) = 2.00 at this coverage probability
+NORMAL_DOF = 10_000  # beyond, t differs from the normal by less than 2e-4 relative: taken as infinite
+
+
+def effective_dof(total_variance: float, parts) -> float:
+    """Welch-Satterthwaite (G.2b): u_c^4 / sum(u_i^4 / nu_i) over the parts (variance, dof) with a finite
+    dof; infinite when there is none, or the total is zero."""
+    denominator = sum(v * v / dof for v, dof in parts if math.isfinite(dof) and dof > 0 and v > 0)
+    if denominator <= 0 or total_variance <= 0:
+        return math.inf
+    return total_variance * total_variance / denominator
+
+
+def coverage_factor(dof: float, probability: float = P_K2) -> float:
+    """k = t_p(nu): the half-width of the central interval of probability p, in standard deviations."""
+    return t_quantile(0.5 + probability / 2.0, dof)
+
+
+def widening(dof: float) -> float:
+    """How much a 95 % interval made for known inputs (+-1.96 u) widens with `dof`: t_97.5(nu) / 1.96."""
+    return t_quantile(0.975, dof) / t_quantile(0.975, math.inf)
+
+
+def t_quantile(p: float, dof: float) -> float:
+    """The p quantile (p > 0.5) of Student's t with `dof` degrees of freedom (truncated to an integer, at
+    least 1; infinite or beyond NORMAL_DOF: the normal's)."""
+    if not 0.5 < p < 1.0:
+        raise ValueError(f"t_quantile: p {p!r} must be in (0.5, 1)")
+    nu = NORMAL_DOF + 1 if not math.isfinite(dof) or dof > NORMAL_DOF else max(int(dof), 1)
+    return _quantile(round(p, 12), nu)
+
+
+@lru_cache(maxsize=512)
+def _quantile(p: float, nu: int) -> float:
+    if nu > NORMAL_DOF:
+        return _normal_quantile(p)
+    if nu == 1:
+        return math.tan(math.pi * (p - 0.5))
+    central = 2.0 * p - 1.0  # P(|T| <= t)
+    lo, hi = 0.0, 1.0
+    while _central(hi, nu) < central:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _central(mid, nu) < central:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def _central(t: float, nu: int) -> float:
+    """P(|T| <= t) = 1 - I_x(nu/2, 1/2), x = nu / (nu + t^2)."""
+    return 1.0 - _betainc(0.5 * nu, 0.5, nu / (nu + t * t))
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    """The regularized incomplete beta function I_x(a, b)."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x)
+                     + b * math.log1p(-x))
+    if x < (a + 1.0) / (a + b + 2.0):  # the continued fraction converges fast here; else by symmetry
+        return front * _betacf(a, b, x) / a
+    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 400):
+        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+                    -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1.0 + num * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-15:
+            break
+    return h
+
+
+def _normal_quantile(p: float) -> float:
+    """The standard normal's p quantile, by bisection on erf (p in (0.5, 1))."""
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if 0.5 * (1.0 + math.erf(mid / math.sqrt(2.0))) < p:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
