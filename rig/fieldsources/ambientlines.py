@@ -81,16 +81,26 @@ def _anchored_source(model, times, name: str, by) -> InputSource:
                        "again within it")
 
 
+def by_position(r_m) -> np.ndarray:
+    """(3, 5): G r = this @ g for an offset r in metres (or (N,3,5) for offsets (N,3)). Where the lab field
+    has no sources (no currents, no magnetised material) its gradient is symmetric and traceless: five
+    numbers g = (Gxx, Gyy, Gxy, Gxz, Gyz), Gzz = -Gxx - Gyy."""
+    r = np.asarray(r_m, float)
+    x, y, z = r[..., 0], r[..., 1], r[..., 2]
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([x, zero, y, z, zero], -1), np.stack([zero, y, x, zero, z], -1),
+                     np.stack([-z, -z, zero, x, y], -1)], -2)
+
+
 def stated_gradient_source(offsets_m, bound_nt_per_m: float, by=None) -> InputSource:
-    """The lab field's gradient within a stated +-bound on each of its nine components G_ij (rectangular)
-    as a line of the budget: a sample's reference misses G (offset), `offsets_m` (N,3) being where the DUT
-    was from the reference magnetometer that measured the ambient; `by` as for ambient_source."""
-    offsets_m = np.asarray(offsets_m, float)
-    a = np.zeros((len(offsets_m), 3, 9))
-    for i in range(3):
-        a[:, i, 3 * i:3 * i + 3] = offsets_m
+    """The lab field's gradient within a stated +-bound on each of its five source-free components
+    (by_position; rectangular) as a line of the budget: a sample's reference misses G (offset),
+    `offsets_m` (N,3) being where the DUT was from the reference magnetometer that measured the ambient;
+    `by` as for ambient_source. The symmetry matters: Gxz and Gzx are one number, so a DUT turned through
+    the gradient sees their effects add, not add in quadrature."""
+    a = by_position(offsets_m)
     if by is not None:
         a = np.einsum("nij,njq->niq", by, a)
-    return InputSource("ambient gradient", np.eye(9) * bound_nt_per_m**2 / 3.0, ref_nt=a,
+    return InputSource("ambient gradient", np.eye(5) * bound_nt_per_m**2 / 3.0, ref_nt=a,
                        distribution="rectangular", shared="ambient gradient",
-                       origin=f"stated: +-{bound_nt_per_m:g} nT/m per component")
+                       origin=f"stated: +-{bound_nt_per_m:g} nT/m on each of its five source-free components")

@@ -197,18 +197,20 @@ def test_the_line_holds_under_the_monte_carlo_too(worlds):
 
 def test_a_stated_source_is_the_line_it_states(worlds):
     """The station states a gradient bound g: the DUT at r from the reference sees a constant offset G r,
-    which T24's offset takes entirely: the field error is that offset, of RMS |r| g (rectangular)."""
+    which T24's offset takes entirely: the field error is that offset. G being source-free (symmetric,
+    traceless: Gxx, Gyy, Gxy, Gxz, Gyz each +-g, rectangular, Gzz = -Gxx - Gyy), its mean square is
+    g^2 / 3 (3 x^2 + 3 y^2 + 4 z^2)."""
     _, inputs, data, _ = worlds["off"]
     source = inputs.station.field_source
     stated = dataclasses.replace(inputs, station=inputs.station.model_copy(update={
         "field_source": source.model_copy(update={"ambient_gradient_nt_per_m": 200.0})}), _chains={})
     _, b = _budget(stated, "dut1", data["dut1"])
-    r_m = np.asarray(inputs.station.dut("dut1").position_mm) / 1000.0
-    assert _lines(b)["ambient gradient"] == pytest.approx(np.linalg.norm(r_m) * 200.0, rel=1e-6)
+    x, y, z = np.asarray(inputs.station.dut("dut1").position_mm) / 1000.0
+    line = 200.0 * np.sqrt((3 * x**2 + 3 * y**2 + 4 * z**2) / 3.0)
+    assert _lines(b)["ambient gradient"] == pytest.approx(line, rel=1e-6)
     _, before = _budget(inputs, "dut1", data["dut1"])
     assert "ambient gradient" not in _lines(before)
     assert any("ambient_gradient_nt_per_m" in n for n in before.notes)  # never silent
-    line = np.linalg.norm(r_m) * 200.0
     assert b.combined_standard_nt**2 == pytest.approx(before.combined_standard_nt**2 + line**2, rel=1e-9)
 
 

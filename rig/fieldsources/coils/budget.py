@@ -27,10 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from calib.propagation import InputSource, matrix_source
-from rig.fieldsources.ambientlines import ambient_source, stated_gradient_source
+from rig.fieldsources.ambientlines import ambient_source, by_position, stated_gradient_source
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.geometry import pair_field, rotation_between
-from rig.fieldsources.coils.gradientfit import by_position
 from rig.fieldsources.coils.loops import loop_sensitivity
 
 POSITION_STEP_MM = 0.5
@@ -200,8 +199,8 @@ class CoilChain:
         if self.tolerance_mm > 0:
             moved = self.position + np.concatenate([np.eye(3), -np.eye(3)]) * POSITION_STEP_MM
             matrices = geometry.matrices_at(self.centre, moved)
-            by_position = (matrices[:3] - matrices[3:]) / (2 * POSITION_STEP_MM)
-            out.append(matrix_source("position", self.currents, by_position,
+            per_mm = (matrices[:3] - matrices[3:]) / (2 * POSITION_STEP_MM)
+            out.append(matrix_source("position", self.currents, per_mm,
                                      _rectangular(np.full(3, self.tolerance_mm)), distribution="rectangular",
                                      origin=f"+-{self.tolerance_mm:g} mm"))
         if geometry.tolerance_mm > 0:

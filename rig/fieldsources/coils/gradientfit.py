@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.fieldsources.ambientlines import by_position
+
 NAMES = ("Gxx", "Gyy", "Gxy", "Gxz", "Gyz")
 IDENTIFIED = 0.5  # a component is measured when the places take its standard deviation below this share
 # of its prior's (as for the loops, rig/fieldsources/coils/loopfit.py)
@@ -44,12 +46,6 @@ class GradientFit:
     chi2: float  # of the ambients against the fitted field, after no widening
     dof: int
     places: int  # ambients fitted, the centre's included
-
-
-def by_position(r_m) -> np.ndarray:
-    """(3, 5): G r = this @ g, for an offset r in metres."""
-    x, y, z = r_m
-    return np.array([[x, 0, y, z, 0], [0, y, x, 0, z], [-z, -z, 0, x, y]], float)
 
 
 def fit_gradient(ambients, bound_nt_per_m: float | None, differences=()) -> GradientFit | None:

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.fieldsources.coils.gradientfit import NAMES, by_position, element_std_errors, fit_gradient
+from calib.dataset import Dataset
+from rig.fieldsources.ambientlines import by_position, stated_gradient_source
+from rig.fieldsources.coils.gradientfit import NAMES, element_std_errors, fit_gradient
 
 G = np.array([[120.0, 40.0, -60.0], [40.0, -200.0, 90.0], [-60.0, 90.0, 80.0]])  # symmetric, traceless
 A0 = np.array([16_000.0, 300.0, 43_000.0])
@@ -31,6 +33,19 @@ def test_by_position_is_the_gradient_times_the_offset():
     assert NAMES == ("Gxx", "Gyy", "Gxy", "Gxz", "Gyz")
     r = np.array([0.03, -0.05, 0.07])
     np.testing.assert_allclose(by_position(r) @ g, G @ r, atol=1e-12)
+    rows = np.array([r, -2 * r, [0.0, 0.0, 0.0]])  # many offsets at once: (N,3,5)
+    np.testing.assert_allclose(by_position(rows) @ g, rows @ G.T, atol=1e-12)
+
+
+def test_the_stated_bound_is_on_the_five_source_free_components():
+    """A DUT at (0, 0, z) from the reference misses G r = z (Gxz, Gyz, Gzz), Gzz = -Gxx - Gyy: the lab's
+    field has no sources there, so its z axis takes two stated components' share, not one."""
+    z, bound = 0.07, 300.0
+    source = stated_gradient_source(np.array([[0.0, 0.0, z]]), bound)
+    assert np.shape(source.covariance) == (5, 5) and source.distribution == "rectangular"
+    a, _ = source.sensitivities(Dataset(h_nt=np.zeros((1, 3)), temp_c=np.zeros(1), ref_nt=np.zeros((1, 3))))
+    variance = np.diag(a[0] @ source.covariance @ a[0].T)
+    np.testing.assert_allclose(variance, z**2 * bound**2 / 3 * np.array([1.0, 1.0, 2.0]), rtol=1e-12)
 
 
 def test_places_on_one_axis_leave_the_rest_at_the_stated_bound_or_nothing_without_one():
