@@ -21,21 +21,25 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
-P_K2 = 0.9545  # GUM Table G.2: t_p(inf) = 2.00 at this coverage probability
+P_K2 = math.erf(math.sqrt(2.0))  # 95.45 %, GUM Table G.2: the probability for which t_p(inf) = 2 exactly
 NORMAL_DOF = 10_000  # beyond, t differs from the normal by less than 2e-4 relative: taken as infinite
 
 
 def effective_dof(total_variance: float, parts) -> float:
     """Welch-Satterthwaite (G.2b): u_c^4 / sum(u_i^4 / nu_i) over the parts (variance, dof) with a finite
-    dof; infinite when there is none, or the total is zero."""
+    dof; infinite when there is none, the total is zero, or it exceeds NORMAL_DOF."""
     denominator = sum(v * v / dof for v, dof in parts if math.isfinite(dof) and dof > 0 and v > 0)
     if denominator <= 0 or total_variance <= 0:
         return math.inf
-    return total_variance * total_variance / denominator
+    dof = total_variance * total_variance / denominator
+    return math.inf if dof > NORMAL_DOF else dof
 
 
 def coverage_factor(dof: float, probability: float = P_K2) -> float:
-    """k = t_p(nu): the half-width of the central interval of probability p, in standard deviations."""
+    """k = t_p(nu): the half-width of the central interval of probability p, in standard deviations (2
+    for infinite nu at the default p)."""
+    if probability == P_K2 and (not math.isfinite(dof) or dof > NORMAL_DOF):
+        return 2.0  # exactly: the convention the probability was chosen for
     return t_quantile(0.5 + probability / 2.0, dof)
 
 

@@ -39,6 +39,8 @@ def test_welch_satterthwaite():
     # two equal parts, one with 4 degrees of freedom, one known: 4 (1 + 1)^2 / 1 = 16
     assert effective_dof(2.0, [(1.0, 4), (1.0, math.inf)]) == pytest.approx(16.0)
     assert effective_dof(1.0, [(1.0, math.inf)]) == math.inf
+    assert effective_dof(1.0, [(1e-4, 4)]) == math.inf  # 4e8: as good as known
+    assert coverage_factor(math.inf) == 2.0 and coverage_factor(1e6) == 2.0
     assert effective_dof(3.0, [(1.0, 2), (2.0, 8)]) == pytest.approx(9.0 / (1 / 2 + 4 / 8))
 
 
