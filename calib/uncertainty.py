@@ -1,7 +1,7 @@
 """The uncertainty of a calibration, by Monte Carlo over its inputs (GUM Supplement 1, JCGM 101:2008).
 
     budget = monte_carlo(ds, cal, sources, refit, grid, rng=rng)
-    budget.expanded          # {param: array}, the same keys and shapes as cal.params (k = 2)
+    budget.expanded          # {param: array}, the same keys and shapes as cal.params (U = k u)
     budget.contributions     # [{source, contribution_nt}]: each input's share of the field error
     budget.as_dict()         # the calibration file's `uncertainty:` section
 

@@ -40,7 +40,7 @@ class Quality:
     """A calibration's residual beside the uncertainty it states."""
 
     rms_nt: float | None
-    expanded_nt: float | None  # the stated expanded (k = 2) vector error over the plan's fields
+    expanded_nt: float | None  # the stated expanded (95 %) vector error over the plan's fields
     dominant: str | None  # what dominates that uncertainty, in one phrase
     coverage_factor: float | None = None
 

@@ -151,4 +151,4 @@ def others_table(others: list) -> Table:
         q = quality_of(rec.calibration)
         rows.append([rec.model.upper(), rec.file_text(), fmt(q.rms_nt), q.uncertainty_text(),
                      ("RMS > U: " + q.exceeds_text()) if q.exceeds else ("ok" if q.expanded_nt else "-")])
-    return Table(["model", "file", "RMS after (nT)", "uncertainty (nT, k=2)", "check"], rows)
+    return Table(["model", "file", "RMS after (nT)", "uncertainty (nT, 95 %)", "check"], rows)

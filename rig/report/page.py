@@ -43,7 +43,7 @@ def summary_table(results: list[DutResult]) -> Table:
         )
     return Table(
         ["DUT", "calibration shown", "samples", "error", "RMS before (nT)", "RMS after (nT)",
-         "uncertainty (nT, k=2)", "check", "largest uncertainty contribution", "outliers"], rows
+         "uncertainty (nT, 95 %)", "check", "largest uncertainty contribution", "outliers"], rows
     )
 
 

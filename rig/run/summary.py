@@ -16,7 +16,7 @@ from rig.analysis.judged import judged_for_dut, quality_of
 from rig.core.errors import ERRORS
 from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
 
-CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, k=2)", "check")
+CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, 95 %)", "check")
 LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models; T36 for a "
           "DUT whose T24 failed its linearity in temperature and whose T36 validated better); "
           "uncertainty: the calibrated field's expanded error (95 %); check: RMS > U where the residual "

@@ -197,7 +197,7 @@ def session_page(app, ref: SessionRef) -> str:
         cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_here else "")),
                          esc(stats.get("n_used", "-")), esc(_fmt(fit["residual_rms_nt"])),
                          esc(q.uncertainty_text()), check, esc(q.dominant or "-"), esc(fitted), links])
-    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, k=2)",
+    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, 95 %)",
                            "check", "largest uncertainty contribution", "fitted (wall clock, UTC)",
                            "downloads"], cal_rows, raw_cells=True)
                     if cal_rows else '<p class="muted">no calibration recorded yet</p>')
