@@ -77,6 +77,24 @@ def test_a_malformed_covariance_is_refused_in_one_line(change, message):
     assert said.startswith("cal.yaml: key 'uncertainty.covariance.") and "\n" not in said
 
 
+@pytest.mark.parametrize("change, key", [
+    (lambda u: u["coverage_factors"].update(S=[2.0, 2.0]), "coverage_factors.S"),
+    (lambda u: u["coverage_factors"].update(S="two"), "coverage_factors.S"),
+    (lambda u: u["coverage_factors"].update(nope=[2.0]), "coverage_factors.nope"),
+    (lambda u: u["coverage_factors"]["b_nt"].__setitem__(0, -2.0), "coverage_factors.b_nt"),
+    (lambda u: u.update(coverage_factors=[2.0]), "coverage_factors"),
+    (lambda u: u.update(field_effective_dof=-4), "field_effective_dof"),
+])
+def test_malformed_coverage_factors_are_refused_in_one_line(change, key):
+    cal, _ = _calibrated(3)
+    data = cal.to_dict()
+    change(data["uncertainty"])
+    with pytest.raises(DataError) as info:
+        Calibration.from_dict(data, where="cal.yaml")
+    said = str(info.value)
+    assert said.startswith(f"cal.yaml: key 'uncertainty.{key}'") and "\n" not in said
+
+
 def test_a_thermal_state_is_its_two_point_mixture_not_a_normal_error(tmp_path):
     """A file with the DUT's thermal state (+-d per axis): the covariance counts d^2, the radius is the
     mixture's (95 % of draws of the parameters' error plus +-d), below a normal radius of that covariance;
