@@ -319,8 +319,9 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
     dof, dof_field = linear.effective_dof()  # k and the 95 % intervals from them (calib/student.py)
     k, widen = np.array([coverage_factor(v) for v in dof]), np.array([widening(v) for v in dof])
     if np.any(np.isfinite(dof)) or np.isfinite(dof_field):
+        said = "infinite" if not np.isfinite(dof_field) else f"{dof_field:.3g}"
         figures["method"] += (f"; k from effective degrees of freedom (Welch-Satterthwaite, GUM G.4): the "
-                              f"field's {dof_field:.3g}, k = {coverage_factor(dof_field):.3g}")
+                              f"field's {said}, k = {coverage_factor(dof_field):.3g}")
     radius = np.asarray(figures["radius"], float) * widening(dof_field)
     standard = layout.unflatten(figures["u"])
     low, high = (layout.unflatten(linear.estimate + widen * figures[name]) for name in ("low", "high"))
