@@ -318,15 +318,16 @@ def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, r
     layout, mc = linear.layout, figures["mc"]
     dof, dof_field = linear.effective_dof()  # k and the 95 % intervals from them (calib/student.py)
     k, widen = np.array([coverage_factor(v) for v in dof]), np.array([widening(v) for v in dof])
+    k_field = coverage_factor(dof_field)
     if np.any(np.isfinite(dof)) or np.isfinite(dof_field):
         said = "infinite" if not np.isfinite(dof_field) else f"{dof_field:.3g}"
         figures["method"] += (f"; k from effective degrees of freedom (Welch-Satterthwaite, GUM G.4): the "
-                              f"field's {said}, k = {coverage_factor(dof_field):.3g}")
+                              f"field's {said}, k = {k_field:.3g}")
     radius = np.asarray(figures["radius"], float) * widening(dof_field)
     standard = layout.unflatten(figures["u"])
     low, high = (layout.unflatten(linear.estimate + widen * figures[name]) for name in ("low", "high"))
     return Budget(
-        coverage_factor=coverage_factor(dof_field), standard=standard,
+        coverage_factor=k_field, standard=standard,
         expanded=layout.unflatten(k * figures["u"]),
         coverage_factors=layout.unflatten(k), effective_dof=layout.unflatten(dof), field_dof=dof_field,
         contributions=[{"source": c.name, "contribution_nt": c.field_rms_nt, "method": c.method,
