@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import calib
-from calib import synthetic
+from calib import student, synthetic
 from calib.budgeting import budget
 from calib.propagation import Estimated, offset_source
-from calib.student import coverage_factor, effective_dof, t_quantile
+from calib.student import NORMAL_DOF, P_K2, coverage_factor, effective_dof, t_quantile
 
 # GUM (JCGM 100:2008) Table G.2, p = 95.45 %
 TABLE_G2 = {1: 13.97, 2: 4.53, 3: 3.31, 4: 2.87, 5: 2.65, 6: 2.52, 7: 2.43, 8: 2.37, 10: 2.28, 20: 2.13,
@@ -33,6 +33,15 @@ def test_t_quantiles_and_their_limits():
     assert t_quantile(0.975, 4.9) == t_quantile(0.975, 4)  # truncated to an integer (G.4.1 note 1)
     with pytest.raises(ValueError, match="p 0.3"):
         t_quantile(0.3, 4)
+
+
+@pytest.mark.parametrize("nu", [2, 3, 5, 9, 10, 31, 250, 4000, NORMAL_DOF])
+@pytest.mark.parametrize("p", [0.6, 0.975, 0.5 + P_K2 / 2, 0.9995])
+def test_the_newton_quantile_is_the_one_bisection_finds(nu, p):
+    """Each quantile solves P(|T| <= t) = 2p - 1 to 1e-10, whichever way it is found."""
+    t = t_quantile(p, nu)
+    assert student._central(t, nu) == pytest.approx(2 * p - 1, abs=1e-10)
+    assert t == pytest.approx(student._bisect(2 * p - 1, nu), rel=1e-9)
 
 
 def test_welch_satterthwaite():
