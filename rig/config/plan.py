@@ -84,6 +84,12 @@ class Plan(Strict):
     fields: FieldSet
     samples_per_point: Count(MAX_SAMPLES_PER_POINT)
     settle_s: SECONDS = Field(1.0, description="wait after a field change before sampling")
+    field_order: Literal["shuffled", "listed"] | None = Field(
+        None, description="the order of the field targets at each temperature step: shuffled (a fresh order "
+        "at every step, the same on every run of the plan; the default) or listed (the plan's order). A "
+        "fixed order turns whatever drifts through a step (the lab field, the chamber's heater) into an "
+        "error that follows the targets, which the fit cannot tell from a calibration; a shuffled one turns "
+        "it into scatter that the fit sees. A moving schedule sweeps in the listed order")
     set_reset: Annotated[Literal["pair", "off"], BeforeValidator(_yaml_off)] = Field(
         "pair", description="pair: SET and RESET reading per sample (offset removed); off: plain reading"
     )
@@ -133,6 +139,9 @@ class Plan(Strict):
     def _acceptance_model(self):
         if self.acceptance is not None:
             self.acceptance.check_against(list(self.fit.models))
+        if self.field_order == "shuffled" and self.moving:
+            raise KeyPathError(("field_order",), "a moving schedule sweeps the fields in the listed order "
+                               "(its lag fit reads the order); shuffled applies to temperature steps")
         if isinstance(self.temperatures, SequentialTemperatures) and not self.se_targets():
             raise KeyPathError(("temperatures", "mode"),
                                "a sequential schedule stops when the DUTs meet their "

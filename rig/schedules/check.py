@@ -164,9 +164,11 @@ def _field_path(plan: Plan, field_index: int) -> KeyPath:
 
 
 def check_field_limits(plan: Plan, station: Station, points: list[Point], warnings: list[str]) -> list[str]:
-    """The field source's limits, with the error blamed on the plan key of the offending target."""
+    """The field source's limits, with the error blamed on the plan key of the offending target (the first
+    in the plan's own order, whatever order the steps take them in)."""
+    listed = sorted(points, key=lambda p: (p.temp_index, p.field_index))
     try:
-        return station.field_source.check_targets(plan.name, points, warnings)
+        return station.field_source.check_targets(plan.name, listed, warnings)
     except LimitError as err:
         point = getattr(err, "point", None)
         if point is None:

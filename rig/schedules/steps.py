@@ -2,13 +2,19 @@
 
     T03-F07     temperature step 3, field 7 (O07 for a turntable's orientation)
 
-All fields at the first temperature, then all at the second, and so on. Its part of `rig check`: sizes,
-the chamber's setpoint and ramp limits, and the time spent ramping, settling, moving and sampling.
+All fields at the first temperature, then all at the second, and so on. At each step the fields go in a
+fresh order of their own (`field_order: shuffled`, the default), drawn from the step's number alone so
+that every run and resume of a plan takes the same; `field_order: listed` keeps the plan's order.
+
+Its part of `rig check`: sizes, the chamber's setpoint and ramp limits, and the time spent ramping,
+settling, moving and sampling.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from rig.config import Plan, Station
 from rig.core.errors import ConfigError, LimitError
@@ -24,6 +30,8 @@ from rig.schedules.check import (
     stable_after_ramp_s,
 )
 from rig.schedules.inputs import planning_inputs
+
+ORDER_SEED = 20_240_024  # any fixed number: the orders only need to differ from step to step
 
 DURATION_KEYS: dict[str, KeyPath] = {
     "ramps": ("temperatures", "ramp_c_per_min"),
@@ -81,7 +89,8 @@ class StepSchedule:
         for ti, step in enumerate(steps, start=1):
             stability = plan.temperatures.stability_for(step)
             ramp = step.ramp_c_per_min or plan.temperatures.ramp_c_per_min
-            for fi, target in enumerate(self.targets, start=1):
+            for fi in self.field_order(ti):
+                target = self.targets[fi - 1]
                 points.append(Point(
                     id=point_id(ti, fi, len(steps), len(self.targets), letter), index=len(points),
                     temp_index=ti, setpoint_c=step.setpoint_c, field_index=fi, command=tuple(target),
@@ -89,6 +98,14 @@ class StepSchedule:
                     ramp_c_per_min=ramp, stability=stability,
                 ))
         return points
+
+    def field_order(self, temp_index: int) -> list[int]:
+        """The 1-based field indices in the order step `temp_index` takes them."""
+        listed = list(range(1, len(self.targets) + 1))
+        if self.plan.field_order == "listed":
+            return listed
+        order = np.random.default_rng([ORDER_SEED, temp_index]).permutation(len(listed))
+        return [listed[k] for k in order]
 
     def check(self) -> ScheduleCheck:
         points = self.points()

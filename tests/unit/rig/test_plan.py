@@ -56,7 +56,7 @@ def table_station() -> Station:
 
 
 def test_point_ids_are_stable_zero_padded_and_temperature_major():
-    points = compile_plan(make_plan(), coil_station())
+    points = compile_plan(make_plan(field_order="listed"), coil_station())
     assert len(points) == 4 * 24
     assert [p.id for p in points[:2]] == ["T01-F01", "T01-F02"]
     assert points[24].id == "T02-F01" and points[-1].id == "T04-F24"
@@ -66,6 +66,34 @@ def test_point_ids_are_stable_zero_padded_and_temperature_major():
     assert point_id(3, 7, 8, 48, "O") == "T03-O07"
 
 
+def test_each_step_takes_every_field_once_in_an_order_of_its_own():
+    """The default order: a permutation per step, different from step to step and from the listed order,
+    the same on every compilation (a resume takes the plan's own order)."""
+    points = compile_plan(make_plan(), coil_station())
+    listed = compile_plan(make_plan(field_order="listed"), coil_station())
+    steps = [[p.field_index for p in points if p.temp_index == t] for t in range(1, 5)]
+    assert all(sorted(step) == list(range(1, 25)) for step in steps)
+    assert len({tuple(step) for step in steps}) == 4 and steps[0] != list(range(1, 25))
+    assert [p.temp_index for p in points] == [p.temp_index for p in listed]  # still temperature-major
+    assert [p.index for p in points] == list(range(96))
+    by_id = {p.id: p for p in listed}
+    assert all(p.command == by_id[p.id].command for p in points)  # an id names the same target
+    assert [p.id for p in compile_plan(make_plan(), coil_station())] == [p.id for p in points]
+
+
+def test_a_moving_schedule_refuses_a_shuffled_order(tmp_path):
+    from rig.config import CONFIGS_DIR, load_plan
+
+    text = (CONFIGS_DIR / "plans" / "ramp-campaign.yaml").read_text()
+    path = tmp_path / "ramp.yaml"
+    path.write_text(text + "\nfield_order: shuffled\n")
+    with pytest.raises(ConfigError) as info:
+        load_plan(path)
+    assert str(info.value).startswith(f"{path}: field_order: a moving schedule sweeps the fields in the "
+                                      "listed order")
+    assert f"(line {text.count(chr(10)) + 2})" in str(info.value)
+
+
 def test_compilation_is_deterministic():
     a = compile_plan(make_plan(), coil_station())
     b = compile_plan(make_plan(), coil_station())
@@ -73,7 +101,8 @@ def test_compilation_is_deterministic():
 
 
 def test_coil_targets_have_the_plan_magnitudes():
-    plan = make_plan(fields={"kind": "fibonacci", "n": 10, "magnitudes_nt": [30_000, 60_000]})
+    plan = make_plan(fields={"kind": "fibonacci", "n": 10, "magnitudes_nt": [30_000, 60_000]},
+                     field_order="listed")
     points = compile_plan(plan, coil_station())
     norms = [np.linalg.norm(p.field_nt) for p in points[:20]]
     assert np.allclose(norms[:10], 30_000) and np.allclose(norms[10:], 60_000)
@@ -109,7 +138,7 @@ def test_fibonacci_directions_are_spread_evenly():
 
 
 def test_turntable_orientations_and_ids():
-    plan = make_plan(fields={"kind": "grid"})
+    plan = make_plan(fields={"kind": "grid"}, field_order="listed")
     points = compile_plan(plan, table_station())
     assert len(points) == 4 * 16 and points[0].id == "T01-O01"
     assert points[1].command == (0.0, -90.0) and points[4].command == (-90.0, 0.0)  # a turn per tilt

@@ -92,9 +92,9 @@ def test_points_are_planned_then_done_and_survive_reopening(tmp_path, campaign, 
         s.record_point(p.id, rows_for(p), {"settle_s": 12.5, "stable": True})
     s.close()
     again = Session.open(tmp_path / "s.magrig")
-    assert again.done_point_ids() == {"T01-F01", "T01-F02", "T01-F03"}
-    with pytest.raises(SessionError, match="T01-F02 is already recorded"):
-        again.record_point("T01-F02", rows_for(points[1]))
+    assert again.done_point_ids() == {p.id for p in points[:3]}
+    with pytest.raises(SessionError, match=f"{points[1].id} is already recorded"):
+        again.record_point(points[1].id, rows_for(points[1]))
     with pytest.raises(SessionError, match="T77-F01 is not in the plan"):
         again.record_point("T77-F01", [])
     again.close()
@@ -137,7 +137,7 @@ WRITER = textwrap.dedent("""
 """)
 
 
-def test_kill_9_mid_write_leaves_whole_points_only(tmp_path):
+def test_kill_9_mid_write_leaves_whole_points_only(tmp_path, points):
     path = tmp_path / "killed.magrig"
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(DEMO)], stdout=subprocess.PIPE,
                             text=True)
@@ -152,12 +152,13 @@ def test_kill_9_mid_write_leaves_whole_points_only(tmp_path):
         "SELECT p.id, count(s.id) FROM points p LEFT JOIN samples s ON s.point_id = p.id GROUP BY p.id"))
     done = {r[0] for r in conn.execute("SELECT id FROM points WHERE state = 'done'")}
     conn.close()
-    assert done == {"T01-F01", "T01-F02"}
+    assert done == {points[0].id, points[1].id}
     for point, n in per_point.items():
         assert n == (5000 if point in done else 0), point
     resumed = Session.open(path)
     assert resumed.done_point_ids() == done
-    resumed.record_point("T01-F03", [SampleRow("mmc0", 0.0, (1.0, 2.0, 3.0), (0.0, 0.0, 1.0), temp_c=20.0)])
+    row = SampleRow("mmc0", 0.0, (1.0, 2.0, 3.0), (0.0, 0.0, 1.0), temp_c=20.0)
+    resumed.record_point(points[2].id, [row])
     resumed.close()
 
 
@@ -214,7 +215,7 @@ def test_read_dataset_round_trip(tmp_path, campaign, points):
     assert np.allclose(ds.ref_nt[0], points[0].field_nt) and np.allclose(ds.ref_nt[-1], points[33].field_nt)
     assert ds.temp_c[-1] == 3.5  # no DUT temperature: the reference sensor's
     assert list(ds.group[[0, 4]]) == ["T01 -20.0C", "T02 0.0C"]
-    assert list(ds.columns["point"][[0, 4, 7]]) == ["T01-F01", "T02-F07", "T02-F08"]
+    assert list(ds.columns["point"][[0, 4, 7]]) == [points[0].id, points[32].id, points[33].id]
     assert ds.source["rows_total"] == 9 and ds.source["rows_rejected"] == 1 and ds.source["kind"] == "session"
     assert len(ds.source["sha256"]) == 64
     serial = read_dataset(tmp_path / "s.magrig", "serial0")
