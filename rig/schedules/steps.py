@@ -113,6 +113,9 @@ class StepSchedule:
         self._check_setpoints(points)
         inputs = planning_inputs(self.plan, self.station)
         lines = inputs.lines()
+        listed = self.plan.field_order == "listed"
+        lines.append("field order: the plan's (field_order: listed)" if listed else
+                     "field order: a fresh one at each step (field_order: shuffled; listed keeps the plan's)")
         if inputs.slowest_lag_s() is None:
             lines.append("stability waits: not predicted without every DUT's lag (counted as the dwell "
                          "alone)")

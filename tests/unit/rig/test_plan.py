@@ -79,6 +79,11 @@ def test_each_step_takes_every_field_once_in_an_order_of_its_own():
     by_id = {p.id: p for p in listed}
     assert all(p.command == by_id[p.id].command for p in points)  # an id names the same target
     assert [p.id for p in compile_plan(make_plan(), coil_station())] == [p.id for p in points]
+    said = {order: [line for line in check_plan(make_plan(field_order=order), coil_station()).summary_lines()
+                    if line.startswith("field order")] for order in ("shuffled", "listed")}
+    assert said == {"shuffled": ["field order: a fresh one at each step (field_order: shuffled; listed keeps "
+                                 "the plan's)"],
+                    "listed": ["field order: the plan's (field_order: listed)"]}
 
 
 def test_a_moving_schedule_refuses_a_shuffled_order(tmp_path):
