@@ -14,7 +14,7 @@
 3. certificates: the demo's DUTs (rig certificate).
 
     .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
-                                                   [--jobs 2] [--table]
+                                                   [--jobs 2] [--table] [--field-order listed]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
@@ -50,9 +50,11 @@ GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 WORST_SHARE = 0.05
 
 
-def plan_t24(folder: Path, table: bool = False) -> Path:
+def plan_t24(folder: Path, table: bool = False, field_order: str | None = None) -> Path:
     data = yaml.safe_load(DEMO.read_text())
     data["fit"] = {"models": ["t24"], "robust": False}
+    if field_order is not None:
+        data["field_order"] = field_order
     if table:
         data["fields"] = TABLE_FIELDS
     data.pop("station", None)
@@ -96,7 +98,8 @@ def _table_fields(site_nt) -> np.ndarray:
                      for el in TABLE_FIELDS["el_deg"] for az in TABLE_FIELDS["az_deg"]])
 
 
-def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False) -> dict:
+def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False,
+               field_order: str | None = None) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -105,7 +108,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     if table:  # the table is commissioned at home alone (its axes): no places, no loops
         world = table_world(world, rng)
     station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
-    session = run(station, plan_t24(folder, table), folder)
+    session = run(station, plan_t24(folder, table, field_order), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
     calibrated_fields = _table_fields(site) if table else None  # None: the demo's
@@ -137,9 +140,10 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     return {"index": index, "rows": out_rows}
 
 
-def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False) -> None:
+def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False,
+             field_order: str | None = None) -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out), wider, table) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider, table, field_order) for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
@@ -150,8 +154,8 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
         if res.get("error"):
             print(f"  world {res['index']} not run: {res['error']}")
     print(f"coverage: {len(rows)} DUTs on {worlds} {'turntable ' if table else ''}worlds (seed {seed}; "
-          f"systematic errors {wider:g} x the "
-          f"standard uncertainties stated; sessions in {out}; "
+          f"systematic errors {wider:g} x the standard uncertainties stated; field order "
+          f"{field_order or 'the plan default'}; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
     print("  true T24 parameters within U = k u (k from the effective degrees of freedom):")
     total = []
@@ -187,13 +191,15 @@ def main() -> None:
     parser.add_argument("--wider", type=float, default=WIDER,
                         help="coverage: the worlds' systematic errors, x the standard uncertainties stated")
     parser.add_argument("--table", action="store_true", help="coverage: a turntable in the coils' place")
+    parser.add_argument("--field-order", choices=("shuffled", "listed"), default=None,
+                        help="coverage: the plan's field_order (default: the plan's default, shuffled)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
-        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table)
+        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 
