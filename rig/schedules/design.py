@@ -220,6 +220,7 @@ def designed_plan_dict(plan_text: str, designed: Designed, station: Station, nam
     if stability is not None:
         temps["stability"] = stability
     data["temperatures"] = temps
+    data.pop("field_order", None)  # a step plan's: the designed sweeps go in their own order
     if "vectors" in station.field_source.field_kinds:
         data["fields"] = {"kind": "vectors",
                           "vectors_nt": [_Flow(_round(v) for v in f) for f in designed.targets_nt]}

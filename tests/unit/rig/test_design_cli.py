@@ -50,7 +50,7 @@ def write_plan(tmp_path: Path, name: str = "p", **overrides) -> Path:
 
 
 def test_design_writes_a_plan_rig_check_accepts_with_its_predicted_errors(tmp_path, capsys):
-    plan = write_plan(tmp_path)
+    plan = write_plan(tmp_path, field_order="shuffled")  # a step plan's order: not the designed sweeps
     station = stating_station(tmp_path)
     out_path = tmp_path / "sub" / "designed.yaml"
     code, out, err = run(capsys, "design", plan, "--station", station, "-o", out_path)
@@ -67,6 +67,7 @@ def test_design_writes_a_plan_rig_check_accepts_with_its_predicted_errors(tmp_pa
     assert any(leg.get("check") for leg in temps["legs"])  # interior temperatures for the model check
     assert set(temps["assumed"]) == {"mmc0", "serial0"} and "timing" not in temps  # no pace measured
     assert temps["range_c"] == [-20, 60]
+    assert "field_order" not in data
     assert data["fields"]["kind"] == "vectors" and len(data["fields"]["vectors_nt"]) >= 8
     assert (out_path.parent / data["station"]).resolve() == station.resolve()  # relative to the new file
     # rig check of the written plan (station from the plan itself) shows the prediction, and draws it
