@@ -13,8 +13,7 @@ settling, moving and sampling.
 from __future__ import annotations
 
 import math
-
-import numpy as np
+import random
 
 from rig.config import Plan, Station
 from rig.core.errors import ConfigError, LimitError
@@ -101,11 +100,16 @@ class StepSchedule:
 
     def field_order(self, temp_index: int) -> list[int]:
         """The 1-based field indices in the order step `temp_index` takes them."""
-        listed = list(range(1, len(self.targets) + 1))
+        order = list(range(1, len(self.targets) + 1))
         if self.plan.field_order == "listed":
-            return listed
-        order = np.random.default_rng([ORDER_SEED, temp_index]).permutation(len(listed))
-        return [listed[k] for k in order]
+            return order
+        # Fisher-Yates on random.Random's random(): the one output Python keeps the same across versions,
+        # so a session is resumed in its own order whatever the interpreter
+        draw = random.Random(ORDER_SEED * 1000 + temp_index).random
+        for i in range(len(order) - 1, 0, -1):
+            j = int(draw() * (i + 1))
+            order[i], order[j] = order[j], order[i]
+        return order
 
     def check(self) -> ScheduleCheck:
         points = self.points()
