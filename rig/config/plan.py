@@ -141,7 +141,7 @@ class Plan(Strict):
             self.acceptance.check_against(list(self.fit.models))
         if self.field_order == "shuffled" and self.moving:
             raise KeyPathError(("field_order",), "a moving schedule sweeps the fields in the listed order "
-                               "(its lag fit reads the order); shuffled applies to temperature steps")
+                               "(ramp, designed, sequential); shuffled applies to temperature steps")
         if isinstance(self.temperatures, SequentialTemperatures) and not self.se_targets():
             raise KeyPathError(("temperatures", "mode"),
                                "a sequential schedule stops when the DUTs meet their "
