@@ -136,7 +136,7 @@ def run_campaign(
             if resume:
                 session = Session.open(session_path, clock=rig.clock)
                 points = points + decided_points(plan, station, session.decisions(), len(points))
-                _check_resumable(session, points)
+                points = resumable_points(session, points)
             else:
                 session = Session.create_for(session_path, campaign, points, clock=rig.clock,
                                              operator=os.environ.get("USER"))
@@ -175,11 +175,17 @@ def check_temp_sources(rig: Rig) -> None:
                               "it in the DUT's temp_source")
 
 
-def _check_resumable(session, points: list[Point]) -> None:
+def resumable_points(session, points: list[Point]) -> list[Point]:
+    """The points to resume with, in the order the session planned them: the same points taken in another
+    order (a session begun before its plan's fields were shuffled per step) go on in the recorded one."""
     planned = session.planned_point_ids()
-    if planned != [p.id for p in points]:
+    if planned == [p.id for p in points]:
+        return points
+    by_id = {p.id: p for p in points}
+    if sorted(planned) != sorted(by_id):
         raise SessionError(f"{session.path}: the recorded plan no longer compiles to the recorded points; "
                            "cannot resume")
+    return [dataclasses.replace(by_id[pid], index=k) for k, pid in enumerate(planned)]
 
 
 def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, hold_wait_s, max_retakes,

@@ -23,6 +23,7 @@ from tests.system.campaign_helpers import (
     final_snapshots,
     first_point_line,
     popen_rig,
+    query,
     run_rig,
     session_counts,
     small_plan,
@@ -147,3 +148,21 @@ def test_a_persistent_chamber_alarm_aborts_after_the_retakes_and_ends_safe(tmp_p
     assert final["coils"][-1]["enabled"] == [False, False, False]
     assert final["chamber"][-1]["setpoint_c"] == pytest.approx(25.0)
     assert not outcome.fits
+
+
+def test_a_session_planned_in_another_order_resumes_in_its_own(tmp_path):
+    """A session begun before its plan's fields were shuffled per step holds them in the listed order: a
+    resume goes on in that order, not the one the plan compiles to now."""
+    from drivers.clock import SimClock
+    from rig.session.writer import Session
+
+    campaign = load_campaign(small_plan(tmp_path, samples=2), SIM_STATION)
+    listed = compile_plan(campaign.plan.model_copy(update={"field_order": "listed"}), campaign.station)
+    assert [p.id for p in compile_plan(campaign.plan, campaign.station)] != [p.id for p in listed]
+    session = tmp_path / "before.session"
+    Session.create_for(session, campaign, listed, operator="op", clock=SimClock()).close()
+    outcome = run_campaign(campaign=campaign, session_path=session, resume=True)
+    assert outcome.result.status == "completed"
+    done = query(session, "SELECT p.id FROM points p JOIN samples s ON s.point_id = p.id "
+                          "GROUP BY p.id ORDER BY min(s.t)")
+    assert [row[0] for row in done] == [p.id for p in listed]
