@@ -193,8 +193,32 @@ def _results(g) -> list[Section]:
         "Parameters with their expanded uncertainty U = k u (coverage probability about 95 %; k from each "
         "one's effective degrees of freedom, GUM G.4: 2 where every input is well known); temperatures "
         "in degC, fields in nT (the calibration files hold the full covariance).",
+        *_measurand(g),
         Table(["model", "parameter", "value", "U (expanded)", "k"], rows)])
     return [results, Section("Uncertainty budget", budgets)]
+
+
+def _measurand(g) -> list[str]:
+    """What the parameters stand for (the measurand, rig/reference/modelerror.py), and what a point of use
+    adds to their uncertainty: said once, with each model's figures."""
+    ds = g["ds"]
+    said = [f"Measurand: the parameters of each model are those that describe the DUT best over the "
+            f"conditions stated ({ds.temp_c.min():.1f} .. {ds.temp_c.max():.1f} degC, the plan's fields), in "
+            "its mean thermal state. What the model cannot follow there (the terms the model checks found, "
+            "the misfit) and the DUT's thermal state at a point of use are uncertainties of the calibrated "
+            "field: at any reading they add to what the parameters' covariance gives (rig apply "
+            "--uncertainty; the files' model_error_nt and hysteresis_state_nt)."]
+    for model, (_, cal) in g["cals"].items():
+        u = cal.uncertainty or {}
+        model_error, state = u.get("model_error_nt"), u.get("hysteresis_state_nt")
+        if model_error is None and state is None:
+            continue
+        parts = [] if model_error is None else [
+            "model error (" + ", ".join(f"{v:.3g}" for v in model_error) + ") nT, standard"]
+        parts += [] if state is None else [
+            "thermal state +-(" + ", ".join(f"{v:.3g}" for v in state) + ") nT, either sign"]
+        said.append(f"{model.upper()} at a point of use, per axis: " + "; ".join(parts) + ".")
+    return said
 
 
 def _traceability(g) -> Section:

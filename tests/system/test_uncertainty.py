@@ -285,6 +285,8 @@ def test_a_certificate_states_every_item_and_renders_in_the_browser(worlds, tmp_
                  "ref0", "sha256", "commissioning", "linearity in temperature", "magrig"):
         assert fact in text, fact
     assert "U (expanded)" in text and "thermal hysteresis" in text
+    assert "Measurand: the parameters of each model are those that describe the DUT best" in text
+    assert "T24 at a point of use, per axis: model error (" in text
     if (why := browser.missing()) is not None:
         pytest.skip(why)
     if not list(tmp_path.glob("*.dut1.certificate.pdf")):
