@@ -8,13 +8,15 @@
    and magnitudes, temperatures between the plan's, either thermal direction) within the 95 % radius the
    file gives there (calib/fielderror.py: its covariance and model error), over all points and over each
    DUT's worst 5 % (the points with the largest stated radius: where the calibration is least certain).
-   Goal 90-98 %.
+   Goal 90-98 %. --model p12 fits and judges P12 instead (its k, angles and offsets against the best P12
+   over the same conditions; its field error at the same points, where its model error is most of it).
 2. timing: every budget (T24, P12, scalar) of a 64-DUT campaign, and the demo's wall time on 64 DUTs
    against 2 (bench/uncertainty_timing.py).
 3. certificates: the demo's DUTs (rig certificate).
 
     .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
                                                    [--jobs 2] [--table] [--field-order listed]
+                                                   [--model t24|p12]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
@@ -47,12 +49,14 @@ from rig.devices.bench import dut_truths  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
 GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
+# each model's parameter groups (report name: the calibration file's key)
+MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b_nt"}}
 WORST_SHARE = 0.05
 
 
-def plan_t24(folder: Path, table: bool = False, field_order: str | None = None) -> Path:
+def plan_t24(folder: Path, table: bool = False, field_order: str | None = None, model: str = "t24") -> Path:
     data = yaml.safe_load(DEMO.read_text())
-    data["fit"] = {"models": ["t24"], "robust": False}
+    data["fit"] = {"models": [model], "robust": False}
     if field_order is not None:
         data["field_order"] = field_order
     if table:
@@ -63,11 +67,11 @@ def plan_t24(folder: Path, table: bool = False, field_order: str | None = None) 
     return path
 
 
-def best_t24(truth, temp_ref_c: float, fields=None) -> dict:
-    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields,
-    or `fields`, at its temperatures, its mean thermal state): what its calibration measures. The truth's
-    own S, K, b, kb when it has no term beyond T24."""
-    if truth.deviations is None:
+def best_t24(truth, temp_ref_c: float, fields=None, model: str = "t24") -> dict:
+    """The T24 (or `model`'s) parameters that describe the DUT best over the calibration's conditions (the
+    demo's fields, or `fields`, at its temperatures, its mean thermal state): what its calibration
+    measures. The truth's own S, K, b, kb when it has no term beyond T24."""
+    if truth.deviations is None and model == "t24":
         return {"S": truth.S, "K": truth.K, "b_nt": truth.b_nt, "kb_nt_per_c": truth.kb_nt_per_c}
     plan = yaml.safe_load(DEMO.read_text())
     if fields is None:
@@ -77,7 +81,7 @@ def best_t24(truth, temp_ref_c: float, fields=None) -> dict:
     f = np.tile(fields, (len(temps), 1))
     t = np.repeat(temps, len(fields))
     h = np.array([truth.raw_from_field(b, tc) for b, tc in zip(f, t, strict=True)])
-    cal = calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), "t24", temp_ref_c=temp_ref_c)
+    cal = calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), model, temp_ref_c=temp_ref_c)
     return {k: np.asarray(v, float) for k, v in cal.params.items()}
 
 
@@ -99,7 +103,7 @@ def _table_fields(site_nt) -> np.ndarray:
 
 
 def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False,
-               field_order: str | None = None) -> dict:
+               field_order: str | None = None, model: str = "t24") -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -108,19 +112,20 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     if table:  # the table is commissioned at home alone (its axes): no places, no loops
         world = table_world(world, rng)
     station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
-    session = run(station, plan_t24(folder, table, field_order), folder)
+    session = run(station, plan_t24(folder, table, field_order, model), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
     calibrated_fields = _table_fields(site) if table else None  # None: the demo's
     out_rows = []
     for dut, truth in truths.items():
-        cal = calfile.load(calibration_file(session, dut, "t24"))
+        cal = calfile.load(calibration_file(session, dut, model))
         expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
-        true = best_t24(truth, cal.temp_ref_c, calibrated_fields)
+        true = best_t24(truth, cal.temp_ref_c, calibrated_fields, model)
+        groups = MODEL_GROUPS[model]
         inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
-                  for g, k in GROUPS.items()}
-        u = {k: np.maximum(standard_uncertainty(cal.uncertainty, k), 1e-300) for k in GROUPS.values()}
-        z = {g: (np.abs(cal.params[k] - true[k]) / u[k]).ravel().tolist() for g, k in GROUPS.items()}
+                  for g, k in groups.items()}
+        u = {k: np.maximum(standard_uncertainty(cal.uncertainty, k), 1e-300) for k in groups.values()}
+        z = {g: (np.abs(cal.params[k] - true[k]) / u[k]).ravel().tolist() for g, k in groups.items()}
         fields, temps = validation_grid(np.array([-20.0, 0.0, 25.0, 60.0]))
         if table:  # a table's calibration knows one magnitude, the site field's: it is judged there
             fields = fields / np.linalg.norm(fields, axis=1, keepdims=True) * np.linalg.norm(site)
@@ -141,9 +146,9 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
 
 
 def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False,
-             field_order: str | None = None) -> None:
+             field_order: str | None = None, model: str = "t24") -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out), wider, table, field_order) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider, table, field_order, model) for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
@@ -157,15 +162,15 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
           f"systematic errors {wider:g} x the standard uncertainties stated; field order "
           f"{field_order or 'the plan default'}; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
-    print("  true T24 parameters within U = k u (k from the effective degrees of freedom):")
+    print(f"  true {model.upper()} parameters within U = k u (k from the effective degrees of freedom):")
     total = []
-    for g in GROUPS:
+    for g in MODEL_GROUPS[model]:
         values = [v for r in rows for v in r["inside"][g]]
         zs = np.array([v for r in rows for v in r["z"][g]])
         total += values
-        print(f"    {g:3s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median "
+        print(f"    {g:6s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median "
               f"{np.median(zs):.2f}, 95th percentile {np.quantile(zs, 0.95):.2f}")
-    print(f"    all {np.mean(total):6.1%} of {len(total)}")
+    print(f"    all    {np.mean(total):6.1%} of {len(total)}")
     points = [v for r in rows for v in r["points"]]
     worst = [v for r in rows for v in r["worst"]]
     ratio = np.array([v for r in rows for v in r["ratio"]])
@@ -193,13 +198,15 @@ def main() -> None:
     parser.add_argument("--table", action="store_true", help="coverage: a turntable in the coils' place")
     parser.add_argument("--field-order", choices=("shuffled", "listed"), default=None,
                         help="coverage: the plan's field_order (default: the plan's default, shuffled)")
+    parser.add_argument("--model", choices=sorted(MODEL_GROUPS), default="t24",
+                        help="coverage: the model fitted and judged (default t24)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
-        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order)
+        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order, args.model)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 
