@@ -196,3 +196,45 @@ def test_an_error_shared_by_a_points_samples_weighs_as_n_times_its_variance():
     ds, white = _stepped(rng, noise=30.0, wander=0.0, excess=0.0, step_nt=0.0)
     rms = np.sqrt(np.mean(white**2, axis=0))
     assert np.array_equal(_clustered_noise(white, ds.columns["point"], rms, []), rms)
+
+
+def _table_like(rng, rotation_deg: float, noise: float = 30.0):
+    """A turntable's unbalanced directions (the site field at 24 orientations, 5 samples each) and a
+    residual that is a small rotation of the field (what P12 cannot follow) plus noise."""
+    site = np.array([16000.0, 0.0, 43000.0])
+    fields, labels = [], []
+    for el in (-60.0, 0.0, 60.0):
+        for az in np.arange(0.0, 360.0, 45.0):
+            a, e = np.radians(az), np.radians(el)
+            rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+            ry = np.array([[np.cos(e), 0, np.sin(e)], [0, 1, 0], [-np.sin(e), 0, np.cos(e)]])
+            for _ in range(5):
+                fields.append((rz @ ry).T @ site)
+                labels.append(f"F{az:g}/{el:g}")
+    ref = np.array(fields)
+    angle = np.radians(rotation_deg)
+    skew = np.array([[0.0, -angle, 0.0], [angle, 0.0, 0.0], [0.0, 0.0, 0.0]])  # about z
+    resid = ref @ skew.T + rng.normal(0, noise, ref.shape)
+    return ref, resid, np.array(labels, object)
+
+
+def test_a_directional_misfit_over_unbalanced_directions_is_taken_at_every_direction():
+    """A rotation a model cannot follow, seen over a table's directions: the misfit states its size over
+    the whole sphere (exactly |c|^2 / 3 per axis for a rotation), not its smaller size over the data."""
+    from rig.reference.modelerror import directional_part
+
+    rng = np.random.default_rng(11)
+    ref, resid, labels = _table_like(rng, rotation_deg=1.0)
+    resid = resid - resid.mean(axis=0)  # as a fit's offsets would leave it
+    notes: list[str] = []
+    source = _misfit(resid, np.ones(len(resid)), len(resid) - 9, labels, notes, ref)
+    # a 1 deg turn about z errs by theta (-B_y, B_x): over every direction at |B|, theta |B| / sqrt(3) per
+    # axis. The table's directions hold less B_y than that (x grows to it) and more B_x (y keeps its own).
+    over_sphere = np.radians(1.0) * np.sqrt(np.mean(np.sum(ref**2, axis=1)) / 3)
+    in_data = np.sqrt(np.mean(resid**2, axis=0))
+    stated = np.sqrt(np.diag(source.covariance))
+    np.testing.assert_allclose(stated[0], over_sphere, rtol=0.05)
+    assert in_data[0] < 0.5 * over_sphere and stated[1] >= in_data[1] > over_sphere
+    assert "over every direction" in source.origin
+    quiet_ref, quiet, quiet_labels = _table_like(rng, rotation_deg=0.0)
+    assert directional_part(quiet - quiet.mean(axis=0), quiet_ref, np.ones(len(quiet)), quiet_labels) is None
