@@ -54,13 +54,26 @@ def _constant_norm(fn_nt: np.ndarray) -> dict:
 
 
 def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ellipsoid through scaled readings hn with known scaled norms fn: returns (A upper, c)."""
+    """Ellipsoid through scaled readings hn with known scaled norms fn: returns (A upper, c), the start of
+    the least-squares fit. Norms that spread are fitted as such (the quadric = |B|^2); where that fails
+    (readings near a sphere whose norms spread a little, by a percent or two: the quadric's constant then
+    trades with its scale, and its matrix comes out indefinite), the quadric through the points, scaled to
+    their mean |B|^2: the fit that follows takes each norm as it is."""
+    if np.ptp(fn) <= NORM_SPREAD_CONSTANT * np.max(fn):
+        return _quadric(hn, fn, w, through_points=True)
+    try:
+        return _quadric(hn, fn, w, through_points=False)
+    except FitError:
+        return _quadric(hn, fn, w, through_points=True)
+
+
+def _quadric(hn: np.ndarray, fn: np.ndarray, w: np.ndarray, through_points: bool
+             ) -> tuple[np.ndarray, np.ndarray]:
     x, y, z = hn.T
     quad = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, -2 * x, -2 * y, -2 * z])
     sw = np.sqrt(w)[:, None]
-    constant_norm = np.ptp(fn) <= NORM_SPREAD_CONSTANT * np.max(fn)
     d = np.column_stack([quad, np.ones(len(hn))]) * sw
-    if constant_norm:
+    if through_points:
         # homogeneous: the quadric through the points, its scale fixed afterwards by the known norm
         v = np.linalg.svd(d, full_matrices=False)[2][-1]
     else:
@@ -72,7 +85,7 @@ def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarra
         c = np.linalg.solve(wm, v[6:9])
     except np.linalg.LinAlgError:
         raise FitError(_coverage_message()) from None
-    if constant_norm:
+    if through_points:
         denom = c @ wm @ c - v[9]
         if denom <= 0:
             raise FitError(_coverage_message())
