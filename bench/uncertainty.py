@@ -9,14 +9,16 @@
    file gives there (calib/fielderror.py: its covariance and model error), over all points and over each
    DUT's worst 5 % (the points with the largest stated radius: where the calibration is least certain).
    Goal 90-98 %. --model p12 fits and judges P12 instead (its k, angles and offsets against the best P12
-   over the same conditions; its field error at the same points, where its model error is most of it).
+   over the same conditions; its field error at the same points, where its model error is most of it);
+   --model scalar the |B|-only fit (its A, c and their temperature terms against the best scalar fit, its
+   field error in its own frame: the DUT's, found from that best fit).
 2. timing: every budget (T24, P12, scalar) of a 64-DUT campaign, and the demo's wall time on 64 DUTs
    against 2 (bench/uncertainty_timing.py).
 3. certificates: the demo's DUTs (rig certificate).
 
     .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
                                                    [--jobs 2] [--table] [--field-order listed]
-                                                   [--model t24|p12]
+                                                   [--model t24|p12|scalar] [--again]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
@@ -50,7 +52,8 @@ REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
 GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 # each model's parameter groups (report name: the calibration file's key)
-MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b_nt"}}
+MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b_nt"},
+                "scalar": {"A": "A", "c": "c_nt", "KA": "KA_per_c", "kc": "kc_nt_per_c"}}
 WORST_SHARE = 0.05
 
 
@@ -67,12 +70,20 @@ def plan_t24(folder: Path, table: bool = False, field_order: str | None = None, 
     return path
 
 
-def best_t24(truth, temp_ref_c: float, fields=None, model: str = "t24") -> dict:
-    """The T24 (or `model`'s) parameters that describe the DUT best over the calibration's conditions (the
-    demo's fields, or `fields`, at its temperatures, its mean thermal state): what its calibration
-    measures. The truth's own S, K, b, kb when it has no term beyond T24."""
-    if truth.deviations is None and model == "t24":
+def best_t24(truth, temp_ref_c: float, fields=None) -> dict:
+    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields,
+    or `fields`, at its temperatures, its mean thermal state): what its calibration measures. The truth's
+    own S, K, b, kb when it has no term beyond T24."""
+    if truth.deviations is None:
         return {"S": truth.S, "K": truth.K, "b_nt": truth.b_nt, "kb_nt_per_c": truth.kb_nt_per_c}
+    cal, _ = best_fit(truth, "t24", temp_ref_c, fields)
+    return {k: np.asarray(v, float) for k, v in cal.params.items()}
+
+
+def best_fit(truth, model: str, temp_ref_c: float, fields=None, **options):
+    """(the calibration of `model` that describes the DUT best over the calibration's conditions, fitted to
+    its noiseless readings there; the frame it calibrates into, as the rotation from the reference's frame:
+    the identity but for the scalar model, whose frame is the DUT's own)."""
     plan = yaml.safe_load(DEMO.read_text())
     if fields is None:
         dirs = np.asarray(plan["fields"]["directions"], float)
@@ -81,8 +92,11 @@ def best_t24(truth, temp_ref_c: float, fields=None, model: str = "t24") -> dict:
     f = np.tile(fields, (len(temps), 1))
     t = np.repeat(temps, len(fields))
     h = np.array([truth.raw_from_field(b, tc) for b, tc in zip(f, t, strict=True)])
-    cal = calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), model, temp_ref_c=temp_ref_c)
-    return {k: np.asarray(v, float) for k, v in cal.params.items()}
+    cal = calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), model, temp_ref_c=temp_ref_c, **options)
+    if model != "scalar":
+        return cal, np.eye(3)
+    u, _, vt = np.linalg.svd(cal.apply(h, t).T @ f)  # Procrustes: the rotation taking f to the fit's frame
+    return cal, u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
 def one_world(args) -> dict:
@@ -103,7 +117,7 @@ def _table_fields(site_nt) -> np.ndarray:
 
 
 def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False,
-               field_order: str | None = None, model: str = "t24") -> dict:
+               field_order: str | None = None, model: str = "t24", again: bool = False) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -111,17 +125,32 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     world = random_world(rng, index, reference, wider)
     if table:  # the table is commissioned at home alone (its axes): no places, no loops
         world = table_world(world, rng)
-    station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
-    session = run(station, plan_t24(folder, table, field_order, model), folder)
+    if again:  # the world drawn as before (the same rng), its station and session those already there
+        station, session = folder / f"{world['name']}.yaml", folder / "train.session"
+    else:
+        station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
+        session = run(station, plan_t24(folder, table, field_order, model), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
     calibrated_fields = _table_fields(site) if table else None  # None: the demo's
     out_rows = []
     for dut, truth in truths.items():
         cal = calfile.load(calibration_file(session, dut, model))
+        if cal.uncertainty is None:  # the budget refused to state one (its warning says why): counted apart
+            said = (cal.stats.get("warnings") or ["?"])[-1]
+            out_rows.append({"world": index, "dut": dut, "unstated": said})
+            continue
         expanded = {k: np.asarray(v, float) for k, v in cal.uncertainty["expanded"].items()}
-        true = best_t24(truth, cal.temp_ref_c, calibrated_fields, model)
-        groups = MODEL_GROUPS[model]
+        options = {} if model != "scalar" else {
+            "temperature_terms": "KA_per_c" in cal.params, "field_norm_nt": cal.stats.get("field_norm_nt"),
+            "balance_orientations": cal.stats.get("balance_orientations")}
+        frame = np.eye(3)
+        if model == "t24":
+            true = best_t24(truth, cal.temp_ref_c, calibrated_fields)
+        else:
+            best, frame = best_fit(truth, model, cal.temp_ref_c, calibrated_fields, **options)
+            true = {k: np.asarray(v, float) for k, v in best.params.items()}
+        groups = {g: k for g, k in MODEL_GROUPS[model].items() if k in cal.params}
         inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()
                   for g, k in groups.items()}
         u = {k: np.maximum(standard_uncertainty(cal.uncertainty, k), 1e-300) for k in groups.values()}
@@ -133,7 +162,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         state = rng.choice([-1.0, 1.0], len(fields))
         h = np.array([truth.raw_from_field(f, t, s * hyst)
                       for f, t, s in zip(fields, temps, state, strict=True)])
-        error = np.linalg.norm(cal.apply(h, temps) - fields, axis=1)
+        error = np.linalg.norm(cal.apply(h, temps) - fields @ frame.T, axis=1)
         _, radius = expanded_at(cal, h, temps)
         worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
         out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
@@ -146,15 +175,19 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
 
 
 def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False,
-             field_order: str | None = None, model: str = "t24") -> None:
+             field_order: str | None = None, model: str = "t24", again: bool = False) -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out), wider, table, field_order, model) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider, table, field_order, model, again) for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
     else:
         results = [one_world(a) for a in jobs_args]
-    rows = [r for res in results for r in res["rows"]]
+    rows = [r for res in results for r in res["rows"] if "unstated" not in r]
+    unstated = [r for res in results for r in res["rows"] if "unstated" in r]
+    if unstated:
+        print(f"  {len(unstated)} DUTs whose calibration states no uncertainty (left out), e.g. "
+              f"{unstated[0]['world']} {unstated[0]['dut']}: {unstated[0]['unstated'][:300]}")
     for res in results:
         if res.get("error"):
             print(f"  world {res['index']} not run: {res['error']}")
@@ -200,13 +233,17 @@ def main() -> None:
                         help="coverage: the plan's field_order (default: the plan's default, shuffled)")
     parser.add_argument("--model", choices=sorted(MODEL_GROUPS), default="t24",
                         help="coverage: the model fitted and judged (default t24)")
+    parser.add_argument("--again", action="store_true",
+                        help="coverage: judge the sessions already in --out again (the same seed draws the "
+                             "same worlds), without running them")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
-        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order, args.model)
+        coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order, args.model,
+                 args.again)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 
