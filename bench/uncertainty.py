@@ -135,7 +135,11 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     calibrated_fields = _table_fields(site) if table else None  # None: the demo's
     out_rows = []
     for dut, truth in truths.items():
-        cal = calfile.load(calibration_file(session, dut, model))
+        path = calibration_file(session, dut, model)
+        if not path.exists():  # the fit refused (the session's events say why): counted apart
+            out_rows.append({"world": index, "dut": dut, "unstated": "no calibration: its fit failed"})
+            continue
+        cal = calfile.load(path)
         if cal.uncertainty is None:  # the budget refused to state one (its warning says why): counted apart
             said = (cal.stats.get("warnings") or ["?"])[-1]
             out_rows.append({"world": index, "dut": dut, "unstated": said})
@@ -186,8 +190,12 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
     rows = [r for res in results for r in res["rows"] if "unstated" not in r]
     unstated = [r for res in results for r in res["rows"] if "unstated" in r]
     if unstated:
-        print(f"  {len(unstated)} DUTs whose calibration states no uncertainty (left out), e.g. "
-              f"{unstated[0]['world']} {unstated[0]['dut']}: {unstated[0]['unstated'][:300]}")
+        print(f"  {len(unstated)} DUTs left out, whose calibration states no uncertainty or did not fit:")
+        reasons: dict[str, list[str]] = {}
+        for r in unstated:
+            reasons.setdefault(r["unstated"][:160], []).append(f"world{r['world']:02d} {r['dut']}")
+        for said, where in reasons.items():
+            print(f"    {len(where)} ({', '.join(where[:4])}{', ...' if len(where) > 4 else ''}): {said}")
     for res in results:
         if res.get("error"):
             print(f"  world {res['index']} not run: {res['error']}")

@@ -17,7 +17,9 @@ history besides:
   a cubic term moves the true field at the grid points by what a T24 fit over the grid cannot follow of
   it (calib.propagation InputSource.field_nt); the hysteresis moved the data by d_n c (d_n the thermal
   direction of each sample), which the parameters absorbed. At a point of use the DUT may be in either
-  thermal state: +-c, a field error of its own ("thermal hysteresis state").
+  thermal state: +-c, a field error of its own ("thermal hysteresis state"). Another model's parameters
+  (P12, the scalar fit, T36) absorb the hysteresis alike: their budgets take it as T24's checks find it
+  in the same data; what else they cannot follow is in their own residual (the misfit).
 - The misfit: the fit's residual (after those terms) beyond what the DUT's own noise explains. The noise
   is the scatter within points (the samples of one point see the same field and temperature); the
   excess, when significant (MISFIT_SIGNIFICANCE standard errors of the variance ratio), is a field error
@@ -86,13 +88,18 @@ def _terms(kind: str, h, temp, direction, temp_mid: float) -> np.ndarray:
     return (norm2[:, None] * h)[:, :, None]
 
 
-def _found(cal, ds, direction) -> list[str]:
-    """The checks whose terms the data show (recorded in the stats, else made here)."""
+def _checks(cal, ds, direction) -> dict[str, dict]:
+    """T24's model checks by term (recorded in the stats, else made here: another model's data)."""
     checks = cal.stats.get("model_checks")
     if checks is None:
         checks = [c.as_dict() for c in model_checks(ds, direction)]
-    return [CHECK_TERMS[c["name"]] for c in checks
-            if c.get("testable") and c.get("p") is not None and c["p"] < P_TERM and c["name"] in CHECK_TERMS]
+    return {CHECK_TERMS[c["name"]]: c for c in checks if c["name"] in CHECK_TERMS}
+
+
+def _found(checks: dict[str, dict]) -> list[str]:
+    """The terms the data show."""
+    return [kind for kind, c in checks.items()
+            if c.get("testable") and c.get("p") is not None and c["p"] < P_TERM]
 
 
 def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray):
@@ -143,6 +150,10 @@ def model_sources(ds, cal, direction, weights=None,
     w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
     points = ds.columns.get("point")
     fit = _TermsFit(ds, cal, direction, w) if cal.model == "t24" else None
+    # another model's parameters take the DUT's thermal hysteresis from an unbalanced history as T24's do:
+    # its size is what T24's checks find in the same data
+    other = None if fit is not None or ds.ref_nt is None or direction is None else \
+        _TermsFit(ds, cal, direction, w)
     if fit is not None:
         resid, dof = fit.resid, fit.dof
     elif cal.model == "scalar":
@@ -163,6 +174,8 @@ def model_sources(ds, cal, direction, weights=None,
         out += [] if wander is None else [wander]
     if fit is not None:
         out = fit.sources(ds, cal, step_var, step_reference_var, notes) + out
+    elif other is not None and "hysteresis" in other.found:
+        out = other.sources(ds, cal, step_var, step_reference_var, notes, hysteresis_only=True) + out
     misfit = _misfit(resid, w, dof, points, notes, ds.ref_nt)
     noise = None
     if fit is not None:
@@ -203,14 +216,15 @@ class _TermsFit:
     """T24 and the terms its checks found, fitted together (module docstring)."""
 
     def __init__(self, ds, cal, direction, w):
-        self.found = _found(cal, ds, direction)
+        self.checks = _checks(cal, ds, direction)
+        self.found = _found(self.checks)
         temps = np.asarray(ds.temp_c, float)
         self.mid = 0.5 * (float(temps.min()) + float(temps.max()))
         moving = np.asarray(direction, float) if direction is not None else np.zeros(len(ds))
         self.parts = [(kind, _terms(kind, ds.h_nt, temps, moving, self.mid)) for kind in self.found]
         self.z = (np.concatenate([p for _, p in self.parts], axis=2) if self.parts
                   else np.zeros((len(ds), 3, 0)))
-        x_base = t24_regressors(ds.h_nt, ds.temp_c, cal.temp_ref_c)
+        x_base = t24_regressors(ds.h_nt, ds.temp_c, self.mid if cal.temp_ref_c is None else cal.temp_ref_c)
         self.coef, self.cov, self.resid, self.dof, self.maps = _joint_fit(x_base, self.z, ds.ref_nt, w)
 
     def _widened(self, ds, step_var) -> np.ndarray:
@@ -223,11 +237,14 @@ class _TermsFit:
                 cov[i] += step_var[i] * per_step @ per_step.T
         return cov
 
-    def sources(self, ds, cal, wander_var, reference_var, notes: list[str]) -> list[InputSource]:
+    def sources(self, ds, cal, wander_var, reference_var, notes: list[str],
+                hysteresis_only: bool = False) -> list[InputSource]:
         """The terms as one source, their coefficients' covariance widened by what changes from one step
         to the next (the offset's wander, the reference's error), which the white-noise covariance misses:
         the terms share the steps with them; and the hysteresis state, the DUT's own hysteresis in use
-        (its estimate's share of the reference's error is the first source's)."""
+        (its estimate's share of the reference's error is the first source's). hysteresis_only: for a
+        model other than T24, whose own residual (the misfit) holds what it cannot follow of the other
+        terms: the hysteresis alone, as it moved the data."""
         if not self.found:
             notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
             return []
@@ -255,11 +272,15 @@ class _TermsFit:
                 out[:, i, k * i:k * i + k] = np.where(hysteresis, 0.0, left)
             return out
 
-        checks = {CHECK_TERMS.get(c["name"]): c for c in cal.stats.get("model_checks") or []}
+        checks = self.checks
         said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found"
                          for kind in self.found)
-        out = [InputSource("model checks (" + ", ".join(self.found) + ")", sigma, ref_nt=a,
-                           field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2)")]
+        if hysteresis_only:
+            said = checks["hysteresis"]["message"] + "; fitted together with T24 on the same data (u^2 + b^2)"
+            out = [InputSource("model checks (hysteresis)", sigma, ref_nt=a, origin=said)]
+        else:
+            out = [InputSource("model checks (" + ", ".join(self.found) + ")", sigma, ref_nt=a,
+                               field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2)")]
         if "hysteresis" in self.found:
             at = int(np.flatnonzero(hysteresis)[0])
             own = self._widened(ds, wander_var)

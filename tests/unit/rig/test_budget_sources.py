@@ -238,3 +238,38 @@ def test_a_directional_misfit_over_unbalanced_directions_is_taken_at_every_direc
     assert "over every direction" in source.origin
     quiet_ref, quiet, quiet_labels = _table_like(rng, rotation_deg=0.0)
     assert directional_part(quiet - quiet.mean(axis=0), quiet_ref, np.ones(len(quiet)), quiet_labels) is None
+
+
+@pytest.mark.parametrize("model", ["p12", "scalar"])
+def test_another_models_parameters_carry_the_thermal_hysteresis_t24_finds(model):
+    """A DUT whose offset stands +-c apart heating and cooling, the steps mostly heating: P12's and the
+    scalar fit's offsets take the imbalance as T24's do. Their budget carries the hysteresis as T24's
+    checks estimate it (u^2 + b^2, b the estimate), and the thermal state at a point of use; without a
+    hysteresis, neither."""
+    import calib
+    from calib import synthetic
+    from rig.reference.modelerror import model_sources
+
+    rng = np.random.default_rng(21)
+    steps = [-20.0, 0.0, 25.0, 60.0, 10.0]  # heating to 60, then cooling to 10
+    temps_dirs = {-20.0: 0.0, 0.0: 1.0, 25.0: 1.0, 60.0: 1.0, 10.0: -1.0}
+    c = np.array([150.0, -100.0, 80.0])
+    named = {}
+    for hysteresis in (c, np.zeros(3)):
+        ds, _ = synthetic.t24_dataset(rng, temps_c=steps, samples_per_point=4, noise_nt=20.0,
+                                      temp_jitter_c=0.0)
+        direction = np.array([temps_dirs[t] for t in ds.temp_c])
+        ds.h_nt = ds.h_nt + direction[:, None] * hysteresis
+        labels = [f"T{g}-F{i // 4 % 26}" for i, g in enumerate(ds.group)]
+        ds.columns["point"] = np.array(labels, object)
+        cal = calib.fit(ds, model, **({"temperature_terms": True} if model == "scalar" else {}))
+        sources, _, _ = model_sources(ds, cal, direction)
+        names = [s.name for s in sources]
+        named[bool(hysteresis.any())] = names
+        if hysteresis.any():
+            assert "model checks (hysteresis)" in names and "thermal hysteresis state" in names
+            line = sources[names.index("model checks (hysteresis)")]
+            at = [np.flatnonzero(np.abs(line.ref_nt[:, i, :]).sum(axis=0))[0] for i in range(3)]
+            stated = np.sqrt([line.covariance[k, k] for k in at])
+            np.testing.assert_allclose(stated, np.abs(c), rtol=0.25)  # the estimate and its u
+    assert "model checks (hysteresis)" not in named[False]
