@@ -175,7 +175,13 @@ def model_sources(ds, cal, direction, weights=None,
     if fit is not None:
         out = fit.sources(ds, cal, step_var, step_reference_var, notes) + out
     elif other is not None and "hysteresis" in other.found:
-        out = other.sources(ds, cal, step_var, step_reference_var, notes, hysteresis_only=True) + out
+        # the hysteresis estimate shares the steps with T24's own wander, not with this model's residual,
+        # which holds what the model cannot follow of the temperature
+        t24_var = None
+        if points is not None:
+            t24_noise, _ = within_point_noise(other.resid[w > 0], np.asarray(points, object)[w > 0])
+            t24_var = wander_source(ds, other.resid, t24_noise, w)[2]
+        out = other.sources(ds, cal, t24_var, step_reference_var, notes, hysteresis_only=True) + out
     misfit = _misfit(resid, w, dof, points, notes, ds.ref_nt)
     noise = None
     if fit is not None:
