@@ -208,6 +208,11 @@ def _measurand(g) -> list[str]:
             "the misfit) and the DUT's thermal state at a point of use are uncertainties of the calibrated "
             "field: at any reading they add to what the parameters' covariance gives (rig apply "
             "--uncertainty; the files' model_error_nt and hysteresis_state_nt)."]
+    if "scalar" in g["cals"]:
+        said.append("SCALAR fits |B| alone: its calibrated field is in the DUT's own frame (A "
+                    "upper-triangular), and a rotation of it, one that changes with temperature included, "
+                    "leaves |B| unchanged and is not seen. Its uncertainty answers for |B|; for the field's "
+                    "direction only as far as |B| shows it.")
     for model, (_, cal) in g["cals"].items():
         u = cal.uncertainty or {}
         model_error, state = u.get("model_error_nt"), u.get("hysteresis_state_nt")
