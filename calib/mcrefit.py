@@ -172,15 +172,18 @@ class ScalarRefit:
         theta = np.repeat(lin.theta[None], m, axis=0)
         moving = np.arange(m)  # the draws still taking steps
         tolerance = STEP_TOLERANCE * self.u
-        for k in range(MAX_SCALAR_STEPS):
-            step = self._gradient(theta[moving], h[moving] if h.shape[0] > 1 else h, fn[moving],
-                                  t[moving]) @ self.step
-            theta[moving] -= step
-            if k == 0 and m > 1:  # the draws' spread: the first step is the first-order map of each draw
-                tolerance = STEP_TOLERANCE * np.maximum(self.u, np.std(step, axis=0))
-            moving = moving[~np.all(np.abs(step) <= tolerance, axis=1)]
-            if moving.size == 0:
-                break
+        with np.errstate(over="ignore", invalid="ignore"):  # a draw that diverges is counted failed below
+            for k in range(MAX_SCALAR_STEPS):
+                step = self._gradient(theta[moving], h[moving] if h.shape[0] > 1 else h, fn[moving],
+                                      t[moving]) @ self.step
+                theta[moving] -= step
+                if k == 0 and m > 1:  # the draws' spread: the first step is the first-order map of each draw
+                    tolerance = STEP_TOLERANCE * np.maximum(self.u, np.std(step, axis=0))
+                # a draw stops when its step is within the tolerance, or once it has diverged (not finite)
+                going = ~np.all(np.abs(step) <= tolerance, axis=1) & np.all(np.isfinite(step), axis=1)
+                moving = moving[going]
+                if moving.size == 0:
+                    break
         failed = np.zeros(m, bool)
         failed[moving] = True  # still moving after MAX_SCALAR_STEPS: not converged
         failed |= ~np.all(np.isfinite(theta), axis=1)

@@ -211,6 +211,22 @@ def test_the_batch_refits_equal_calib_fit_on_the_drawn_data():
         assert np.all(off <= 1e-4 * u + 1e-12)
 
 
+def test_a_scalar_draw_that_diverges_is_counted_failed_without_a_warning():
+    """A draw far off (a reference |B| a hundred times the field's) sends its refit to infinity: counted as
+    failed, as the budget states it, and no numpy warning reaches the operator's terminal."""
+    import warnings
+
+    ds, _ = scalar_case(10, temps_c=(-20.0, 20.0, 60.0), n=150)
+    cal = calib.fit(ds, "scalar", temperature_terms=True, balance_orientations=False)
+    lin = linearised(ds, cal)
+    dh = np.random.default_rng(12).normal(0, 10.0, (3, len(ds), 3))
+    dh[1] *= 1e6  # readings scattered a million times their noise: no ellipsoid to converge on
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, failed = ScalarRefit(lin)(dh=dh)
+    assert failed.tolist() == [False, True, False]
+
+
 def test_a_t24_budget_without_monte_carlo_is_the_law_of_propagation():
     ds, currents = small_case(11)
     cal = calib.fit(ds, "t24")
