@@ -55,16 +55,23 @@ def _constant_norm(fn_nt: np.ndarray) -> dict:
 
 def _algebraic(hn: np.ndarray, fn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ellipsoid through scaled readings hn with known scaled norms fn: returns (A upper, c), the start of
-    the least-squares fit. Norms that spread are fitted as such (the quadric = |B|^2); where that fails
-    (readings near a sphere whose norms spread a little, by a percent or two: the quadric's constant then
-    trades with its scale, and its matrix comes out indefinite), the quadric through the points, scaled to
-    their mean |B|^2: the fit that follows takes each norm as it is."""
+    the least-squares fit. Norms that spread are fitted as such (the quadric = |B|^2), and the quadric
+    through the points, scaled to their mean |B|^2, too: the one whose norms are nearer the known ones
+    starts the fit (readings near a sphere whose norms spread a little, by a percent or two: the first's
+    constant trades with its scale, and its matrix comes out indefinite or far off)."""
     if np.ptp(fn) <= NORM_SPREAD_CONSTANT * np.max(fn):
         return _quadric(hn, fn, w, through_points=True)
-    try:
-        return _quadric(hn, fn, w, through_points=False)
-    except FitError:
-        return _quadric(hn, fn, w, through_points=True)
+    starts = []
+    for through_points in (False, True):
+        try:
+            a, c = _quadric(hn, fn, w, through_points)
+        except FitError:
+            continue
+        misfit = np.average((np.linalg.norm((hn - c) @ a.T, axis=1) - fn) ** 2, weights=w)
+        starts.append((misfit, through_points, a, c))
+    if not starts:
+        raise FitError(_coverage_message())
+    return min(starts, key=lambda s: s[:2])[2:]  # the start nearer the norms
 
 
 def _quadric(hn: np.ndarray, fn: np.ndarray, w: np.ndarray, through_points: bool

@@ -130,21 +130,23 @@ def test_scalar_with_one_magnitude_whose_reference_jitters(jitter_nt):
     assert cal.stats["rms_after_nt"] == pytest.approx(np.hypot(20.0, jitter_nt), rel=0.15)
 
 
-def test_scalar_on_a_near_sphere_whose_reference_norms_spread_a_few_percent():
-    """A DUT near a sphere, its reference |B| spreading by 2 % (a coil station's matrix and ambient errors
-    differ by direction and drift between steps): 26 directions x 4 temperatures x 5 samples as a simulated
-    coil station recorded them (bench/uncertainty.py coverage --model scalar, seed 24, world 0, dut4).
-    Fitted as spreading norms, the starting quadric's constant traded with its scale and its matrix came out
-    indefinite: refused as "not an ellipsoid" although the points outline one. The start is then the
-    quadric through the points."""
-    data = np.load(Path(__file__).parent / "data" / "scalar_near_sphere_spreading_norms.npz")
+@pytest.mark.parametrize("recording", ["scalar_near_sphere_spreading_norms", "scalar_near_sphere_far_start"])
+def test_scalar_on_a_near_sphere_whose_reference_norms_spread_a_percent_or_two(recording):
+    """DUTs near a sphere, their reference |B| spreading by 1-2 % (a coil station's matrix and ambient errors
+    differ by direction and drift between steps): 26 directions x 4 temperatures x 5 samples as simulated
+    coil stations recorded them (bench/uncertainty.py coverage --model scalar, seed 24: world 0 dut4 of an
+    earlier run, world 14 dut4). Fitted as spreading norms, the starting quadric's constant trades with its
+    scale: the first's matrix came out indefinite, refused as "not an ellipsoid" although the points
+    outline one; the second's started the fit far off, which ended at 2678 nT rms. The start is now the
+    quadric, fitted to the norms or through the points, whose norms are nearer the known ones."""
+    data = np.load(Path(__file__).parent / "data" / f"{recording}.npz")
     ds = Dataset(h_nt=data["h_nt"], temp_c=data["temp_c"], ref_nt=None, ref_norm_nt=data["ref_norm_nt"])
-    assert np.ptp(ds.ref_norm_nt) > 0.02 * np.max(ds.ref_norm_nt)  # beyond the 1 % taken as constant
+    assert np.ptp(ds.ref_norm_nt) > 0.01 * np.max(ds.ref_norm_nt)  # beyond the 1 % taken as constant
     plain = calib.fit(ds, "scalar", temperature_terms=False)
     with_temperature = calib.fit(ds, "scalar", temperature_terms=True)
     # the DUT's temperature terms are most of the plain fit's residual; with them, its noise and the
     # reference's own scatter are what is left
-    assert with_temperature.stats["rms_after_nt"] < 60.0 < plain.stats["rms_after_nt"]
+    assert with_temperature.stats["rms_after_nt"] < 60.0 < plain.stats["rms_after_nt"] < 400.0
     assert np.allclose(np.tril(plain.params["A"], -1), 0) and np.all(np.diag(plain.params["A"]) > 0.9)
 
 
