@@ -213,8 +213,10 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
     print(f"  true {model.upper()} parameters within U = k u (k from the effective degrees of freedom):")
     total = []
     for g in MODEL_GROUPS[model]:
-        values = [v for r in rows for v in r["inside"][g]]
-        zs = np.array([v for r in rows for v in r["z"][g]])
+        values = [v for r in rows for v in r["inside"].get(g, [])]  # a group some fits do not have
+        zs = np.array([v for r in rows for v in r["z"].get(g, [])])
+        if not values:
+            continue
         total += values
         print(f"    {g:6s} {np.mean(values):6.1%} of {len(values):5d}   |error| / u: median "
               f"{np.median(zs):.2f}, 95th percentile {np.quantile(zs, 0.95):.2f}")
