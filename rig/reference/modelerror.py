@@ -41,7 +41,7 @@ from rig.reference.wander import wander_source
 
 P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
 MISFIT_SIGNIFICANCE = 3.0
-AFFINE_SIGNIFICANCE = 3.0
+AFFINE_SIGNIFICANCE = 3.0  # standard errors beyond the affine part the noise alone would give
 SIGNIFICANT = 3.0  # standard errors: a point-level error counts
 THERMAL_PLAY_C = 1.0  # a temperature change beyond this reverses the thermal direction
 CHECK_TERMS = {"linearity in temperature": "temperature", "thermal hysteresis": "hysteresis",
