@@ -171,13 +171,14 @@ class _Draws:
         h, temp = lb.grid_h_nt, lb.grid_temp_c
         t = np.zeros(len(h)) if temp is None or self.cal.temp_ref_c is None else temp - self.cal.temp_ref_c
         v = h[None] - drawn["c_nt"][:, None, :]
-        if "KA_per_c" in drawn:
-            v = v - t[None, :, None] * drawn["kc_nt_per_c"][:, None, :]
-            field = (v @ drawn["A"].transpose(0, 2, 1)
-                     + t[None, :, None] * (v @ drawn["KA_per_c"].transpose(0, 2, 1)))
-        else:
-            field = v @ drawn["A"].transpose(0, 2, 1)
-        return field - self.cal.apply(h, temp)[None]
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverged refit's draw: counted failed
+            if "KA_per_c" in drawn:
+                v = v - t[None, :, None] * drawn["kc_nt_per_c"][:, None, :]
+                field = (v @ drawn["A"].transpose(0, 2, 1)
+                         + t[None, :, None] * (v @ drawn["KA_per_c"].transpose(0, 2, 1)))
+            else:
+                field = v @ drawn["A"].transpose(0, 2, 1)
+            return field - self.cal.apply(h, temp)[None]
 
 
 def _by_quantity(a_ref, n: int):
