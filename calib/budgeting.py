@@ -174,10 +174,9 @@ class _Draws:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged refit's draw: counted failed
             if "KA_per_c" in drawn:
                 v = v - t[None, :, None] * drawn["kc_nt_per_c"][:, None, :]
-                field = (v @ drawn["A"].transpose(0, 2, 1)
-                         + t[None, :, None] * (v @ drawn["KA_per_c"].transpose(0, 2, 1)))
-            else:
-                field = v @ drawn["A"].transpose(0, 2, 1)
+            field = v @ drawn["A"].transpose(0, 2, 1)
+            if "KA_per_c" in drawn:
+                field = field + t[None, :, None] * (v @ drawn["KA_per_c"].transpose(0, 2, 1))
             return field - self.cal.apply(h, temp)[None]
 
 
