@@ -201,15 +201,14 @@ def test_an_error_shared_by_a_points_samples_weighs_as_n_times_its_variance():
 def _table_like(rng, rotation_deg: float, noise: float = 30.0):
     """A turntable's unbalanced directions (the site field at 24 orientations, 5 samples each) and a
     residual that is a small rotation of the field (what P12 cannot follow) plus noise."""
+    from rig.fieldsources.fieldmaths import table_field_nt
+
     site = np.array([16000.0, 0.0, 43000.0])
     fields, labels = [], []
     for el in (-60.0, 0.0, 60.0):
         for az in np.arange(0.0, 360.0, 45.0):
-            a, e = np.radians(az), np.radians(el)
-            rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-            ry = np.array([[np.cos(e), 0, np.sin(e)], [0, 1, 0], [-np.sin(e), 0, np.cos(e)]])
             for _ in range(5):
-                fields.append((rz @ ry).T @ site)
+                fields.append(table_field_nt(site, az, el))
                 labels.append(f"F{az:g}/{el:g}")
     ref = np.array(fields)
     angle = np.radians(rotation_deg)
