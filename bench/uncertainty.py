@@ -133,7 +133,8 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     for dut, truth in truths.items():
         path = calibration_file(session, dut, model)
         if not path.exists():  # the fit refused (the session's events say why): counted apart
-            out_rows.append({"world": index, "dut": dut, "unstated": "no calibration: its fit failed"})
+            said = "the session was run for another model" if again else "its fit failed"
+            out_rows.append({"world": index, "dut": dut, "unstated": f"no {path.name}: {said}"})
             continue
         cal = calfile.load(path)
         if cal.uncertainty is None:  # the budget refused to state one (its warning says why): counted apart
@@ -210,6 +211,9 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
           f"systematic errors {wider:g} x the standard uncertainties stated; field order "
           f"{field_order or 'the plan default'}; sessions in {out}; "
           f"{time.perf_counter() - start:.0f} s)")
+    if not rows:
+        print("  no DUT states an uncertainty: nothing to judge")
+        return
     print(f"  true {model.upper()} parameters within U = k u (k from the effective degrees of freedom):")
     total = []
     for g in MODEL_GROUPS[model]:

@@ -11,8 +11,10 @@
   coil matrix moves it by 1 %). A draw stops when its step is below STEP_TOLERANCE of every parameter's
   scale: its statistical uncertainty, or how far the draws' first steps spread, whichever is larger (a
   thousandth of what the draws move a parameter by is far inside the Monte Carlo's own numerical
-  tolerance, a significant digit of that spread). One still moving after MAX_SCALAR_STEPS counts as
-  failed.
+  tolerance, a significant digit of that spread). A draw still moving after MAX_SCALAR_STEPS, or
+  diverged, is taken on by Levenberg-Marquardt steps with its own Jacobian and a line search along each
+  step (the fit's own method, for draws the fixed matrix is too far from: a turntable's scalar fit); one
+  that does not converge there either counts as failed.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from calib.linearise import LinearInReference, ScalarGaussNewton
 
 MAX_TENSOR_TERMS = 4096  # q^(x k) terms kept per power before the sums are taken per draw instead
 MAX_SCALAR_STEPS = 8
+MAX_DAMPED_STEPS = 150
 STEP_TOLERANCE = 1e-3
 CHUNK_DRAWS = 512
 # draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 25 MB (every draw is refitted on
@@ -121,18 +124,24 @@ class ScalarRefit:
         self.u = np.sqrt(np.diag(lin.n_inv) * lin.sigma2)
         self.temp = lin.temp
 
+    def _calibrated(self, theta, h, t):
+        """(A, KA (None without temperature terms), v = h - c - t kc, y = (A + t KA) v, |y|) of every draw
+        at theta (m,P); h (m|1,3,N)."""
+        a = _upper(theta[:, :6])
+        v = h - theta[:, 6:9, None]
+        ka = None
+        if self.temp:
+            v = v - t[:, None, :] * theta[:, 15:18, None]
+            ka = _upper(theta[:, 9:15])
+        y = a @ v
+        if self.temp:
+            y += t[:, None, :] * (ka @ v)
+        return a, ka, v, y, np.sqrt(y[:, 0] ** 2 + y[:, 1] ** 2 + y[:, 2] ** 2)
+
     def _gradient(self, theta, h, fn, t):
         """J^T W r for every draw (m,P), in the column order of calib.scalar's Jacobian; h (m|1,3,N): the
-        readings component by component (each a contiguous row: 3x3 products on long arrays stay
-        element-wise, which numpy's batched matmul would not)."""
-        a = _upper(theta[:, :6])
-        c = theta[:, 6:9, None]
-        v = h - c if not self.temp else h - c - t[:, None, :] * theta[:, 15:18, None]
-        y = _times(a, v)
-        if self.temp:
-            ka = _upper(theta[:, 9:15])
-            y += t[:, None, :] * _times(ka, v)
-        norm = np.sqrt(y[:, 0] ** 2 + y[:, 1] ** 2 + y[:, 2] ** 2)
+        readings component by component (each a contiguous row, for the sums over the rows)."""
+        a, ka, v, y, norm = self._calibrated(theta, h, t)
         wu = y * (self.lin.w * (norm - fn) / norm)[:, None, :]  # w r u, u = y / |y|
         g_a = _upper_sums(wu, v)
         su = wu.sum(axis=2)
@@ -178,25 +187,131 @@ class ScalarRefit:
                                       t[moving]) @ self.step
                 theta[moving] -= step
                 if k == 0 and m > 1:  # the draws' spread: the first step is the first-order map of each draw
-                    tolerance = STEP_TOLERANCE * np.maximum(self.u, np.std(step, axis=0))
+                    tolerance = STEP_TOLERANCE * np.maximum(self.u, _robust_spread(step))
                 # a draw stops when its step is within the tolerance, or once it has diverged (not finite)
                 going = ~np.all(np.abs(step) <= tolerance, axis=1) & np.all(np.isfinite(step), axis=1)
                 moving = moving[going]
                 if moving.size == 0:
                     break
         failed = np.zeros(m, bool)
-        failed[moving] = True  # still moving after MAX_SCALAR_STEPS: not converged
+        failed[moving] = True  # still moving after MAX_SCALAR_STEPS, or diverged
         failed |= ~np.all(np.isfinite(theta), axis=1)
+        for part in np.array_split(np.flatnonzero(failed), -(-failed.sum() * h.shape[2] // CHUNK_ROWS) or 1):
+            if part.size:  # the fixed matrix was too far from these draws' own: damped steps of their own
+                theta[part], failed[part] = self._damped(theta[part], _rows(h, part), fn[part], t[part],
+                                                         tolerance)
         return theta, failed
 
+    def _damped(self, start, h, fn, t, tolerance) -> tuple[np.ndarray, np.ndarray]:
+        """Levenberg-Marquardt for each draw with the draw's own Jacobian (as calib.scalar fits), from where
+        the fixed-matrix steps left it if that fits it better than the calibration's solution: (solutions
+        (d,P), failed (d,)). A draw is done when its Gauss-Newton step is within the tolerance; one that no
+        step lowers the cost of (however damped) short of that, still going after MAX_DAMPED_STEPS, or not
+        finite, is failed."""
+        w = self.lin.w
 
-def _times(mat: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """mat @ x per draw, mat (m,3,3), x (m|1,3,N) component by component."""
-    out = np.empty((max(len(mat), len(x)),) + x.shape[1:])
-    for i in range(3):
-        out[:, i] = (mat[:, i, 0, None] * x[:, 0] + mat[:, i, 1, None] * x[:, 1]
-                     + mat[:, i, 2, None] * x[:, 2])
-    return out
+        def at(rows, x, jacobian=False):
+            return self._residuals(x, _rows(h, rows), fn[rows], t[rows], jacobian)
+
+        def cost_at(rows, x):
+            return np.sum(w * at(rows, x) ** 2, axis=1)
+
+        every = np.arange(len(fn))
+        theta = np.repeat(self.lin.theta[None], len(fn), axis=0)
+        done, failed, mu = np.zeros(len(fn), bool), np.zeros(len(fn), bool), np.full(len(fn), 1e-3)
+        eye = np.eye(theta.shape[1])
+        with np.errstate(over="ignore", invalid="ignore"):
+            nearer = cost_at(every, start) < cost_at(every, theta)
+            theta[nearer] = start[nearer]
+            r, jac = at(every, theta, jacobian=True)
+            cost = np.sum(w * r**2, axis=1)
+            for _ in range(MAX_DAMPED_STEPS):
+                going = np.flatnonzero(~done & ~failed)
+                if going.size == 0:
+                    break
+                jw = jac[going] * w
+                normal, grad = jw @ jac[going].transpose(0, 2, 1), np.einsum("dpn,dn->dp", jw, r[going])
+                scale = np.sqrt(np.maximum(np.einsum("dpp->dp", normal), np.finfo(float).tiny))
+                normal /= scale[:, :, None] * scale[:, None, :]
+                newton = _solve(normal, grad / scale) / scale
+                close = np.all(np.abs(newton) <= tolerance, axis=1)
+                theta[going[close]] -= newton[close]  # the last step, within the tolerance
+                done[going[close]] = True
+                going, normal, grad, scale = going[~close], normal[~close], grad[~close], scale[~close]
+                step = -_solve(normal + mu[going, None, None] * eye, grad / scale) / scale
+                trial, cost_new = _along(lambda x, g=going: cost_at(g, x), theta[going], step,
+                                         2 * np.sum(grad * step, axis=1), cost[going])
+                better = cost_new <= cost[going]  # NaN: not better
+                took = going[better]
+                theta[took], cost[took] = trial[better], cost_new[better]
+                r[took], jac[took] = at(took, theta[took], jacobian=True)
+                mu[took] = np.maximum(mu[took] / 10, 1e-12)
+                mu[going[~better]] *= 10
+                failed |= (mu > 1e10) | ~np.all(np.isfinite(theta), axis=1)
+        return theta, failed | ~done
+
+    def _residuals(self, theta, h, fn, t, jacobian=False):
+        """The residuals |y| - |B| (d,N) of the drawn data at theta (d,P), h (d|1,3,N), and with jacobian
+        their Jacobians (d,P,N), in calib.scalar's column order."""
+        a, ka, v, y, norm = self._calibrated(theta, h, t)
+        if not jacobian:
+            return norm - fn
+        unit = y / norm[:, None, :]
+        jac = np.empty((len(theta), theta.shape[1], norm.shape[1]))
+        for k, (i, j) in enumerate(zip(*np.triu_indices(3), strict=True)):
+            jac[:, k] = unit[:, i] * v[:, j]
+        at_u = a.transpose(0, 2, 1) @ unit  # (A + t KA)^T y/|y|
+        if self.temp:
+            at_u += t[:, None, :] * (ka.transpose(0, 2, 1) @ unit)
+            jac[:, 9:15] = t[:, None, :] * jac[:, :6]
+            jac[:, 15:18] = -t[:, None, :] * at_u
+        jac[:, 6:9] = -at_u
+        return norm - fn, jac
+
+
+def _along(cost_at, theta, step, slope, cost) -> tuple[np.ndarray, np.ndarray]:
+    """(theta, cost) at the better of the full step and the minimum of the cost's parabola along it (from
+    the cost, its slope and the full step's cost). Where the Gauss-Newton model leaves out the large
+    residuals' curvature, its steps overshoot a narrow valley (a turntable's scalar fit: offset against
+    scale along the axis the site field never reverses) and zigzag down it for hundreds of steps; the
+    parabola's minimum takes a few."""
+    full_cost = cost_at(theta + step)
+    curve = full_cost - cost - slope
+    alpha = np.where(curve > 0, np.clip(-slope / (2 * np.where(curve > 0, curve, 1.0)), 0.1, 1.0), 1.0)
+    part = theta + alpha[:, None] * step
+    part_cost = cost_at(part)
+    take = part_cost < full_cost
+    return np.where(take[:, None], part, theta + step), np.where(take, part_cost, full_cost)
+
+
+def _rows(h: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The readings of these draws: h (m|1,3,N), one set shared by every draw when m is 1."""
+    return h[rows] if h.shape[0] > 1 else h
+
+
+def _robust_spread(x: np.ndarray) -> np.ndarray:
+    """The spread of the rows of x (m,P) by their median absolute deviation (x1.4826: the standard deviation
+    of normal draws), of the finite rows only: a draw far off or not finite does not loosen (or, NaN,
+    void) every other draw's tolerance."""
+    x = x[np.all(np.isfinite(x), axis=1)]
+    if len(x) < 2:
+        return np.zeros(x.shape[1])
+    return 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a^-1 b per draw (a (d,P,P), b (d,P)); a singular draw's solution is NaN (then failed), not an error for
+    every draw."""
+    try:
+        return np.linalg.solve(a, b[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        out = np.full(b.shape, np.nan)
+        for i in range(len(a)):
+            try:
+                out[i] = np.linalg.solve(a[i], b[i])
+            except np.linalg.LinAlgError:
+                continue
+        return out
 
 
 def _upper_sums(x: np.ndarray, v: np.ndarray) -> np.ndarray:
