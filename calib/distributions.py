@@ -242,3 +242,19 @@ def shifted_radius(cov: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterati
             step = r - f / slope
         r = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
     return r
+
+
+def shifted_interval(sigma: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterations: int = 50
+                     ) -> np.ndarray:
+    """Half-width U with P(|x + c| <= U) = p for x ~ N(0, sigma[n]^2) and c one of shifts[n] (N,S), each
+    equally likely: shifted_radius's 1-D counterpart (the error of a field's size). By bisection between 0
+    and max |c| + 4 sigma (P there > p), to 2^-50 of that bracket."""
+    sigma = np.maximum(np.asarray(sigma, float), np.finfo(float).tiny)[:, None]
+    shifts = np.atleast_2d(np.asarray(shifts, float))
+    lo, hi = np.zeros(len(sigma)), np.max(np.abs(shifts), axis=1) + 4.0 * sigma[:, 0]
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        inside = 0.5 * np.mean(erf((mid[:, None] - shifts) / (np.sqrt(2.0) * sigma))
+                               + erf((mid[:, None] + shifts) / (np.sqrt(2.0) * sigma)), axis=1)
+        lo, hi = np.where(inside < p, mid, lo), np.where(inside < p, hi, mid)
+    return hi

@@ -6,11 +6,13 @@ likely, a two-point distribution as the budget draws it):
 
     cov = field_covariance(cal, h_nt, temp_c)     # (N,3,3): F C F^T + diag(model_error^2 + d^2)
     u_axes, radius = expanded_at(cal, h_nt, temp_c)   # k u per axis (N,3), the 95 % radius (N,)
+    u_norm = expanded_norm_at(cal, h_nt, temp_c)      # the 95 % interval of |B|'s error (N,)
 
-The radius holds 95 % of the 3-D error. Normal errors alone: by quadrature (calib.distributions). With a
-thermal state the error is a normal one shifted by +-d, whose radius a normal of the same covariance
-overstates (for a state that dominates, by about 1.6x): it is then that mixture's own (calib.distributions
-shifted_radius).
+The radius holds 95 % of the 3-D error; the |B| interval 95 % of the error of the field's size, what a
+scalar fit answers for (the covariance along the field's own direction, the state's +-d projected on it).
+Normal errors alone: by quadrature (calib.distributions). With a thermal state the error is a normal one
+shifted by +-d, whose radius a normal of the same covariance overstates (for a state that dominates, by
+about 1.6x): it is then that mixture's own (calib.distributions shifted_radius, shifted_interval).
 
 A file from before the covariance was written has only each parameter's expanded uncertainty: then C is
 diag((U / k)^2) and `correlated` says so (the parameters' correlations, large between a scale and its
@@ -22,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.calibration import Calibration, standard_uncertainty
-from calib.distributions import gaussian_radius, shifted_radius
+from calib.distributions import gaussian_radius, shifted_interval, shifted_radius
 from calib.errors import DataError
 from calib.linearise import ParamLayout, field_jacobian
 from calib.student import widening
@@ -95,6 +97,17 @@ def expanded_at(cal: Calibration, h_nt, temp_c=None) -> tuple[np.ndarray, np.nda
     for lo in range(0, len(distinct), STATE_CHUNK_ROWS):
         unique[lo:lo + STATE_CHUNK_ROWS] = shifted_radius(rounded[lo:lo + STATE_CHUNK_ROWS], _SIGNS * state)
     return axes, unique[which.ravel()] * _widening(cal)
+
+
+def expanded_norm_at(cal: Calibration, h_nt, temp_c=None) -> np.ndarray:
+    """(N,): the half-width holding 95 % of the error of |B| (the calibrated field's size) at every reading:
+    the normal part's variance along the field's direction, beside the thermal state's +-d projected on it
+    (each axis's sign on its own), widened as the radius is for few degrees of freedom."""
+    along = np.atleast_2d(cal.apply(np.atleast_2d(np.asarray(h_nt, float)), temp_c))
+    along = along / np.linalg.norm(along, axis=1, keepdims=True)
+    variance = np.einsum("ni,nij,nj->n", along, _normal_covariance(cal, h_nt, temp_c), along)
+    shifts = along @ (_SIGNS * hysteresis_state_nt(cal)).T  # (N,4): with their negations, by symmetry
+    return shifted_interval(np.sqrt(np.clip(variance, 0.0, None)), shifts) * _widening(cal)
 
 
 def _widening(cal: Calibration) -> float:

@@ -115,7 +115,7 @@ def state_uncertainty(inputs, dut: str, ds, cal):
                                         "reference's own uncertainty is not in this budget"]
             return None
         stated = inputs.budget(dut, ds, cal)
-        cal.uncertainty = uncertainty_section(stated)
+        cal.uncertainty = uncertainty_section(stated, cal)
         return stated
     except (*ERRORS, ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]

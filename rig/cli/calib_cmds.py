@@ -156,7 +156,8 @@ def refit(
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="CSV file to write.")
 @click.option("--uncertainty", "with_uncertainty", is_flag=True,
               help="Also write each row's expanded uncertainty from the calibration's covariance: "
-              "u_bx,u_by,u_bz (k u per axis, nT) and u_b (radius holding 95 % of the 3-D error, nT).")
+              "u_bx,u_by,u_bz (k u per axis, nT), u_b (radius holding 95 % of the 3-D error, nT) and "
+              "u_norm (interval holding 95 % of the error of |B|, nT: what a scalar fit answers for).")
 def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, with_uncertainty):
     """Calibrate every row of DATA: writes its columns plus bx,by,bz (calibrated field, nT).
 
@@ -201,12 +202,12 @@ def equation_line(cal) -> str:
             f"(tau: {keys['tau']}){tau_0}")
 
 
-UNCERTAINTY_COLUMNS = ("u_bx", "u_by", "u_bz", "u_b")
+UNCERTAINTY_COLUMNS = ("u_bx", "u_by", "u_bz", "u_b", "u_norm")
 
 
 def _uncertainty_columns(cal, ds, out: dict, calibration: str) -> str:
     """Each row's expanded uncertainty (calib/fielderror.py) into `out`; what the user should know."""
-    from calib.fielderror import expanded_at, parameter_covariance
+    from calib.fielderror import expanded_at, expanded_norm_at, parameter_covariance
     from rig.core.errors import DataError
 
     if cal.uncertainty is None:
@@ -219,6 +220,7 @@ def _uncertainty_columns(cal, ds, out: dict, calibration: str) -> str:
     for i, name in enumerate(UNCERTAINTY_COLUMNS[:3]):
         out[name] = axes[:, i]
     out[UNCERTAINTY_COLUMNS[3]] = radius
+    out[UNCERTAINTY_COLUMNS[4]] = expanded_norm_at(cal, ds.h_nt, ds.temp_c)
     _, correlated = parameter_covariance(cal)
     k = float(cal.uncertainty["coverage_factor"])
     return (f"; expanded uncertainty (k = {k:g}) per row" + ("" if correlated else

@@ -36,9 +36,10 @@ import numpy as np
 
 from calib.budgeting import budget as calib_budget
 from calib.calibration import Calibration, standard_uncertainty
+from calib.fielderror import expanded_norm_at
 from calib.linearise import ParamLayout
 from calib.propagation import InputSource, affine_map, reference_source, temperature_source
-from calib.uncertainty import Budget
+from calib.uncertainty import Budget, raw_for
 from rig.core.errors import DataError
 from rig.reference import chain_record, modelerror
 from rig.reference.ambient import AmbientModel
@@ -108,7 +109,7 @@ class RunInputs:
 
     def uncertainty(self, dut: str, ds, cal: Calibration, **kw) -> dict:
         """The calibration file's `uncertainty:` section (`uncertainty_section`)."""
-        return uncertainty_section(self.budget(dut, ds, cal, **kw))
+        return uncertainty_section(self.budget(dut, ds, cal, **kw), cal)
 
     @functools.cached_property
     def _grid(self) -> tuple[np.ndarray, np.ndarray]:
@@ -255,16 +256,25 @@ def reference_covariance(cal: Calibration) -> np.ndarray:
     return np.diag(u**2)
 
 
-def uncertainty_section(b: Budget) -> dict:
+def uncertainty_section(b: Budget, cal: Calibration) -> dict:
     """The calibration file's `uncertainty:` section: the budget (its parameters' full covariance
     included), and the model error a user adds at any field and temperature to what that covariance
     gives (rig apply --uncertainty, calib/fielderror.py): the normal part, and the DUT's thermal state at
-    a point of use (+-d per axis, two-point) apart, so that the radius there follows its distribution."""
+    a point of use (+-d per axis, two-point) apart, so that the radius there follows its distribution.
+    Beside the largest radius of the vector error, the largest 95 % interval of |B|'s error over the same
+    grid, as rig apply computes it (`expanded_norm_error_nt`): what a scalar fit answers for."""
     out = b.as_dict()
     out["model_error_nt"] = model_error_nt(b).tolist()
     state = model_error_nt(b, two_point=True)
     if np.any(state > 0):
         out["hysteresis_state_nt"] = state.tolist()
+    grid = out.get("vector_error_nt") or {}
+    if grid.get("grid_field_nt"):
+        temps = grid.get("grid_temp_c")
+        temps = None if temps is None else np.asarray(temps, float)
+        h = raw_for(cal, np.asarray(grid["grid_field_nt"], float), temps)
+        stated = dataclasses.replace(cal, uncertainty=out)
+        out["expanded_norm_error_nt"] = float(np.max(expanded_norm_at(stated, h, temps)))
     return out
 
 

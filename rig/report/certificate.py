@@ -182,8 +182,10 @@ def _results(g) -> list[Section]:
         lines = [[b["source"], _fig(b["contribution_nt"], ".3g"), b.get("method", ""), b.get("note", "")]
                  for b in u.get("budget", [])]
         largest = _fig(u.get("expanded_vector_error_nt"), ".4g")
+        size_u = u.get("expanded_norm_error_nt")
+        norm = "" if size_u is None else f"; the 95 % interval of |B|'s error, largest: +-{size_u:.4g} nT"
         budgets += [f"{model.upper()} ({path.name}): the calibrated field's 95 % error radius, largest over "
-                    f"the plan's fields and temperatures: {largest} nT; "
+                    f"the plan's fields and temperatures: {largest} nT{norm}; "
                     f"combined standard uncertainty (RMS) {_fig(u.get('combined_standard_nt'), '.4g')} nT; "
                     f"method: {u.get('method', 'not stated')}",
                     Table(["source", "contribution (nT, standard)", "propagation", "origin"], lines,
@@ -211,7 +213,8 @@ def _measurand(g) -> list[str]:
     if "scalar" in g["cals"]:
         said.append("SCALAR fits |B| alone: its calibrated field is in the DUT's own frame (A "
                     "upper-triangular), and a rotation of it, one that changes with temperature included, "
-                    "leaves |B| unchanged and is not seen. Its uncertainty answers for |B|; for the field's "
+                    "leaves |B| unchanged and is not seen. Its uncertainty answers for |B| (the interval of "
+                    "|B|'s error; rig apply --uncertainty writes it per row as u_norm); for the field's "
                     "direction only as far as |B| shows it.")
     for model, (_, cal) in g["cals"].items():
         u = cal.uncertainty or {}

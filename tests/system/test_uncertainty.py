@@ -19,7 +19,7 @@ import yaml
 import calib
 from calib import calfile
 from calib.budgeting import cross_covariance_of
-from calib.fielderror import expanded_at
+from calib.fielderror import expanded_at, expanded_norm_at
 from rig.analysis.crosscov import cross_covariance, cross_covariance_path
 from rig.config import load_station
 from rig.core.errors import ConfigError
@@ -240,11 +240,17 @@ def test_the_files_carry_the_covariance_and_the_duts_cross_covariance(worlds, tm
     assert proc.returncode == 0, proc.stderr
     with applied.open() as f:
         rows = list(csv.DictReader(f))
-    assert {"u_bx", "u_by", "u_bz", "u_b"} <= set(rows[0])
+    assert {"u_bx", "u_by", "u_bz", "u_b", "u_norm"} <= set(rows[0])
     h = np.array([[float(r[k]) for k in ("hx", "hy", "hz")] for r in rows[:5]])
     temps = np.array([float(r["temp"]) for r in rows[:5]])
     _, radius = expanded_at(cals[DUTS[0]], h, temps)
     np.testing.assert_allclose([float(r["u_b"]) for r in rows[:5]], radius, rtol=1e-6)
+    size_u = expanded_norm_at(cals[DUTS[0]], h, temps)  # |B|'s interval: narrower than the 3-D radius
+    np.testing.assert_allclose([float(r["u_norm"]) for r in rows[:5]], size_u, rtol=1e-6)
+    assert np.all(size_u < radius)
+    # the file states the largest |B| interval over its grid beside the largest radius
+    u = cals[DUTS[0]].uncertainty
+    assert 0 < u["expanded_norm_error_nt"] < u["expanded_vector_error_nt"]
 
 
 def test_the_post_run_fits_say_which_dut_and_model_in_the_terminal_and_the_session(worlds):
@@ -287,6 +293,7 @@ def test_a_certificate_states_every_item_and_renders_in_the_browser(worlds, tmp_
     assert "U (expanded)" in text and "thermal hysteresis" in text
     assert "Measurand: the parameters of each model are those that describe the DUT best" in text
     assert "T24 at a point of use, per axis: model error (" in text
+    assert "the 95 % interval of |B|&#x27;s error, largest: +-" in text  # html.escape's apostrophe
     if (why := browser.missing()) is not None:
         pytest.skip(why)
     if not list(tmp_path.glob("*.dut1.certificate.pdf")):

@@ -11,7 +11,7 @@ from calib import calfile, synthetic
 from calib.budgeting import budget
 from calib.calibration import Calibration
 from calib.errors import DataError
-from calib.fielderror import expanded_at, field_covariance, parameter_covariance
+from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, parameter_covariance
 from calib.propagation import matrix_source, offset_source
 
 
@@ -123,3 +123,25 @@ def test_a_thermal_state_is_its_two_point_mixture_not_a_normal_error(tmp_path):
     data["uncertainty"]["hysteresis_state_nt"] = [1.0, -2.0, 0.0]
     with pytest.raises(DataError, match=r"^cal.yaml: key 'uncertainty.hysteresis_state_nt' must be 3"):
         Calibration.from_dict(data, where="cal.yaml")
+
+
+@pytest.mark.parametrize("state", [None, [120.0, 80.0, 40.0]])
+def test_the_interval_of_the_field_size_holds_95_percent_of_its_errors(state):
+    """The interval of |B|'s error (what a scalar fit answers for): 95 % of draws of the field's error (the
+    parameters' covariance and the model error, normal; with a thermal state, +-d per axis, each sign on
+    its own) change |B| by no more than it; it is narrower than the 3-D radius."""
+    cal, b = _calibrated(5)
+    if state is not None:
+        cal.uncertainty = {**cal.uncertainty, "hysteresis_state_nt": state}
+    h, temps = b.linear.grid_h_nt[:6], b.linear.grid_temp_c[:6]
+    normal = field_covariance(cal, h, temps) - np.diag(np.square(state or [0.0, 0.0, 0.0]))
+    size_u = expanded_norm_at(cal, h, temps)
+    field = cal.apply(h, temps)
+    rng = np.random.default_rng(1)
+    for n in range(len(h)):
+        x = rng.multivariate_normal(np.zeros(3), normal[n], 200_000)
+        if state is not None:
+            x += rng.choice([-1.0, 1.0], (len(x), 3)) * state
+        change = np.linalg.norm(field[n] + x, axis=1) - np.linalg.norm(field[n])
+        assert np.mean(np.abs(change) <= size_u[n]) == pytest.approx(0.95, abs=0.003)
+    assert np.all(size_u < expanded_at(cal, h, temps)[1])
