@@ -34,6 +34,9 @@ CHUNK_DRAWS = 512
 # draws x rows a scalar refit holds at once: its (m,N,3) arrays stay near 25 MB (every draw is refitted on
 # its own, so the chunks change nothing but the memory; with 141k rows a draw is 3.4 MB)
 CHUNK_ROWS = 1 << 20
+# draws x rows the damped refits take at once: each holds its Jacobians (P values a row), so that their
+# arrays stay near 10 MB
+DAMPED_ROWS = 1 << 16
 
 
 def draw_chunks(m: int, n: int) -> list[slice]:
@@ -196,7 +199,7 @@ class ScalarRefit:
         failed = np.zeros(m, bool)
         failed[moving] = True  # still moving after MAX_SCALAR_STEPS, or diverged
         failed |= ~np.all(np.isfinite(theta), axis=1)
-        for part in np.array_split(np.flatnonzero(failed), -(-failed.sum() * h.shape[2] // CHUNK_ROWS) or 1):
+        for part in np.array_split(np.flatnonzero(failed), -(-failed.sum() * h.shape[2] // DAMPED_ROWS) or 1):
             if part.size:  # the fixed matrix was too far from these draws' own: damped steps of their own
                 theta[part], failed[part] = self._damped(theta[part], _rows(h, part), fn[part], t[part],
                                                          tolerance)
