@@ -244,17 +244,24 @@ def shifted_radius(cov: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterati
     return r
 
 
-def shifted_interval(sigma: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterations: int = 50
+def shifted_interval(sigma: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterations: int = 40
                      ) -> np.ndarray:
     """Half-width U with P(|x + c| <= U) = p for x ~ N(0, sigma[n]^2) and c one of shifts[n] (N,S), each
-    equally likely: shifted_radius's 1-D counterpart (the error of a field's size). By bisection between 0
-    and max |c| + 4 sigma (P there > p), to 2^-50 of that bracket."""
+    equally likely: shifted_radius's 1-D counterpart (the error of a field's size). Newton steps kept inside
+    a shrinking bracket [0, max |c| + 4 sigma], until P is within P_TOLERANCE of p."""
     sigma = np.maximum(np.asarray(sigma, float), np.finfo(float).tiny)[:, None]
     shifts = np.atleast_2d(np.asarray(shifts, float))
     lo, hi = np.zeros(len(sigma)), np.max(np.abs(shifts), axis=1) + 4.0 * sigma[:, 0]
+    u = np.minimum(np.sqrt(np.mean(shifts**2, axis=1) + (1.96 * sigma[:, 0]) ** 2), hi)
     for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        inside = 0.5 * np.mean(erf((mid[:, None] - shifts) / (np.sqrt(2.0) * sigma))
-                               + erf((mid[:, None] + shifts) / (np.sqrt(2.0) * sigma)), axis=1)
-        lo, hi = np.where(inside < p, mid, lo), np.where(inside < p, hi, mid)
-    return hi
+        below, above = (u[:, None] - shifts) / sigma, (u[:, None] + shifts) / sigma
+        f = 0.5 * np.mean(erf(below / np.sqrt(2.0)) + erf(above / np.sqrt(2.0)), axis=1) - p
+        if np.all(np.abs(f) <= P_TOLERANCE):
+            break
+        density = np.mean(np.exp(-0.5 * below**2) + np.exp(-0.5 * above**2), axis=1) / np.sqrt(2 * np.pi)
+        slope = density / sigma[:, 0]
+        lo, hi = np.where(f < 0, u, lo), np.where(f < 0, hi, u)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = u - f / slope
+        u = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+    return u
