@@ -187,6 +187,10 @@ def _read_uncertainty(d: dict, params: dict, where: str) -> dict | None:
             for b in budget):
         raise DataError(f"{where}: key 'uncertainty.budget' must be a list of {{source, contribution_nt}}")
     _check_covariance(block.get("covariance"), params, where)
+    size_u = block.get("expanded_norm_error_nt")
+    if size_u is not None and (not _is_number(size_u) or size_u < 0):
+        raise DataError(f"{where}: key 'uncertainty.expanded_norm_error_nt' must be a finite, non-negative "
+                        "number")
     for key in ("model_error_nt", "hysteresis_state_nt"):
         per_axis = block.get(key)
         if per_axis is not None and (not isinstance(per_axis, list) or len(per_axis) != 3 or not all(

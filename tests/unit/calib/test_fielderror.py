@@ -84,6 +84,8 @@ def test_a_malformed_covariance_is_refused_in_one_line(change, message):
     (lambda u: u["coverage_factors"]["b_nt"].__setitem__(0, -2.0), "coverage_factors.b_nt"),
     (lambda u: u.update(coverage_factors=[2.0]), "coverage_factors"),
     (lambda u: u.update(field_effective_dof=-4), "field_effective_dof"),
+    (lambda u: u.update(expanded_norm_error_nt="wide"), "expanded_norm_error_nt"),
+    (lambda u: u.update(expanded_norm_error_nt=-1.0), "expanded_norm_error_nt"),
 ])
 def test_malformed_coverage_factors_are_refused_in_one_line(change, key):
     cal, _ = _calibrated(3)
