@@ -234,13 +234,14 @@ def shifted_radius(cov: np.ndarray, shifts: np.ndarray, p: float = 0.95, iterati
     for _ in range(iterations):
         f, slope = coverage(r)
         f -= p
-        if np.all(np.abs(f) <= P_TOLERANCE):
+        going = np.abs(f) > P_TOLERANCE  # a row within the tolerance stays (shifted_interval)
+        if not going.any():
             break
         below = f < 0
         lo, hi = np.where(below, r, lo), np.where(below, hi, r)
         with np.errstate(divide="ignore", invalid="ignore"):
             step = r - f / slope
-        r = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        r = np.where(going, np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi)), r)
     return r
 
 
@@ -256,12 +257,13 @@ def shifted_interval(sigma: np.ndarray, shifts: np.ndarray, p: float = 0.95, ite
     for _ in range(iterations):
         below, above = (u[:, None] - shifts) / sigma, (u[:, None] + shifts) / sigma
         f = 0.5 * np.mean(erf(below / np.sqrt(2.0)) + erf(above / np.sqrt(2.0)), axis=1) - p
-        if np.all(np.abs(f) <= P_TOLERANCE):
+        going = np.abs(f) > P_TOLERANCE  # a row within the tolerance stays: its U is its own, whatever rows
+        if not going.any():             # are computed beside it
             break
         density = np.mean(np.exp(-0.5 * below**2) + np.exp(-0.5 * above**2), axis=1) / np.sqrt(2 * np.pi)
         slope = density / sigma[:, 0]
         lo, hi = np.where(f < 0, u, lo), np.where(f < 0, hi, u)
         with np.errstate(divide="ignore", invalid="ignore"):
             step = u - f / slope
-        u = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        u = np.where(going, np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi)), u)
     return u

@@ -8,7 +8,7 @@ import mpmath
 import numpy as np
 import pytest
 
-from calib.distributions import chi2_sf, erf, f_sf, gaussian_radius, shifted_radius
+from calib.distributions import chi2_sf, erf, f_sf, gaussian_radius, shifted_interval, shifted_radius
 
 
 @pytest.mark.parametrize(("x", "d1", "d2"), [(1.0, 3, 100), (5.0, 12, 500), (0.1, 1, 10), (2.5, 36, 3000),
@@ -82,3 +82,19 @@ def test_shifted_radius_holds_95_percent_of_the_mixture(seed):
     inside = np.mean(np.linalg.norm(x, axis=1) <= r[0])
     assert inside == pytest.approx(0.95, abs=0.0015)
     assert r[0] < gaussian_radius(cov + np.diag(d**2))
+
+
+def test_the_shifted_interval_holds_its_probability_and_is_each_rows_own():
+    """P(|x + c| <= U) = 0.95 for a normal x beside shifts c, each equally likely (a normal's 1.96 sigma
+    without them), and a row's U is the same whatever rows are computed beside it (rig apply computes a
+    file's every row at once, a check a few); shifted_radius's too."""
+    rng = np.random.default_rng(3)
+    sigma, shifts = rng.uniform(10.0, 500.0, 300), rng.normal(0.0, 300.0, (300, 4))
+    both = shifted_interval(sigma, shifts)
+    np.testing.assert_array_equal(both[:5], shifted_interval(sigma[:5], shifts[:5]))
+    x = rng.normal(0.0, 1.0, (200_000, 1)) * sigma[:3] + shifts[:3, rng.integers(0, 4, 200_000)].T
+    np.testing.assert_allclose(np.mean(np.abs(x) <= both[:3], axis=0), 0.95, atol=0.003)
+    assert shifted_interval(np.array([2.0]), np.zeros((1, 1)))[0] == pytest.approx(1.96 * 2.0, rel=1e-4)
+    root = rng.normal(0.0, 100.0, (300, 3, 3))  # the 3-D radius likewise each row's own
+    cov, state = root @ root.transpose(0, 2, 1), np.array([[100.0, 50.0, 20.0], [100.0, -50.0, 20.0]])
+    np.testing.assert_array_equal(shifted_radius(cov, state)[:5], shifted_radius(cov[:5], state))
