@@ -103,16 +103,10 @@ class TemperatureRefit:
                 total += (d**k) @ coef
         g = self.g0 + total[:, :p * p].reshape(m, p, p)
         b = self.b0 + total[:, p * p:].reshape(m, p, 3)
-        failed = np.zeros(m, bool)
-        try:
-            theta = self._solve(g, b)
-        except np.linalg.LinAlgError:  # one singular draw spoils the stacked solve: solve them one by one
-            theta = np.zeros((m, p, 3))
-            for i in range(m):
-                try:
-                    theta[i] = self._solve(g[i:i + 1], b[i:i + 1])[0]
-                except np.linalg.LinAlgError:
-                    failed[i] = True
+        s = self.scale
+        theta = _solve(g / np.outer(s, s), b / s[:, None]) / s[:, None]
+        failed = ~np.all(np.isfinite(theta.reshape(m, -1)), axis=1)  # a singular draw's
+        theta[failed] = 0.0
         change = np.einsum("ab,mbi->mai", self.lin.to_abs, theta - self.theta0)
         return change.reshape(m, -1)[:, self.lin.index], failed
 
@@ -303,18 +297,21 @@ def _robust_spread(x: np.ndarray) -> np.ndarray:
 
 
 def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 b per draw (a (d,P,P), b (d,P)); a singular draw's solution is NaN (then failed), not an error for
-    every draw."""
+    """a^-1 b per draw (a (m,P,P), b (m,P) or (m,P,K)); a singular draw's solution is NaN (then failed), not
+    an error for every draw: one singular draw spoils the stacked solve, so the draws are then solved one by
+    one."""
+    column = b.ndim == 2
+    rhs = b[:, :, None] if column else b
     try:
-        return np.linalg.solve(a, b[:, :, None])[:, :, 0]
+        x = np.linalg.solve(a, rhs)
     except np.linalg.LinAlgError:
-        out = np.full(b.shape, np.nan)
+        x = np.full(rhs.shape, np.nan)
         for i in range(len(a)):
             try:
-                out[i] = np.linalg.solve(a[i], b[i])
+                x[i] = np.linalg.solve(a[i], rhs[i])
             except np.linalg.LinAlgError:
                 continue
-        return out
+    return x[:, :, 0] if column else x
 
 
 def _upper_sums(x: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -463,3 +463,16 @@ def test_a_thinned_share_whose_own_solution_is_not_found_leaves_the_whole_data_t
                monte_carlo="always")
     assert b.stated and b.monte_carlo["refits"] == "every draw"
     assert not any("rows, evenly spaced" in n for n in b.notes)
+
+
+def test_one_singular_draw_fails_alone_in_a_stacked_solve():
+    """The refits solve every draw's normal equations stacked (calib.mcrefit._solve): a singular one, whose
+    error would spoil the whole stack, is NaN (then counted failed) and every other draw is solved."""
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(4, 5, 5))
+    a[2] = 0.0
+    for b in (rng.normal(size=(4, 5)), rng.normal(size=(4, 5, 3))):
+        x = mcrefit._solve(a, b)
+        assert x.shape == b.shape and np.all(np.isnan(x[2]))
+        for i in (0, 1, 3):
+            np.testing.assert_allclose(x[i], np.linalg.solve(a[i], b[i]), rtol=1e-12)
