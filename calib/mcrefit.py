@@ -272,13 +272,14 @@ def _along(cost_at, theta, step, slope, cost) -> tuple[np.ndarray, np.ndarray]:
     residuals' curvature, its steps overshoot a narrow valley (a turntable's scalar fit: offset against
     scale along the axis the site field never reverses) and zigzag down it for hundreds of steps; the
     parabola's minimum takes a few."""
-    full_cost = cost_at(theta + step)
+    full = theta + step
+    full_cost = cost_at(full)
     curve = full_cost - cost - slope
     alpha = np.where(curve > 0, np.clip(-slope / (2 * np.where(curve > 0, curve, 1.0)), 0.1, 1.0), 1.0)
     part = theta + alpha[:, None] * step
     part_cost = cost_at(part)
     take = part_cost < full_cost
-    return np.where(take[:, None], part, theta + step), np.where(take, part_cost, full_cost)
+    return np.where(take[:, None], part, full), np.where(take, part_cost, full_cost)
 
 
 def _rows(h: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from calib.calibration import Calibration, standard_uncertainty
 from calib.fielderror import expanded_norm_at
 from calib.linearise import ParamLayout
 from calib.propagation import InputSource, affine_map, reference_source, temperature_source
-from calib.uncertainty import Budget, raw_for
+from calib.uncertainty import Budget
 from rig.core.errors import DataError
 from rig.reference import chain_record, modelerror
 from rig.reference.ambient import AmbientModel
@@ -268,13 +268,10 @@ def uncertainty_section(b: Budget, cal: Calibration) -> dict:
     state = model_error_nt(b, two_point=True)
     if np.any(state > 0):
         out["hysteresis_state_nt"] = state.tolist()
-    grid = out.get("vector_error_nt") or {}
-    if grid.get("grid_field_nt"):
-        temps = grid.get("grid_temp_c")
-        temps = None if temps is None else np.asarray(temps, float)
-        h = raw_for(cal, np.asarray(grid["grid_field_nt"], float), temps)
+    if b.linear is not None:  # at the grid's raw readings, which the budget holds
         stated = dataclasses.replace(cal, uncertainty=out)
-        out["expanded_norm_error_nt"] = float(np.max(expanded_norm_at(stated, h, temps)))
+        size_u = expanded_norm_at(stated, b.linear.grid_h_nt, b.linear.grid_temp_c)
+        out["expanded_norm_error_nt"] = float(np.max(size_u))
     return out
 
 
