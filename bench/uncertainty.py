@@ -8,8 +8,9 @@
    and magnitudes, temperatures between the plan's, either thermal direction) within the 95 % radius the
    file gives there (calib/fielderror.py: its covariance and model error), over all points and over each
    DUT's worst 5 % (the points with the largest stated radius: where the calibration is least certain).
-   Goal 90-98 %. --model p12 fits and judges P12 instead (its k, angles and offsets against the best P12
-   over the same conditions; its field error at the same points, where its model error is most of it);
+   Goal 90-98 %. The true parameters: the model's best description of the DUT over the fields and
+   temperatures its data were taken at (`conditions`). --model p12 fits and judges P12 instead (its k,
+   angles and offsets; its field error at the same points, where its model error is most of it);
    --model scalar the |B|-only fit (its A, c and their temperature terms against the best scalar fit; at
    the validation points its error of |B|, what a scalar fit answers for, against the 95 % interval of
    |B|'s error its file states, rig apply's u_norm: a rotation of the output, which |B| cannot see, is not
@@ -72,28 +73,42 @@ def plan_t24(folder: Path, table: bool = False, field_order: str | None = None, 
     return path
 
 
-def best_t24(truth, temp_ref_c: float, fields=None) -> dict:
-    """The T24 parameters that describe the DUT best over the calibration's conditions (the demo's fields,
-    or `fields`, at its temperatures, its mean thermal state): what its calibration measures. The truth's
-    own S, K, b, kb when it has no term beyond T24."""
+def best_t24(truth, temp_ref_c: float, fields=None, temps=None) -> dict:
+    """The T24 parameters that describe the DUT best over the calibration's conditions (`best_fit`): what
+    its calibration measures. The truth's own S, K, b, kb when it has no term beyond T24."""
     if truth.deviations is None:
         return {"S": truth.S, "K": truth.K, "b_nt": truth.b_nt, "kb_nt_per_c": truth.kb_nt_per_c}
-    cal = best_fit(truth, "t24", temp_ref_c, fields)
+    cal = best_fit(truth, "t24", temp_ref_c, fields, temps)
     return {k: np.asarray(v, float) for k, v in cal.params.items()}
 
 
-def best_fit(truth, model: str, temp_ref_c: float, fields=None, **options):
+def best_fit(truth, model: str, temp_ref_c: float, fields=None, temps=None, **options):
     """The calibration of `model` that describes the DUT best over the calibration's conditions, fitted to
-    its noiseless readings there."""
-    plan = yaml.safe_load(DEMO.read_text())
-    if fields is None:
-        dirs = np.asarray(plan["fields"]["directions"], float)
-        fields = plan["fields"]["magnitude_nt"] * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    temps = np.asarray(plan["temperatures"]["steps"], float)
-    f = np.tile(fields, (len(temps), 1))
-    t = np.repeat(temps, len(fields))
-    h = np.array([truth.raw_from_field(b, tc) for b, tc in zip(f, t, strict=True)])
-    return calib.fit(Dataset(h_nt=h, temp_c=t, ref_nt=f), model, temp_ref_c=temp_ref_c, **options)
+    its noiseless readings there: the fields and temperatures (N,3), (N,) of its data (`conditions`), or
+    the demo's fields (or `fields`) at each of its temperatures."""
+    if temps is None:
+        plan = yaml.safe_load(DEMO.read_text())
+        if fields is None:
+            dirs = np.asarray(plan["fields"]["directions"], float)
+            fields = plan["fields"]["magnitude_nt"] * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+        steps = np.asarray(plan["temperatures"]["steps"], float)
+        fields, temps = np.tile(fields, (len(steps), 1)), np.repeat(steps, len(fields))
+    h = np.array([truth.raw_from_field(b, tc) for b, tc in zip(fields, temps, strict=True)])
+    return calib.fit(Dataset(h_nt=h, temp_c=temps, ref_nt=fields), model, temp_ref_c=temp_ref_c, **options)
+
+
+def conditions(session: Path, dut: str) -> tuple[np.ndarray, np.ndarray]:
+    """The fields and temperatures a DUT's calibration data were taken at, as its fit saw them (the run's
+    references and the DUT's temperatures): a model that cannot follow the DUT (P12 has no rotation or
+    temperature terms, the scalar fit no rotation) describes it best over the very fields it was shown, and
+    a table's poses sit a degree or two from their drawing. Their own errors move this truth by second
+    order only (a field error of tens of nT times the model's misfit over |B|)."""
+    from rig.analysis.sessionfit import SessionFitter
+    from rig.session.reader import SessionReader, read_dataset
+
+    with SessionReader(session) as reader:
+        ds = SessionFitter.of(reader).prepare(read_dataset(session, dut)).ds
+    return ds.ref_nt, ds.temp_c
 
 
 def one_world(args) -> dict:
@@ -103,14 +118,6 @@ def one_world(args) -> dict:
         return _one_world(*args)
     except Exception as exc:  # noqa: BLE001 - one world that cannot run is reported, the others count
         return {"index": args[1], "rows": [], "error": f"{type(exc).__name__}: {exc}"}
-
-
-def _table_fields(site_nt) -> np.ndarray:
-    """The field on an ideal table at each of TABLE_FIELDS' orientations (the table frame)."""
-    from rig.fieldsources.fieldmaths import table_field_nt
-
-    return np.array([table_field_nt(site_nt, az, el)
-                     for el in TABLE_FIELDS["el_deg"] for az in TABLE_FIELDS["az_deg"]])
 
 
 def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False,
@@ -129,7 +136,6 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         session = run(station, plan_t24(folder, table, field_order, model), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
-    calibrated_fields = _table_fields(site) if table else None  # None: the demo's
     out_rows = []
     for dut, truth in truths.items():
         path = calibration_file(session, dut, model)
@@ -146,10 +152,11 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         options = {} if model != "scalar" else {
             "temperature_terms": "KA_per_c" in cal.params, "field_norm_nt": cal.stats.get("field_norm_nt"),
             "balance_orientations": cal.stats.get("balance_orientations")}
+        shown = conditions(session, dut)
         if model == "t24":
-            true = best_t24(truth, cal.temp_ref_c, calibrated_fields)
+            true = best_t24(truth, cal.temp_ref_c, *shown)
         else:
-            best = best_fit(truth, model, cal.temp_ref_c, calibrated_fields, **options)
+            best = best_fit(truth, model, cal.temp_ref_c, *shown, **options)
             true = {k: np.asarray(v, float) for k, v in best.params.items()}
         groups = {g: k for g, k in MODEL_GROUPS[model].items() if k in cal.params}
         inside = {g: (np.abs(cal.params[k] - true[k]) <= expanded[k]).ravel().tolist()

@@ -35,9 +35,10 @@ import numpy as np
 
 from calib.adaptive import MAX_DRAWS, adaptive_monte_carlo, numerical_tolerance, quantiles
 from calib.calibration import Calibration
+from calib.correction import Corrected, DataCorrection
 from calib.dataset import Dataset
 from calib.lawcheck import normal_interval_holds, unit_draws, validate_temperature
-from calib.linearise import LinearInReference, ScalarGaussNewton, linearised
+from calib.linearise import ScalarGaussNewton, linearised
 from calib.mcrefit import ScalarRefit, draw_chunks, refit_for
 from calib.propagation import STATISTICAL, InputSource, LinearBudget, cross_covariance, propagate_linear
 from calib.rowgroups import RowGroups
@@ -264,18 +265,17 @@ def _total(parts):
 def budget(ds: Dataset, cal: Calibration, sources: list[InputSource], grid, *, rng: np.random.Generator,
            weights: np.ndarray | None = None, statistical: bool = True, monte_carlo: str = "auto",
            ndig: int = NDIG, batch_draws: int | None = BATCH_DRAWS, max_draws: int = MAX_DRAWS,
-           scalar_refits: bool | None = None,
-           noise_nt: np.ndarray | None = None) -> Budget:
+           scalar_refits: bool | None = None, noise_nt: np.ndarray | None = None,
+           correction: DataCorrection | None = None) -> Budget:
     """The uncertainty budget of `cal` (fitted to `ds` with row `weights`) over `sources` and the fit's own
     noise (`statistical`), the field error judged over `grid` = (fields (G,3) nT, temperatures (G,) or
     None). monte_carlo: "auto" (where needed), "always" or "never" (the law of propagation alone).
     scalar_refits: refit every draw of a scalar calibration (True), or only when `validate_scalar` finds
-    its first-order map does not hold (None). noise_nt (3,): the readings' noise per axis where the
-    caller knows it apart from the residual (T24 / T36: a residual that also holds a model error the
-    caller budgets on its own would count it twice); the fit's own statistical part then uses it."""
-    lin = linearised(ds, cal, weights)
-    if noise_nt is not None and isinstance(lin, LinearInReference):
-        lin.sigma2 = np.broadcast_to(np.asarray(noise_nt, float) ** 2, (3,)).copy()
+    its first-order map does not hold (None). noise_nt (3,): the readings' noise per axis known apart from
+    the residual (calib.linearise.linearised). correction: one the data were given before the fit,
+    estimated from them (calib/correction.py)."""
+    lin = linearised(ds, cal, weights, noise_nt)
+    lin = lin if correction is None else Corrected(lin, correction)
     linear = propagate_linear(ds, cal, sources, grid, statistical=statistical, lin=lin)
     notes = [f"{c.name}: first order" for c in linear.contributions if c.method == "first order"]
     whole = (ds, lin, linear, sources)

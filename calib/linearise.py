@@ -72,15 +72,22 @@ class ParamLayout:
         return out
 
 
-def linearised(ds: Dataset, cal: Calibration, weights: np.ndarray | None = None):
-    """The Jacobians of `cal`'s parameters with respect to its data (see the module doc)."""
+def linearised(ds: Dataset, cal: Calibration, weights: np.ndarray | None = None,
+               noise_nt: np.ndarray | None = None):
+    """The Jacobians of `cal`'s parameters with respect to its data (see the module doc); noise_nt (3,):
+    the readings' noise in the field where it is known apart from the residual, which also holds a model
+    error the caller budgets on its own (it would count twice): the fit's statistics then use it."""
     if cal.model in ("t24", "t36"):
-        return LinearInReference(ds, cal, weights)
-    if cal.model == "p12":
-        return P12Rows(ds, cal, weights)
-    if cal.model == "scalar":
+        lin = LinearInReference(ds, cal, weights)
+    elif cal.model == "p12":
+        lin = P12Rows(ds, cal, weights)
+    elif cal.model == "scalar":
         return ScalarGaussNewton(ds, cal, weights)
-    raise FitError(f"no linearisation of model {cal.model!r}")
+    else:
+        raise FitError(f"no linearisation of model {cal.model!r}")
+    if noise_nt is not None:
+        lin.take_noise(noise_nt)
+    return lin
 
 
 def _scaled_inverse(g: np.ndarray, what: str) -> np.ndarray:
@@ -130,6 +137,10 @@ class LinearInReference:
         self.to_abs = to_abs
         self.reference_map = to_abs @ self.g_inv @ xw.T  # (p,N)
         self.index = _layout_index(self.layout, unpack, self.p)
+
+    def take_noise(self, noise_nt: np.ndarray) -> None:
+        """The fit's statistics from the readings' noise (3,) in the field, known apart from the residual."""
+        self.sigma2 = np.broadcast_to(np.asarray(noise_nt, float) ** 2, (3,)).copy()
 
     def _flat(self, per_axis: np.ndarray) -> np.ndarray:
         """(p,3,Q) per-axis coefficient changes -> (P,Q) in the layout's order."""
@@ -192,6 +203,14 @@ class P12Rows:
             up[j] += step
             down[j] -= step
             self.jac[:, j] = (_p12_params(_split(up)) - _p12_params(_split(down))) / (2 * step)
+
+    def take_noise(self, noise_nt: np.ndarray) -> None:
+        """The rows' statistics from the noise (3,) of the fitted field, known apart from the residual
+        (which holds what P12 cannot follow): raw axis i = sum_j m_ij B_j + b_i, so its noise is
+        sqrt(sum_j m_ij^2 noise_j^2)."""
+        noise2 = np.broadcast_to(np.asarray(noise_nt, float) ** 2, (3,))
+        self.rows = [(x, g_inv, c, r, float(c[:-1] ** 2 @ noise2[:i + 1]))
+                     for i, (x, g_inv, c, r, _) in enumerate(self.rows)]
 
     def ref_jacobian(self, a_ref) -> np.ndarray:
         parts = []

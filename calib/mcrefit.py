@@ -330,6 +330,7 @@ def _upper(entries: np.ndarray) -> np.ndarray:
 
 def refit_for(lin, a_temp: np.ndarray | None):
     """The batch refit a model's Monte Carlo draws need, or None when its draws are linear maps."""
+    lin = getattr(lin, "plain", lin)  # a corrected linearisation's refits are its plain fit's (second order)
     if isinstance(lin, ScalarGaussNewton):
         return ScalarRefit(lin)
     if isinstance(lin, LinearInReference) and a_temp is not None:

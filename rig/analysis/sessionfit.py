@@ -28,6 +28,7 @@ class Prepared:
     ds: Any  # calib.dataset.Dataset
     ambient: dict | None = None  # the run's ambient model the references were remade with
     lag: dict | None = None  # the thermal lag estimate (a schedule that samples while the temperature moves)
+    checks: list | None = None  # T24's model checks of the readings as taken (before a correction)
 
 
 @dataclass
@@ -54,7 +55,11 @@ class SessionFitter:
 
     def prepare(self, ds, *, lag: bool = True) -> Prepared:
         """The references made with the run's best ambient (rig/reference/ambient.py) where the session
-        allows, and on a moving schedule the element's temperature (rig/analysis/lagfit.py)."""
+        allows, on a moving schedule the element's temperature (rig/analysis/lagfit.py), and the readings
+        taken to the DUT's mean thermal state where T24's checks find a thermal hysteresis
+        (rig/reference/hysteresis.py)."""
+        from rig.reference.hysteresis import corrected
+
         ambient = None
         if self.inputs is not None:
             ds, ambient = self.inputs.refined(ds)
@@ -63,7 +68,19 @@ class SessionFitter:
             from rig.analysis.lagfit import lag_corrected
 
             ds, info = lag_corrected(ds)
-        return Prepared(ds, ambient, info)
+        ds, checks = corrected(ds, self.thermal_direction(ds))
+        return Prepared(ds, ambient, info, checks)
+
+    def thermal_direction(self, ds):
+        """+1 heating, -1 cooling, 0 unknown for every sample: from the run's temperature log where the
+        session has one (rig/reference/modelerror.py); None without sample times."""
+        from rig.reference.modelerror import thermal_direction
+
+        if self.inputs is not None:
+            return self.inputs.thermal_direction(ds.source.get("dut", ""), ds)
+        if ds.columns.get("t") is None or ds.temp_c is None:
+            return None
+        return thermal_direction(ds.columns["t"], ds.temp_c)
 
     def robust(self, robust: bool | None) -> bool:
         return robust if robust is not None else bool(self.plan is not None and self.plan.fit.robust)
@@ -81,6 +98,7 @@ class SessionFitter:
         """(calibration, its calib Budget or None): `calibrate`, and the budget itself for what the DUTs
         share (rig/analysis/crosscov.py)."""
         import calib
+        from rig.reference.modelerror import record_model_checks
 
         ds = prepared.ds
         cal = calib.fit(ds, model, robust=self.robust(robust), software_version=software_version,
@@ -93,7 +111,10 @@ class SessionFitter:
             from rig.analysis.tempchoice import record_temperature_model
 
             check_linearity(cal, ds)
-            record_checks(self.inputs, ds.source.get("dut", ""), ds, cal)
+            if prepared.checks is not None:  # the DUT as it was measured, before a hysteresis correction
+                cal.stats["model_checks"] = prepared.checks
+            else:
+                record_model_checks(cal, ds, self.thermal_direction(ds))
             record_temperature_model(cal, ds)  # where its linearity in temperature fails: T24 or T36
         if prepared.ambient is not None:
             cal.stats["ambient"] = prepared.ambient
@@ -120,16 +141,6 @@ def state_uncertainty(inputs, dut: str, ds, cal):
     except (*ERRORS, ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as exc:
         cal.stats["warnings"] = [*cal.stats.get("warnings", []), f"no uncertainty budget: {exc}"]
         return None
-
-
-def record_checks(inputs, dut: str, ds, cal) -> None:
-    """T24's model checks (calib/checks.py) in the calibration's stats, the thermal direction of every
-    sample from the run's temperature history (rig/reference/modelerror.py)."""
-    from rig.reference.modelerror import record_model_checks, thermal_direction
-
-    direction = thermal_direction(ds.columns["t"], ds.temp_c) if inputs is None else \
-        inputs.thermal_direction(dut, ds)
-    record_model_checks(cal, ds, direction)
 
 
 def check_linearity(cal, ds) -> None:

@@ -101,9 +101,9 @@ class RunInputs:
     def budget(self, dut: str, ds, cal: Calibration, *, rng: np.random.Generator | None = None,
                monte_carlo: str = "auto") -> Budget:
         rng = rng or np.random.default_rng(zlib.crc32(f"{dut}/{cal.model}".encode()))
-        sources, notes, noise = self.sources(dut, ds, cal)
+        sources, notes, noise, correction = self.sources(dut, ds, cal)
         b = calib_budget(ds, cal, sources, self._grid, rng=rng, weights=fit_weights(cal),
-                         monte_carlo=monte_carlo, noise_nt=noise)
+                         monte_carlo=monte_carlo, noise_nt=noise, correction=correction)
         b.notes = b.notes + notes
         return b
 
@@ -123,16 +123,17 @@ class RunInputs:
             temps = np.linspace(temps.min(), temps.max(), 5)
         return np.repeat(fields, len(temps), axis=0), np.tile(temps, len(fields))
 
-    def sources(self, dut: str, ds, cal: Calibration) -> tuple[list, list[str], np.ndarray | None]:
+    def sources(self, dut: str, ds, cal: Calibration) -> tuple:
         """(every input source but the fit's own noise, notes, the readings' noise for the fit's
-        statistics where the model sources take a share of its residual: modelerror.model_sources)."""
+        statistics where the model sources take a share of its residual, the readings' hysteresis
+        correction as the budget takes it along: modelerror.model_sources)."""
         notes: list[str] = []
         out = self._reference_field_sources(dut, ds, notes)
         out += self._temperature(dut, ds, cal, notes)
         per_step = None if self.ambient is None else self.ambient.excess_nt**2
-        model, said, noise = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds),
-                                                      fit_weights(cal), per_step)
-        return out + model, notes + said, noise
+        model, said, noise, correction = modelerror.model_sources(ds, cal, self.thermal_direction(dut, ds),
+                                                                  fit_weights(cal), per_step)
+        return out + model, notes + said, noise, correction
 
     def _reference_field_sources(self, dut: str, ds, notes: list[str]) -> list:
         """The field source's sources for one DUT's data, made once for every model fitted to the same

@@ -2,7 +2,7 @@
 
     direction = thermal_direction(times, temps, history)       # +1 heating, -1 cooling, 0 unknown
     record_model_checks(cal, ds, direction)                    # cal.stats["model_checks"] (T24)
-    sources, notes = model_sources(ds, cal, direction, weights)
+    sources, notes, noise, correction = model_sources(ds, cal, direction, weights)
 
 What the parameters stand for: the T24 model that describes the DUT best over the calibration's fields
 and temperatures, in its mean thermal state. A term T24 lacks then costs the calibrated field what T24
@@ -20,14 +20,16 @@ history besides:
   thermal state: +-c, a field error of its own ("thermal hysteresis state"). Another model's parameters
   (P12, the scalar fit, T36) absorb the hysteresis alike: their budgets take it as T24's checks find it
   in the same data; what else they cannot follow is in their own residual (the misfit).
-- The misfit: the fit's residual (after those terms) beyond what the DUT's own noise explains. The noise
-  is the scatter within points (the samples of one point see the same field and temperature); the
-  excess, when significant (MISFIT_SIGNIFICANCE standard errors of the variance ratio), is a field error
-  at every grid point that no parameter carries. A stated uncertainty below the measured scatter is then
-  impossible. Where part of the residual is an affine function of the field (a model without some linear
-  term: P12 has no rotation) and the data's directions are unbalanced (a turntable's), that part is larger
-  at the directions the data did not visit: the misfit takes its size over every direction. With one
-  sample a point the noise cannot be told from the misfit: a note says so.
+- The misfit (rig/reference/misfit.py): the fit's residual (after those terms) beyond what the DUT's own
+  noise explains, a field error at every grid point that no parameter carries. A stated uncertainty
+  below the measured scatter is then impossible.
+- The readings' noise and the offset's wander (rig/reference/wander.py) come from the residual of the
+  model that follows the data best: this one's, or T24's with its checks' terms (P12's own holds what it
+  cannot follow, which its misfit already states).
+
+A hysteresis the checks find is corrected in the readings before any model is fitted
+(rig/reference/hysteresis.py): the term is then fitted again for the correction's uncertainty alone,
+and the thermal state at a point of use keeps the size the correction had.
 """
 
 from __future__ import annotations
@@ -35,15 +37,19 @@ from __future__ import annotations
 import numpy as np
 
 from calib.checks import FIELD_SCALE_NT, model_checks
+from calib.correction import DataCorrection
 from calib.design import regressors as t24_regressors
 from calib.propagation import InputSource
+from rig.reference.misfit import everywhere, misfit_source, within_point_noise
 from rig.reference.wander import wander_source
 
 P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
-MISFIT_SIGNIFICANCE = 3.0
-AFFINE_SIGNIFICANCE = 3.0  # standard errors beyond the affine part the noise alone would give
 SIGNIFICANT = 3.0  # standard errors: a point-level error counts
 THERMAL_PLAY_C = 1.0  # a temperature change beyond this reverses the thermal direction
+# where the readings were corrected for the DUT's thermal hysteresis (rig/reference/hysteresis.py): the
+# dataset's source holds d per axis (nT, in the field) and its u
+CORRECTED, CORRECTED_U = "hysteresis_corrected_nt", "hysteresis_corrected_u_nt"
+CARRIED = ("t24", "t36", "p12")  # models whose budgets take a hysteresis correction along (linear fits)
 CHECK_TERMS = {"linearity in temperature": "temperature", "thermal hysteresis": "hysteresis",
                "linearity in the field": "field"}
 
@@ -126,39 +132,27 @@ def _joint_fit(x_base: np.ndarray, z: np.ndarray, ref: np.ndarray, w: np.ndarray
     return coef, cov, resid, dof, maps
 
 
-def within_point_noise(residuals: np.ndarray, points) -> tuple[np.ndarray, int]:
-    """(per axis RMS scatter of the residuals within points, its degrees of freedom)."""
-    labels, index = np.unique(np.asarray(points, object).astype(str), return_inverse=True)
-    counts = np.bincount(index, minlength=len(labels))
-    means = np.stack([np.bincount(index, residuals[:, i], len(labels)) for i in range(residuals.shape[1])],
-                     axis=1) / np.maximum(counts, 1)[:, None]
-    dof = int(np.sum(np.maximum(counts - 1, 0)))
-    if dof == 0:
-        return np.full(residuals.shape[1], np.nan), 0
-    return np.sqrt(np.sum((residuals - means[index]) ** 2, axis=0) / dof), dof
-
-
 def model_sources(ds, cal, direction, weights=None,
-                  step_reference_var=None) -> tuple[list[InputSource], list[str], np.ndarray | None]:
-    """The budget's model-check sources (T24), its misfit and the offset's wander (rig/reference/wander.py),
-    with notes; and for T24 the readings' noise the fit's statistics should take: the residual of T24 with
-    the checks' terms (their share of the plain residual is budgeted by the terms' source), widened where
-    the samples of a point share an error. step_reference_var (3,): the variance of the reference's own
-    error from one temperature step to the next (the ambient's scatter between its measurements), which
-    the terms' estimates share with the offset's wander."""
+                  step_reference_var=None):
+    """(the budget's model-check sources (T24), its misfit and the offset's wander (rig/reference/
+    wander.py); notes; for a model fitted to the reference vector, the readings' noise the fit's
+    statistics should take (`_noise_and_wander`); the hysteresis correction the readings were given, as a
+    linear fit's budget takes it along (calib/correction.py), or None). step_reference_var (3,): the
+    variance of the reference's own error from one temperature step to the next (the ambient's scatter
+    between its measurements), which the terms' estimates share with the offset's wander."""
     notes: list[str] = []
     w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
     points = ds.columns.get("point")
-    fit = _TermsFit(ds, cal, direction, w) if cal.model == "t24" else None
-    # another model's parameters take the DUT's thermal hysteresis from an unbalanced history as T24's do:
-    # its size is what T24's checks find in the same data
-    other = None if fit is not None or ds.ref_nt is None or direction is None else \
-        _TermsFit(ds, cal, direction, w)
+    fit = TermsFit(ds, cal, direction, w) if cal.model == "t24" else None
+    # another model is judged against the fullest model of the DUT the data support (T24 with its checks'
+    # terms): its parameters take the DUT's thermal hysteresis from an unbalanced history as T24's do, and
+    # T24's residual shows the DUT's noise and wander without what this model cannot follow
+    other = None if fit is not None or ds.ref_nt is None else TermsFit(ds, cal, direction, w)
     if fit is not None:
         resid, dof = fit.resid, fit.dof
     elif cal.model == "scalar":
         if ds.ref_nt is None:
-            return [], ["misfit: the data have no reference field"], None
+            return [], ["misfit: the data have no reference field"], None, None
         field = cal.apply(ds.h_nt, ds.temp_c)
         resid = (np.linalg.norm(field, axis=1) - np.linalg.norm(ds.ref_nt, axis=1))[:, None]
         dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values())
@@ -166,30 +160,61 @@ def model_sources(ds, cal, direction, weights=None,
         resid = ds.ref_nt - cal.apply(ds.h_nt, ds.temp_c)
         dof = int((w > 0).sum()) - sum(int(np.size(v)) for v in cal.params.values()) // 3
     out: list[InputSource] = []
-    step_var = None
-    if resid.shape[1] == 3 and points is not None:
-        noise, _ = within_point_noise(resid[w > 0], np.asarray(points, object)[w > 0])
-        wander, said, step_var = wander_source(ds, resid, noise, w)
-        notes += [] if wander is not None else [said]
-        out += [] if wander is None else [wander]
+    misfit = misfit_source(resid, w, dof, points, notes, ds.ref_nt)
+    # without a misfit line, this model's own residual is all that states what it cannot follow
+    terms = fit if fit is not None else (other if misfit is not None else None)
+    noise, step_var, t24_var = _noise_and_wander(ds, terms, resid, dof, w, out, notes)
+    # a hysteresis corrected in the readings: a linear fit's budget takes the correction along
+    correction = None if cal.model not in CARRIED or (fit or other) is None else \
+        (fit or other).data_correction(direction, noise)
+    carried = correction is not None
     if fit is not None:
-        out = fit.sources(ds, cal, step_var, step_reference_var, notes) + out
+        out = fit.sources(ds, cal, step_var, step_reference_var, notes, carried=carried) + out
     elif other is not None and "hysteresis" in other.found:
-        # the hysteresis estimate shares the steps with T24's own wander, not with this model's residual,
-        # which holds what the model cannot follow of the temperature
-        t24_var = None
-        if points is not None:
-            t24_noise, _ = within_point_noise(other.resid[w > 0], np.asarray(points, object)[w > 0])
-            t24_var = wander_source(ds, other.resid, t24_noise, w)[2]
-        out = other.sources(ds, cal, t24_var, step_reference_var, notes, hysteresis_only=True) + out
-    misfit = _misfit(resid, w, dof, points, notes, ds.ref_nt)
-    noise = None
-    if fit is not None:
-        used = w > 0
-        noise = np.sqrt(np.sum(w[used, None] * resid[used] ** 2, axis=0) / max(dof, 1))
-        if points is not None:
-            noise = _clustered_noise(resid[used], np.asarray(points, object)[used], noise, notes)
-    return out + ([misfit] if misfit is not None else []), notes, noise
+        if t24_var is None and points is not None:  # the estimate shares the steps with T24's wander
+            t24_var = _wander(ds, other.resid, w)[2]
+        out = other.sources(ds, cal, t24_var, step_reference_var, notes, hysteresis_only=True,
+                            carried=carried) + out
+    return out + ([misfit] if misfit is not None else []), notes, noise, correction
+
+
+def _mean_square(resid: np.ndarray, w: np.ndarray, dof: int) -> float:
+    used = w > 0
+    return float(np.sum(w[used, None] * resid[used] ** 2) / max(dof, 1) / resid.shape[1])
+
+
+def _wander(ds, resid: np.ndarray, w: np.ndarray):
+    used = w > 0
+    noise, _ = within_point_noise(resid[used], np.asarray(ds.columns["point"], object)[used])
+    return wander_source(ds, resid, noise, w)
+
+
+def _noise_and_wander(ds, terms, resid, dof, w, out: list, notes: list[str]):
+    """(the readings' noise per axis for the fit's statistics (None: the fit's own residual), the offset
+    wander's variance per step and axis, T24's) from the residual of the model that follows the data
+    best: this model's or T24 with its checks' terms (`terms`), whichever is the smaller. A model that
+    cannot follow the DUT's temperature terms (P12) leaves them in its residual, where they would pass for
+    noise and, from one point to the next, for wander: its misfit line takes them, once. The offset's
+    wander is appended to `out`. The noise is the residual's RMS, widened where the samples of a point
+    share an error (`_clustered_noise`): the model sources take the rest of the residual."""
+    points = ds.columns.get("point")
+    base, base_dof = resid, dof
+    if terms is not None and resid.shape[1] == 3 and \
+            _mean_square(terms.resid, w, terms.dof) < _mean_square(resid, w, dof):
+        base, base_dof = terms.resid, terms.dof
+    if base.shape[1] != 3 or (terms is None and points is None):
+        return None, None, None
+    used = w > 0
+    rms = np.sqrt(np.sum(w[used, None] * base[used] ** 2, axis=0) / max(base_dof, 1))
+    if points is None:
+        return rms, None, None
+    wander, said, step_var = _wander(ds, base, w)
+    notes += [] if wander is not None else [said]
+    out += [] if wander is None else [wander]
+    t24_var = step_var if terms is not None and base is terms.resid else None
+    if terms is None and base is resid:
+        return None, step_var, t24_var
+    return _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes), step_var, t24_var
 
 
 def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str]) -> np.ndarray:
@@ -218,12 +243,17 @@ def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str
     return taken
 
 
-class _TermsFit:
+class TermsFit:
     """T24 and the terms its checks found, fitted together (module docstring)."""
 
     def __init__(self, ds, cal, direction, w):
         self.checks = _checks(cal, ds, direction)
         self.found = _found(self.checks)
+        # readings corrected for the hysteresis before the fit (rig/reference/hysteresis.py): the term is
+        # fitted again, about zero, for the correction's uncertainty
+        self.correction = None if CORRECTED not in ds.source else np.asarray(ds.source[CORRECTED], float)
+        if self.correction is not None and direction is not None and "hysteresis" not in self.found:
+            self.found.append("hysteresis")
         temps = np.asarray(ds.temp_c, float)
         self.mid = 0.5 * (float(temps.min()) + float(temps.max()))
         moving = np.asarray(direction, float) if direction is not None else np.zeros(len(ds))
@@ -232,6 +262,21 @@ class _TermsFit:
                   else np.zeros((len(ds), 3, 0)))
         x_base = t24_regressors(ds.h_nt, ds.temp_c, self.mid if cal.temp_ref_c is None else cal.temp_ref_c)
         self.coef, self.cov, self.resid, self.dof, self.maps = _joint_fit(x_base, self.z, ds.ref_nt, w)
+
+    def column(self, kind: str) -> int:
+        """The first column of a term in `coef` and `cov`."""
+        at = 0
+        for name, z in self.parts:
+            if name == kind:
+                return at
+            at += z.shape[2]
+        raise KeyError(kind)
+
+    def _said(self, kind: str) -> str:
+        if kind == "hysteresis" and self.correction is not None:
+            return (f"the readings were corrected to the mean thermal state for T24's thermal hysteresis d = "
+                    f"({_fmt(self.correction)}) nT (GUM 3.2.4): the correction's uncertainty")
+        return self.checks[kind]["message"] if kind in self.checks else f"{kind} term found"
 
     def _widened(self, ds, step_var) -> np.ndarray:
         """The terms' covariance per axis with an error of variance step_var (3,) per temperature step."""
@@ -244,13 +289,15 @@ class _TermsFit:
         return cov
 
     def sources(self, ds, cal, wander_var, reference_var, notes: list[str],
-                hysteresis_only: bool = False) -> list[InputSource]:
+                hysteresis_only: bool = False, carried: bool = False) -> list[InputSource]:
         """The terms as one source, their coefficients' covariance widened by what changes from one step
         to the next (the offset's wander, the reference's error), which the white-noise covariance misses:
         the terms share the steps with them; and the hysteresis state, the DUT's own hysteresis in use
         (its estimate's share of the reference's error is the first source's). hysteresis_only: for a
         model other than T24, whose own residual (the misfit) holds what it cannot follow of the other
-        terms: the hysteresis alone, as it moved the data."""
+        terms: the hysteresis alone, as it moved the data. carried: the readings were corrected for the
+        hysteresis and the fit's linearisation carries the correction's uncertainty (`data_correction`):
+        this line leaves the hysteresis out."""
         if not self.found:
             notes.append(f"model checks: no term beyond T24 found (p >= {P_TERM:g})")
             return []
@@ -264,6 +311,10 @@ class _TermsFit:
             block = slice(k * i, k * i + k)
             sigma[block, block] = cov[i] + np.outer(coef[i], coef[i])
             a[:, i, block] = np.where(hysteresis, self.z[:, i, :], 0.0)
+        if carried:
+            sigma[np.tile(hysteresis, 3)] = 0.0
+            sigma[:, np.tile(hysteresis, 3)] = 0.0
+            a[:] = 0.0
         parts, mid = self.parts, self.mid
 
         def grid_effect(grid_h, grid_temp):
@@ -278,85 +329,38 @@ class _TermsFit:
                 out[:, i, k * i:k * i + k] = np.where(hysteresis, 0.0, left)
             return out
 
-        checks = self.checks
-        said = "; ".join(checks[kind]["message"] if kind in checks else f"{kind} term found"
-                         for kind in self.found)
+        said = "; ".join(self._said(kind) for kind in self.found)
+        named = [kind for kind in self.found if not (carried and kind == "hysteresis")]
         if hysteresis_only:
-            said = checks["hysteresis"]["message"] + "; fitted together with T24 on the same data (u^2 + b^2)"
-            out = [InputSource("model checks (hysteresis)", sigma, ref_nt=a, origin=said)]
+            said = self._said("hysteresis") + "; fitted together with T24 on the same data (u^2 + b^2)"
+            out = [] if carried else [InputSource("model checks (hysteresis)", sigma, ref_nt=a, origin=said)]
         else:
-            out = [InputSource("model checks (" + ", ".join(self.found) + ")", sigma, ref_nt=a,
-                               field_nt=grid_effect, origin=said + "; fitted together with T24 (u^2 + b^2)")]
+            out = [] if not named else [InputSource(
+                "model checks (" + ", ".join(named) + ")", sigma, ref_nt=a, field_nt=grid_effect,
+                origin=said + "; fitted together with T24 (u^2 + b^2)")]
         if "hysteresis" in self.found:
             at = int(np.flatnonzero(hysteresis)[0])
             own = self._widened(ds, wander_var)
-            size = np.array([max(own[i][at, at], coef[i, at] ** 2) for i in range(3)])
+            d = coef[:, at] + (0.0 if self.correction is None else self.correction)
+            size = np.array([max(own[i][at, at], d[i] ** 2) for i in range(3)])
             said = f"either thermal direction at a point of use: +-d ({_fmt(np.sqrt(size))}) nT"
             out.append(InputSource("thermal hysteresis state", np.diag(size), field_nt=everywhere,
                                    distribution="two-point", origin=said))
         return out
 
 
-def directional_part(resid, ref, w, points=None) -> tuple[np.ndarray, np.ndarray] | None:
-    """The residual's part that is an affine function of the field (per axis: c . B / |B|rms + c0), as
-    a model without some linear term leaves it (P12 has no rotation), when it is beyond what the noise
-    gives by chance (AFFINE_SIGNIFICANCE standard errors; counted in points, whose samples share their
-    errors): (its mean square over the data, its mean square over every direction at the data's RMS
-    magnitude, |c|^2 / 3 + c0^2). Over unbalanced directions (a turntable's) the second is the larger: the
-    model's error at the directions the data did not visit. None: not significant, or no field."""
-    used = w > 0
-    if ref is None or resid.shape[1] != 3 or used.sum() < 8:
-        return None
-    ref_used = np.asarray(ref, float)[used]
-    size = float(np.sqrt(np.mean(np.sum(ref_used**2, axis=1))))
-    if size == 0:
-        return None
-    x = np.column_stack([ref_used / size, np.ones(len(ref_used))]) * np.sqrt(w[used])[:, None]
-    r = resid[used] * np.sqrt(w[used])[:, None]
-    coef = np.linalg.lstsq(x, r, rcond=None)[0]  # (4,3)
-    n = len(np.unique(np.asarray(points, object)[used].astype(str))) if points is not None else len(r)
-    total = np.sum(r**2, axis=0) / np.sum(w[used])
-    in_data = np.sum((x @ coef) ** 2, axis=0) / np.sum(w[used])
-    chance = (4 + AFFINE_SIGNIFICANCE * np.sqrt(8.0)) * total / max(n, 1)
-    if not np.any(in_data > chance):
-        return None
-    everywhere_ms = np.sum(coef[:3] ** 2, axis=0) / 3 + coef[3] ** 2
-    significant = in_data > chance
-    return np.where(significant, in_data, 0.0), np.where(significant, everywhere_ms, 0.0)
-
-
-def _misfit(resid, w, dof, points, notes, ref=None) -> InputSource | None:
-    used = w > 0
-    rms2 = np.sum(w[used, None] * resid[used] ** 2, axis=0) / max(dof, 1)
-    if points is None:
-        notes.append("misfit: the samples carry no point labels; the DUT's noise cannot be told from it")
-        return None
-    noise, noise_dof = within_point_noise(resid[used], np.asarray(points, object)[used])
-    if noise_dof == 0:
-        notes.append("misfit: one sample a point, the DUT's noise cannot be told from the misfit: not in the "
-                     "budget (take two or more samples a point)")
-        return None
-    limit = 1.0 + MISFIT_SIGNIFICANCE * np.sqrt(2.0 / max(dof, 1) + 2.0 / noise_dof)
-    excess2 = np.where(rms2 > limit * noise**2, rms2 - noise**2, 0.0)
-    excess2 = np.broadcast_to(excess2, (3,)) if excess2.size == 1 else excess2
-    rms = np.sqrt(np.broadcast_to(rms2, (3,)))
-    noise3 = np.broadcast_to(noise, (3,))
-    origin = (f"residual rms ({_fmt(rms)}) nT against the noise within points ({_fmt(noise3)}) nT: excess "
-              f"({_fmt(np.sqrt(excess2))}) nT")
-    directional = directional_part(resid, ref, w, points)
-    if directional is not None and np.any(directional[1] > directional[0]):
-        in_data, anywhere = directional
-        excess2 = excess2 + np.maximum(anywhere - in_data, 0.0)
-        origin += (f"; of the residual, an affine function of the field's direction "
-                   f"({_fmt(np.sqrt(in_data))}) nT grows to ({_fmt(np.sqrt(anywhere))}) nT over every "
-                   f"direction (the data's are not balanced): excess taken ({_fmt(np.sqrt(excess2))}) nT")
-    excess = np.sqrt(excess2)
-    return InputSource("misfit", np.diag(excess**2), field_nt=everywhere, origin=origin)
-
-
-def everywhere(grid_h, grid_temp) -> np.ndarray:
-    """(G,3,3): a field error of its own on each axis at every grid point."""
-    return np.broadcast_to(np.eye(3), (len(grid_h), 3, 3))
+    def data_correction(self, direction, noise) -> DataCorrection | None:
+        """The hysteresis correction the readings were given (rig/reference/hysteresis.py), as the
+        budget's linearisation takes it along (calib/correction.py): its estimate's map from the references
+        (this joint fit's, on the corrected readings: the same map), its variance from the readings' noise
+        (the fit's statistics' own, `noise` (3,), else this fit's white residual)."""
+        if self.correction is None or "hysteresis" not in self.found or direction is None:
+            return None
+        at = self.column("hysteresis")
+        maps = np.stack([self.maps[i][at] for i in range(3)])
+        white = np.array([self.cov[i][at, at] for i in range(3)])
+        variance = white if noise is None else np.asarray(noise, float) ** 2 * np.sum(maps**2, axis=1)
+        return DataCorrection(np.asarray(direction, float), maps, variance)
 
 
 def _fmt(values) -> str:

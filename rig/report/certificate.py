@@ -29,6 +29,7 @@ from calib import calfile
 from calib.digest import sha256_text
 from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file, inside
+from rig.reference.modelerror import CORRECTED, CORRECTED_U
 from rig.report.html import ItemList, Section, Table, render_html
 
 ITEMS = ("Identification", "Calibration laboratory", "Item calibrated", "Method and plan", "Dates",
@@ -210,6 +211,13 @@ def _measurand(g) -> list[str]:
             "the misfit) and the DUT's thermal state at a point of use are uncertainties of the calibrated "
             "field: at any reading they add to what the parameters' covariance gives (rig apply "
             "--uncertainty; the files' model_error_nt and hysteresis_state_nt)."]
+    fixed = next((cal.source for _, cal in g["cals"].values() if CORRECTED in (cal.source or {})), None)
+    if fixed is not None:
+        said.append("Correction: the readings were taken to the DUT's mean thermal state before every fit, "
+                    "for the thermal hysteresis the model checks found (the offset heating against cooling): "
+                    "d = (" + ", ".join(f"{v:.3g}" for v in fixed[CORRECTED]) + ") nT per axis, standard "
+                    "uncertainty (" + ", ".join(f"{v:.2g}" for v in fixed.get(CORRECTED_U, [])) + ") nT "
+                    "(GUM 3.2.4). The budgets carry the correction's uncertainty.")
     if "scalar" in g["cals"]:
         said.append("SCALAR fits |B| alone: its calibrated field is in the DUT's own frame (A "
                     "upper-triangular), and a rotation of it, one that changes with temperature included, "

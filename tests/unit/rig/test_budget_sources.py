@@ -16,7 +16,8 @@ from drivers.sim.coilfield import LoopErrors, coil_matrix_at
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.config import DeclaredGeometry
 from rig.fieldsources.coils.loops import PER_LOOP, loop_sensitivity, matrix_with_loops
-from rig.reference.modelerror import _misfit, thermal_direction, within_point_noise
+from rig.reference.misfit import misfit_source, within_point_noise
+from rig.reference.modelerror import thermal_direction
 from rig.reference.wander import WANDER_FACTOR, wander_source
 
 CENTRE = np.array([[50480.0, 264.0, 0.0], [0.0, 49510.0, -263.0], [0.0, 0.0, 50310.0]])
@@ -158,11 +159,11 @@ def test_the_misfit_beyond_the_noise_within_points_is_found_and_noise_alone_is_n
     ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=0.0, step_nt=0.0)
     resid = resid - resid.mean(axis=0)
     notes: list[str] = []
-    quiet = _misfit(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
+    quiet = misfit_source(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
     assert np.all(np.diag(quiet.covariance) < 3.0**2)  # noise only: no excess (or within its scatter)
     ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=40.0, step_nt=0.0)
     resid = resid - resid.mean(axis=0)
-    noisy = _misfit(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
+    noisy = misfit_source(resid, np.ones(len(resid)), len(resid) - 8, ds.columns["point"], notes)
     np.testing.assert_allclose(np.sqrt(np.diag(noisy.covariance)), 40.0, rtol=0.3)
     noise, dof = within_point_noise(resid, ds.columns["point"])
     np.testing.assert_allclose(noise, 30.0, rtol=0.1)
@@ -220,13 +221,13 @@ def _table_like(rng, rotation_deg: float, noise: float = 30.0):
 def test_a_directional_misfit_over_unbalanced_directions_is_taken_at_every_direction():
     """A rotation a model cannot follow, seen over a table's directions: the misfit states its size over
     the whole sphere (exactly |c|^2 / 3 per axis for a rotation), not its smaller size over the data."""
-    from rig.reference.modelerror import directional_part
+    from rig.reference.misfit import directional_part
 
     rng = np.random.default_rng(11)
     ref, resid, labels = _table_like(rng, rotation_deg=1.0)
     resid = resid - resid.mean(axis=0)  # as a fit's offsets would leave it
     notes: list[str] = []
-    source = _misfit(resid, np.ones(len(resid)), len(resid) - 9, labels, notes, ref)
+    source = misfit_source(resid, np.ones(len(resid)), len(resid) - 9, labels, notes, ref)
     # a 1 deg turn about z errs by theta (-B_y, B_x): over every direction at |B|, theta |B| / sqrt(3) per
     # axis. The table's directions hold less B_y than that (x grows to it) and more B_x (y keeps its own).
     over_sphere = np.radians(1.0) * np.sqrt(np.mean(np.sum(ref**2, axis=1)) / 3)
@@ -262,7 +263,7 @@ def test_another_models_parameters_carry_the_thermal_hysteresis_t24_finds(model)
         labels = [f"T{g}-F{i // 4 % 26}" for i, g in enumerate(ds.group)]
         ds.columns["point"] = np.array(labels, object)
         cal = calib.fit(ds, model, **({"temperature_terms": True} if model == "scalar" else {}))
-        sources, _, _ = model_sources(ds, cal, direction)
+        sources, _, _, _ = model_sources(ds, cal, direction)
         names = [s.name for s in sources]
         named[bool(hysteresis.any())] = names
         if hysteresis.any():
@@ -272,3 +273,44 @@ def test_another_models_parameters_carry_the_thermal_hysteresis_t24_finds(model)
             stated = np.sqrt([line.covariance[k, k] for k in at])
             np.testing.assert_allclose(stated, np.abs(c), rtol=0.25)  # the estimate and its u
     assert "model checks (hysteresis)" not in named[False]
+
+
+def test_p12s_statistics_and_wander_come_from_the_noise_not_from_what_p12_cannot_follow():
+    """A DUT P12 cannot follow (its cross-axis terms turn the field, its scale changes with temperature):
+    P12's residual is mostly that misfit, which its misfit line states once. Taken also as the readings'
+    noise it would widen the parameters' statistics tenfold, and from one point to the next it would pass
+    for an offset wander. The fit's statistics take the noise T24 with its checks' terms leaves, and the
+    parameters' stated spread is their spread over fresh noise."""
+    import calib
+    from calib import synthetic
+    from calib.linearise import linearised
+    from rig.reference.modelerror import model_sources
+
+    rng = np.random.default_rng(31)
+    noise_nt, samples = 20.0, 5
+    clean, _ = synthetic.t24_dataset(rng, temps_c=[-20.0, 0.0, 25.0, 60.0], samples_per_point=samples,
+                                     noise_nt=0.0, temp_jitter_c=0.0)
+    n = len(clean)
+    labels = np.array([f"T{g}-F{i // samples % 26}" for i, g in enumerate(clean.group)], object)
+
+    def noisy() -> Dataset:
+        return Dataset(clean.h_nt + rng.normal(0, noise_nt, (n, 3)), clean.temp_c, clean.ref_nt,
+                       group=clean.group, columns={"point": labels, "t": np.arange(n) * 2.0})
+
+    ds = noisy()
+    cal = calib.fit(ds, "p12")
+    sources, notes, noise, _ = model_sources(ds, cal, None)
+    names = [s.name for s in sources]
+    misfit = np.sqrt(np.diag(sources[names.index("misfit")].covariance))
+    assert np.all(misfit > 5 * noise_nt)  # what P12 cannot follow, stated once
+    wander = sources[names.index("offset wander")].covariance
+    assert not np.any(wander)  # white noise: nothing wanders from one point to the next
+    np.testing.assert_allclose(noise, noise_nt, rtol=0.15)  # the fitted field's noise: S ~ 1
+    lin = linearised(ds, cal)
+    own = np.sqrt(np.diag(lin.statistical_covariance()))
+    lin.take_noise(noise)
+    stated = np.sqrt(np.diag(lin.statistical_covariance()))
+    spread = np.std([np.concatenate([np.ravel(v) for v in calib.fit(noisy(), "p12").params.values()])
+                     for _ in range(300)], axis=0)
+    np.testing.assert_allclose(stated, spread, rtol=0.2)
+    assert np.all(own > 3 * spread)  # the residual's reading of the noise
