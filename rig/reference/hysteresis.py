@@ -7,8 +7,11 @@ to budget. T24's model checks find the hysteresis (rig/reference/modelerror.py, 
 d together with the other terms they find; the readings are then taken to the DUT's mean thermal state,
 h + d_n S^-1 d (d_n the thermal direction of each sample, S the DUT's scale at the data's middle
 temperature), and every model is fitted to them. What the budget keeps is the correction's own
-uncertainty (the model checks' hysteresis line: its estimate, fitted again on the corrected readings,
-is then about zero, its u the estimate's) and the state a reading is in at a point of use (+-d).
+uncertainty and the state a reading is in at a point of use (+-d). A linear fit's budget (T24, T36, P12)
+takes the correction along in its linearisation (calib/correction.py): every source that changes the
+references moves the estimate too. The scalar fit's Monte Carlo refits do not redo the correction: its
+budget keeps the hysteresis line, the estimate fitted again on the corrected readings (about zero) and
+its u widened by the errors that change from one step to the next.
 
     ds, checks = corrected(ds, direction)   # checks: T24's model checks of the readings as taken
     ds.source.get(CORRECTED)                 # where corrected: d per axis (nT), CORRECTED_U its u

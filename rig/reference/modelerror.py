@@ -28,8 +28,11 @@ history besides:
   cannot follow, which its misfit already states).
 
 A hysteresis the checks find is corrected in the readings before any model is fitted
-(rig/reference/hysteresis.py): the term is then fitted again for the correction's uncertainty alone,
-and the thermal state at a point of use keeps the size the correction had.
+(rig/reference/hysteresis.py): it no longer biases the parameters. A linear fit's budget (T24, T36, P12)
+then takes the correction's uncertainty along in its linearisation (`TermsFit.data_correction`,
+calib/correction.py) and the terms' line leaves the hysteresis out; the scalar fit's keeps it, its
+estimate fitted again on the corrected readings (about zero) with its u. The thermal state at a point of
+use keeps the size the correction had.
 """
 
 from __future__ import annotations
