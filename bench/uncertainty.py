@@ -97,18 +97,22 @@ def best_fit(truth, model: str, temp_ref_c: float, fields=None, temps=None, **op
     return calib.fit(Dataset(h_nt=h, temp_c=temps, ref_nt=fields), model, temp_ref_c=temp_ref_c, **options)
 
 
-def conditions(session: Path, dut: str) -> tuple[np.ndarray, np.ndarray]:
-    """The fields and temperatures a DUT's calibration data were taken at, as its fit saw them (the run's
-    references and the DUT's temperatures): a model that cannot follow the DUT (P12 has no rotation or
-    temperature terms, the scalar fit no rotation) describes it best over the very fields it was shown, and
-    a table's poses sit a degree or two from their drawing. Their own errors move this truth by second
+def conditions(session: Path, duts) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per DUT, the fields and temperatures its calibration data were taken at, as its fit saw them (the
+    run's references and the DUT's temperatures): a model that cannot follow the DUT (P12 has no rotation
+    or temperature terms, the scalar fit no rotation) describes it best over the very fields it was shown,
+    and a table's poses sit a degree or two from their drawing. Their own errors move this truth by second
     order only (a field error of tens of nT times the model's misfit over |B|)."""
     from rig.analysis.sessionfit import SessionFitter
     from rig.session.reader import SessionReader, read_dataset
 
     with SessionReader(session) as reader:
-        ds = SessionFitter.of(reader).prepare(read_dataset(session, dut)).ds
-    return ds.ref_nt, ds.temp_c
+        fitter = SessionFitter.of(reader)  # the session's reference chain, read once for its DUTs
+    out = {}
+    for dut in duts:
+        ds = fitter.prepare(read_dataset(session, dut)).ds
+        out[dut] = (ds.ref_nt, ds.temp_c)
+    return out
 
 
 def one_world(args) -> dict:
@@ -137,6 +141,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
     out_rows = []
+    shown_to = None  # the data's conditions, read when a calibration is there to judge
     for dut, truth in truths.items():
         path = calibration_file(session, dut, model)
         if not path.exists():  # the fit refused (the session's events say why): counted apart
@@ -152,7 +157,8 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         options = {} if model != "scalar" else {
             "temperature_terms": "KA_per_c" in cal.params, "field_norm_nt": cal.stats.get("field_norm_nt"),
             "balance_orientations": cal.stats.get("balance_orientations")}
-        shown = conditions(session, dut)
+        shown_to = shown_to or conditions(session, truths)
+        shown = shown_to[dut]
         if model == "t24":
             true = best_t24(truth, cal.temp_ref_c, *shown)
         else:

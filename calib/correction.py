@@ -46,6 +46,8 @@ class Corrected:
         self.shift = lin.ref_jacobian(correction.shifts())  # (P,3): the parameters per unit c
 
     def __getattr__(self, name: str):
+        if name == "plain":  # not yet set (a copy made without __init__): no endless lookup
+            raise AttributeError(name)
         return getattr(self.plain, name)
 
     def ref_jacobian(self, a_ref) -> np.ndarray:
