@@ -46,12 +46,14 @@ def _two_duts(folder: Path) -> Path:
     return path
 
 
-def _run(code: Path, station: Path, folder: Path) -> tuple[float, Path]:
-    """(wall s, session) of `rig run` of the demo in a new process with the code in `code`."""
+def _run(code: Path, station: Path, folder: Path, launcher: Path | None = None) -> tuple[float, Path]:
+    """(wall s, session) of `rig run` of the demo in a new process with the code in `code` (`launcher`: a
+    script that stands for `-m rig`, e.g. bench/free_physics.py)."""
     folder.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "PYTHONPATH": str(code), "OPENBLAS_NUM_THREADS": "1"}
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "rig", "run", str(_plan(folder, station)), "--out",
+    rig = ["-m", "rig"] if launcher is None else [str(launcher)]
+    proc = subprocess.run([sys.executable, *rig, "run", str(_plan(folder, station)), "--out",
                            str(folder), "--no-live"], cwd=code, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
     if proc.returncode not in (0, 3):

@@ -199,42 +199,51 @@ def _noise_and_wander(ds, terms, resid, dof, w, out: list, notes: list[str]):
     cannot follow the DUT's temperature terms (P12) leaves them in its residual, where they would pass for
     noise and, from one point to the next, for wander: its misfit line takes them, once. The offset's
     wander is appended to `out`. The noise is the residual's RMS, widened where the samples of a point
-    share an error (`_clustered_noise`): the model sources take the rest of the residual."""
+    share an error (`_clustered_noise`): the model sources take the rest of the residual. The scalar fit's
+    residual is |B|'s, one column: its noise, widened so, is all it takes from here."""
     points = ds.columns.get("point")
     base, base_dof = resid, dof
     if terms is not None and resid.shape[1] == 3 and \
             _mean_square(terms.resid, w, terms.dof) < _mean_square(resid, w, dof):
         base, base_dof = terms.resid, terms.dof
-    if base.shape[1] != 3 or (terms is None and points is None):
+    if base.shape[1] not in (1, 3) or (terms is None and points is None):
         return None, None, None
     used = w > 0
     rms = np.sqrt(np.sum(w[used, None] * base[used] ** 2, axis=0) / max(base_dof, 1))
     if points is None:
-        return rms, None, None
+        return (rms if base.shape[1] == 3 else None), None, None
+    params = int(used.sum()) - base_dof
+    if base.shape[1] == 1:  # |B|'s residual (the scalar fit): no offset of its own to wander
+        return _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes, params), None, None
     wander, said, step_var = _wander(ds, base, w)
     notes += [] if wander is not None else [said]
     out += [] if wander is None else [wander]
     t24_var = step_var if terms is not None and base is terms.resid else None
     if terms is None and base is resid:
         return None, step_var, t24_var
-    return _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes), step_var, t24_var
+    noise = _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes, params)
+    return noise, step_var, t24_var
 
 
-def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str]) -> np.ndarray:
+def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str],
+                     params: int = 0) -> np.ndarray:
     """The noise the fit's statistics should take when the samples of one point share part of their error
     (a slow offset noise, anything fixed for a point): with n samples a point, an offset of variance s^2
     common to them weighs in the fit as a white noise of variance n s^2 does (the design effect: the
     samples of a point have the same regressors), so sqrt(sigma_w^2 + n s^2), sigma_w the scatter within
     points; s^2 the point means' variance beyond what sigma_w gives them, when SIGNIFICANT standard errors
-    above zero (pooled over the axes). Else the residual's RMS (its white-noise reading)."""
+    above zero (pooled over the axes). The point means are those of a fit's residual: `params` fitted per
+    column took their share of the means' scatter (K points leave K - params of it). Else the residual's
+    RMS (its white-noise reading)."""
     noise_w, _ = within_point_noise(resid, points)
     labels, index = np.unique(np.asarray(points).astype(str), return_inverse=True)
     counts = np.bincount(index, minlength=len(labels))
-    if not np.all(np.isfinite(noise_w)) or len(labels) < 3:
+    if not np.all(np.isfinite(noise_w)) or len(labels) - params < 3:
         return rms
-    sums = np.stack([np.bincount(index, resid[:, i], len(labels)) for i in range(3)], axis=1)
+    sums = np.stack([np.bincount(index, resid[:, i], len(labels)) for i in range(resid.shape[1])], axis=1)
     means = sums / counts[:, None]
-    excess = np.mean(means**2 - noise_w**2 / counts[:, None], axis=1)  # per point, pooled over the axes
+    kept = (len(labels) - params) / len(labels)
+    excess = np.mean(means**2 / kept - noise_w**2 / counts[:, None], axis=1)  # per point, pooled over axes
     s2, se = float(np.mean(excess)), float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
     if s2 <= SIGNIFICANT * se:
         return rms
