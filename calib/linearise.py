@@ -82,7 +82,7 @@ def linearised(ds: Dataset, cal: Calibration, weights: np.ndarray | None = None,
     elif cal.model == "p12":
         lin = P12Rows(ds, cal, weights)
     elif cal.model == "scalar":
-        lin = ScalarGaussNewton(ds, cal, weights)
+        return ScalarGaussNewton(ds, cal, weights)
     else:
         raise FitError(f"no linearisation of model {cal.model!r}")
     if noise_nt is not None:
@@ -278,11 +278,6 @@ class ScalarGaussNewton:
         n_used = int(np.count_nonzero(w))
         self.sigma2 = float(np.sum(w * self.r**2) / (n_used - self.theta.size))
         self.select = self._selection()
-
-    def take_noise(self, noise_nt) -> None:
-        """The fit's statistics from |B|'s noise (1,), known apart from the residual (widened where the
-        samples of a point share an error: rig/reference/modelerror.py)."""
-        self.sigma2 = float(np.asarray(noise_nt, float).ravel()[0] ** 2)
 
     def _selection(self) -> np.ndarray:
         """(P, free): the named (flat) parameters as the free ones; A's lower entries are fixed at zero."""

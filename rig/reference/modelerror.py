@@ -199,28 +199,25 @@ def _noise_and_wander(ds, terms, resid, dof, w, out: list, notes: list[str]):
     cannot follow the DUT's temperature terms (P12) leaves them in its residual, where they would pass for
     noise and, from one point to the next, for wander: its misfit line takes them, once. The offset's
     wander is appended to `out`. The noise is the residual's RMS, widened where the samples of a point
-    share an error (`_clustered_noise`): the model sources take the rest of the residual. The scalar fit's
-    residual is |B|'s, one column: its noise, widened so, is all it takes from here."""
+    share an error (`_clustered_noise`): the model sources take the rest of the residual."""
     points = ds.columns.get("point")
     base, base_dof = resid, dof
     if terms is not None and resid.shape[1] == 3 and \
             _mean_square(terms.resid, w, terms.dof) < _mean_square(resid, w, dof):
         base, base_dof = terms.resid, terms.dof
-    if base.shape[1] not in (1, 3) or (terms is None and points is None):
+    if base.shape[1] != 3 or (terms is None and points is None):
         return None, None, None
     used = w > 0
     rms = np.sqrt(np.sum(w[used, None] * base[used] ** 2, axis=0) / max(base_dof, 1))
     if points is None:
-        return (rms if base.shape[1] == 3 else None), None, None
-    params = int(used.sum()) - base_dof
-    if base.shape[1] == 1:  # |B|'s residual (the scalar fit): no offset of its own to wander
-        return _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes, params), None, None
+        return rms, None, None
     wander, said, step_var = _wander(ds, base, w)
     notes += [] if wander is not None else [said]
     out += [] if wander is None else [wander]
     t24_var = step_var if terms is not None and base is terms.resid else None
     if terms is None and base is resid:
         return None, step_var, t24_var
+    params = int(used.sum()) - base_dof
     noise = _clustered_noise(base[used], np.asarray(points, object)[used], rms, notes, params)
     return noise, step_var, t24_var
 
@@ -240,7 +237,7 @@ def _clustered_noise(resid: np.ndarray, points, rms: np.ndarray, notes: list[str
     counts = np.bincount(index, minlength=len(labels))
     if not np.all(np.isfinite(noise_w)) or len(labels) - params < 3:
         return rms
-    sums = np.stack([np.bincount(index, resid[:, i], len(labels)) for i in range(resid.shape[1])], axis=1)
+    sums = np.stack([np.bincount(index, resid[:, i], len(labels)) for i in range(3)], axis=1)
     means = sums / counts[:, None]
     kept = (len(labels) - params) / len(labels)
     excess = np.mean(means**2 / kept - noise_w**2 / counts[:, None], axis=1)  # per point, pooled over axes

@@ -316,38 +316,27 @@ def test_p12s_statistics_and_wander_come_from_the_noise_not_from_what_p12_cannot
     assert np.all(own > 3 * spread)  # the residual's reading of the noise
 
 
-def test_the_scalar_fits_statistics_take_the_error_a_points_samples_share():
-    """|B|'s residual of a scalar fit whose points each carry an error their five samples share (a field
-    that moves between points, a coil setting off its command): the fit weighs it as a white noise of n
-    times its variance. Its statistics take that from the residual, and the parameters' stated spread is
-    their spread over fresh draws; the residual's white-noise reading is well short of it."""
-    import calib
-    from calib import synthetic
-    from calib.linearise import linearised
-    from rig.reference.modelerror import model_sources
 
-    rng = np.random.default_rng(47)
-    noise_nt, shared_nt, samples = 10.0, 40.0, 5
-    clean, _ = synthetic.t24_dataset(rng, temps_c=[-20.0, 25.0, 60.0], samples_per_point=samples,
-                                     noise_nt=0.0, temp_jitter_c=0.0)
-    n = len(clean)
-    labels = np.array([f"T{g}-F{i // samples % 26}" for i, g in enumerate(clean.group)], object)
-    unit = clean.h_nt / np.linalg.norm(clean.h_nt, axis=1, keepdims=True)
+def test_the_shared_error_is_read_from_a_fits_residual_with_the_parameters_share_put_back():
+    """The point means of a fit's residual have lost the share of their scatter its parameters took (K
+    points, p parameters: K - p of K): the shared error is read with it put back. Here 15 parameters over
+    30 points would halve it."""
+    from rig.reference.modelerror import _clustered_noise
 
-    def drawn() -> Dataset:
-        shared = np.repeat(rng.normal(0, shared_nt, n // samples), samples)[:, None] * unit
-        h = clean.h_nt + shared + rng.normal(0, noise_nt, (n, 3))
-        return Dataset(h, clean.temp_c, clean.ref_nt, group=clean.group, columns={"point": labels})
-
-    ds = drawn()
-    cal = calib.fit(ds, "scalar")
-    _, notes, noise, _ = model_sources(ds, cal, None)
-    assert any("share an error" in note for note in notes)
-    lin = linearised(ds, cal)
-    own = np.sqrt(np.diag(lin.statistical_covariance()))
-    stated = np.sqrt(np.diag(linearised(ds, cal, None, noise).statistical_covariance()))
-    spread = np.std([np.concatenate([np.ravel(v) for v in calib.fit(drawn(), "scalar").params.values()])
-                     for _ in range(150)], axis=0)
-    free = spread > 0  # A's lower entries are fixed at zero
-    np.testing.assert_allclose(stated[free], spread[free], rtol=0.25)
-    assert np.all(own[free] < 0.6 * spread[free])
+    rng = np.random.default_rng(12)
+    points, samples, params, shared, white = 30, 5, 15, 20.0, 10.0
+    labels = np.repeat([f"P{k}" for k in range(points)], samples).astype(object)
+    design = np.repeat(rng.normal(size=(points, params)), samples, axis=0)  # the same regressors a point
+    hat = design @ np.linalg.pinv(design)
+    taken = []
+    for _ in range(40):
+        error = np.repeat(rng.normal(0, shared, (points, 3)), samples, axis=0)
+        error = error + rng.normal(0, white, error.shape)
+        resid = error - hat @ error
+        rms = np.sqrt(np.sum(resid**2, axis=0) / (len(labels) - params))
+        taken.append([_clustered_noise(resid, labels, rms, [], params),
+                      _clustered_noise(resid, labels, rms, [])])
+    with_share, without = np.mean(taken, axis=0)
+    expected = np.sqrt(white**2 + samples * shared**2)
+    np.testing.assert_allclose(with_share, expected, rtol=0.1)
+    assert np.all(without < 0.8 * expected)
