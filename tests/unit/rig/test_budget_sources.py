@@ -316,7 +316,6 @@ def test_p12s_statistics_and_wander_come_from_the_noise_not_from_what_p12_cannot
     assert np.all(own > 3 * spread)  # the residual's reading of the noise
 
 
-
 def test_the_shared_error_is_read_from_a_fits_residual_with_the_parameters_share_put_back():
     """The point means of a fit's residual have lost the share of their scatter its parameters took (K
     points, p parameters: K - p of K): the shared error is read with it put back. Here 15 parameters over
