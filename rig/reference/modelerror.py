@@ -319,11 +319,11 @@ class TermsFit:
         for i in range(3):
             block = slice(k * i, k * i + k)
             sigma[block, block] = cov[i] + np.outer(coef[i], coef[i])
-            a[:, i, block] = np.where(hysteresis, self.z[:, i, :], 0.0)
+            if not carried:  # carried: the linearisation moves the estimate with the references already
+                a[:, i, block] = np.where(hysteresis, self.z[:, i, :], 0.0)
         if carried:
             sigma[np.tile(hysteresis, 3)] = 0.0
             sigma[:, np.tile(hysteresis, 3)] = 0.0
-            a[:] = 0.0
         parts, mid = self.parts, self.mid
 
         def grid_effect(grid_h, grid_temp):
@@ -348,7 +348,7 @@ class TermsFit:
                 "model checks (" + ", ".join(named) + ")", sigma, ref_nt=a, field_nt=grid_effect,
                 origin=said + "; fitted together with T24 (u^2 + b^2)")]
         if "hysteresis" in self.found:
-            at = int(np.flatnonzero(hysteresis)[0])
+            at = self.column("hysteresis")
             own = self._widened(ds, wander_var)
             d = coef[:, at] + (0.0 if self.correction is None else self.correction)
             size = np.array([max(own[i][at, at], d[i] ** 2) for i in range(3)])
