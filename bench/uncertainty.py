@@ -15,6 +15,10 @@
    the validation points its error of |B|, what a scalar fit answers for, against the 95 % interval of
    |B|'s error its file states, rig apply's u_norm: a rotation of the output, which |B| cannot see, is not
    judged).
+   Beside the coverage, the vector error's two parts at the validation points, each against what the file
+   states of it (RMS): the parameters' (the calibration against the model's best description of the DUT)
+   and the model's with the thermal state (that description against the true field). --temperatures runs
+   the plan with other temperature steps (the validation temperatures between them).
 2. timing: every budget (T24, P12, scalar) of a 64-DUT campaign, and the demo's wall time on 64 DUTs
    against 2 (bench/uncertainty_timing.py).
 3. certificates: the demo's DUTs (rig certificate).
@@ -22,12 +26,14 @@
     .venv/bin/python bench/uncertainty.py coverage [--worlds 20] [--seed 24] [--wider 1.25] [--out DIR]
                                                    [--jobs 2] [--table] [--field-order listed]
                                                    [--model t24|p12|scalar] [--again]
+                                                   [--temperatures -20,0,25,60]
     .venv/bin/python bench/uncertainty.py timing [--before COMMIT] | certificates
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 import tempfile
@@ -46,13 +52,14 @@ from bench.reference_chain import PLACES_MM, prepared, run, validation_grid  # n
 from calib import calfile  # noqa: E402
 from calib.calibration import standard_uncertainty  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
-from calib.fielderror import expanded_at, expanded_norm_at  # noqa: E402
+from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
 from rig.config import load_station  # noqa: E402
 from rig.core.paths import calibration_file  # noqa: E402
 from rig.devices.bench import dut_truths  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "plans" / "demo.yaml"
+DEMO_STEPS_C = yaml.safe_load(DEMO.read_text())["temperatures"]["steps"]
 GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 # each model's parameter groups (report name: the calibration file's key)
 MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b_nt"},
@@ -60,8 +67,11 @@ MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b
 WORST_SHARE = 0.05
 
 
-def plan_t24(folder: Path, table: bool = False, field_order: str | None = None, model: str = "t24") -> Path:
+def plan_t24(folder: Path, table: bool = False, field_order: str | None = None, model: str = "t24",
+             temperatures: list[float] | None = None) -> Path:
     data = yaml.safe_load(DEMO.read_text())
+    if temperatures is not None:
+        data["temperatures"]["steps"] = list(temperatures)
     data["fit"] = {"models": [model], "robust": False}
     if field_order is not None:
         data["field_order"] = field_order
@@ -125,7 +135,8 @@ def one_world(args) -> dict:
 
 
 def _one_world(seed: int, index: int, out: str, wider: float, table: bool = False,
-               field_order: str | None = None, model: str = "t24", again: bool = False) -> dict:
+               field_order: str | None = None, model: str = "t24", again: bool = False,
+               temperatures: list[float] | None = None) -> dict:
     rng = np.random.default_rng([seed, index])
     folder = Path(out) / f"world{index:02d}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -137,7 +148,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         station, session = folder / f"{world['name']}.yaml", folder / "train.session"
     else:
         station = prepared(world, BASE.parent, folder, places=() if table else PLACES_MM)
-        session = run(station, plan_t24(folder, table, field_order, model), folder)
+        session = run(station, plan_t24(folder, table, field_order, model, temperatures), folder)
     truths = dut_truths(load_station(station))
     site = world["sim"].get("site_field_nt")
     out_rows = []
@@ -169,7 +180,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
                   for g, k in groups.items()}
         u = {k: np.maximum(standard_uncertainty(cal.uncertainty, k), 1e-300) for k in groups.values()}
         z = {g: (np.abs(cal.params[k] - true[k]) / u[k]).ravel().tolist() for g, k in groups.items()}
-        fields, temps = validation_grid(np.array([-20.0, 0.0, 25.0, 60.0]))
+        fields, temps = validation_grid(np.array(temperatures or DEMO_STEPS_C, float))
         if table:  # a table's calibration knows one magnitude, the site field's: it is judged there
             fields = fields / np.linalg.norm(fields, axis=1, keepdims=True) * np.linalg.norm(site)
         hyst = np.zeros(3) if truth.deviations is None else truth.deviations.hysteresis_offset_nt
@@ -177,19 +188,36 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         h = np.array([truth.raw_from_field(f, t, s * hyst)
                       for f, t, s in zip(fields, temps, state, strict=True)])
         error, radius = _judged(cal, h, temps, fields)
+        described = dataclasses.replace(cal, params={k: np.asarray(v, float) for k, v in true.items()})
+        parts = None if model == "scalar" else _parts(cal, described, h, temps, fields)
         worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
         out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
                          "points": (error <= radius).tolist(),
                          "worst": (error[worst] <= radius[worst]).tolist(),
                          "rms_error": float(np.sqrt(np.mean(error**2))), "stated_max": float(radius.max()),
                          "file_max": float(cal.uncertainty.get(file_figure(model), np.nan)),
-                         "ratio": (error / radius).tolist()})
+                         "ratio": (error / radius).tolist(), "parts": parts})
     return {"index": index, "rows": out_rows}
 
 
 def file_figure(model: str) -> str:
     """The figure a model's file states for what it answers for: |B|'s interval for the scalar fit."""
     return "expanded_norm_error_nt" if model == "scalar" else "expanded_vector_error_nt"
+
+
+def _parts(cal, best, h, temps, fields) -> dict[str, float]:
+    """Mean squares over the validation points of the vector error's two parts, each beside what the file
+    states of it: the parameters' (the calibration against the model's best description of the DUT, and
+    the field covariance its parameter covariance gives), and the model's (the best description against
+    the true field, and the file's model error and thermal state)."""
+    model_nt = np.asarray(cal.uncertainty.get("model_error_nt") or np.zeros(3), float)
+    state_nt = hysteresis_state_nt(cal)
+    stated = np.mean(np.einsum("nii->n", field_covariance(cal, h, temps)))
+    described = best.apply(h, temps)
+    return {"parameters": float(np.mean(np.sum((cal.apply(h, temps) - described) ** 2, axis=1))),
+            "parameters_stated": float(stated - np.sum(model_nt**2) - np.sum(state_nt**2)),
+            "model": float(np.mean(np.sum((described - fields) ** 2, axis=1))),
+            "model_stated": float(np.sum(model_nt**2) + np.sum(state_nt**2))}
 
 
 def _judged(cal, h, temps, fields) -> tuple[np.ndarray, np.ndarray]:
@@ -204,9 +232,11 @@ def _judged(cal, h, temps, fields) -> tuple[np.ndarray, np.ndarray]:
 
 
 def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER, table: bool = False,
-             field_order: str | None = None, model: str = "t24", again: bool = False) -> None:
+             field_order: str | None = None, model: str = "t24", again: bool = False,
+             temperatures: list[float] | None = None) -> None:
     start = time.perf_counter()
-    jobs_args = [(seed, i, str(out), wider, table, field_order, model, again) for i in range(worlds)]
+    jobs_args = [(seed, i, str(out), wider, table, field_order, model, again, temperatures)
+                 for i in range(worlds)]
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(one_world, jobs_args))
@@ -253,6 +283,12 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
     print(f"  error / radius: median {np.median(ratio):.2f}, 95th percentile {np.quantile(ratio, 0.95):.2f}; "
           f"per DUT: RMS true error median {np.median([r['rms_error'] for r in rows]):.1f} nT, stated "
           f"{file_figure(model)} median {np.nanmedian([r['file_max'] for r in rows]):.1f} nT")
+    parts = [r["parts"] for r in rows if r.get("parts")]
+    if parts:
+        ms = {k: float(np.mean([p[k] for p in parts])) for k in parts[0]}
+        print(f"  the vector error at the validation points, RMS actual / stated: the parameters' part "
+              f"{np.sqrt(ms['parameters']):.1f} / {np.sqrt(ms['parameters_stated']):.1f} nT, the model's "
+              f"(and thermal state's) {np.sqrt(ms['model']):.1f} / {np.sqrt(ms['model_stated']):.1f} nT")
     per_world = {}
     for r in rows:
         per_world.setdefault(r["world"], []).extend(r["points"])
@@ -276,14 +312,18 @@ def main() -> None:
     parser.add_argument("--again", action="store_true",
                         help="coverage: judge the sessions already in --out again (the same seed draws the "
                              "same worlds), without running them")
+    parser.add_argument("--temperatures", default=None,
+                        help="coverage: the plan's temperature steps, degC, comma-separated (default: the "
+                             "demo plan's)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--before", default=None, help="timing: also this commit's code, for comparison")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix=f"magrig-uncertainty-{args.part}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.part == "coverage":
+        temperatures = None if args.temperatures is None else [float(v) for v in args.temperatures.split(",")]
         coverage(args.worlds, args.seed, out, args.jobs, args.wider, args.table, args.field_order, args.model,
-                 args.again)
+                 args.again, temperatures)
     elif args.part == "timing":
         from bench.uncertainty_timing import timing
 

@@ -16,6 +16,12 @@ white noise's share dominates): it counts only when its mean over the three axes
 standard errors above zero, and then each axis takes at least that mean (an AMR's offset noise is alike
 on its axes). The source: one offset per step and axis, independent; it changes the data (the
 parameters absorb it, b and kb most), never the true field.
+
+The consecutive difference also holds what each point has of its own (a pose's reference error, a
+misfit from one field to the next), which a step's mean averages out: on a turntable the point means'
+variogram is about flat from 1 to 8 points apart. Read from its growth alone, though, the wander leaves
+b and kb under-covered (bench/README.md): the DUT's components slower than a step move the steps'
+offsets by more than a step's points show. The difference is the bound the data give, and it is taken.
 """
 
 from __future__ import annotations
