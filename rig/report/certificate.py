@@ -10,11 +10,11 @@ page count (a title, an id, "page x of y" when printed); the calibration laborat
 operator, where the devices were simulated; the item calibrated: the DUT, its type and identity as it
 reported itself, its position; the method and the plan (the model, the fit, the temperatures and fields,
 the plan text's sha256); the dates of the calibration and of issue; the conditions (temperature range,
-field range, ambient); the results with their expanded uncertainty and coverage factor, the field error's
-95 % radius and the budget's every line with its origin; the traceability chain (the reference
-magnetometer, its calibration and that file's sha256, the commissioning file and its sha256 and age); the
-model checks; the software version and the session file's sha256; and the statement that the results
-relate only to the item calibrated.
+field range and the directions taken, ambient); the results with their expanded uncertainty and coverage
+factor, the field error's 95 % radius and the budget's every line with its origin; the traceability chain
+(the reference magnetometer, its calibration and that file's sha256, the commissioning file and its sha256
+and age); the model checks; the software version and the session file's sha256; and the statement that
+the results relate only to the item calibrated.
 """
 
 from __future__ import annotations
@@ -31,6 +31,9 @@ from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file, inside
 from rig.reference.modelerror import CORRECTED, CORRECTED_U
 from rig.report.html import ItemList, Section, Table, render_html
+
+SPHERE_DIRECTIONS = 6000  # the sphere's directions a reach is judged at (about 2.6 deg apart)
+DIRECTION_CHUNK = 500
 
 ITEMS = ("Identification", "Calibration laboratory", "Item calibrated", "Method and plan", "Dates",
          "Conditions", "Results", "Uncertainty budget", "Traceability", "Model checks", "Software",
@@ -159,6 +162,8 @@ def _conditions(g) -> Section:
     ambient = next((c.stats.get("ambient") for _, c in g["cals"].values() if c.stats.get("ambient")), None)
     rows = [["DUT temperature", f"{ds.temp_c.min():.2f} .. {ds.temp_c.max():.2f} degC"],
             ["field magnitude", f"{norms.min():.0f} .. {norms.max():.0f} nT"],
+            ["field directions (the DUT's frame)",
+             f"every direction within {direction_reach_deg(ds.ref_nt):.0f} deg of one taken"],
             ["samples", f"{len(ds)} ({ds.source.get('rows_rejected', 0)} flagged and left out)"]]
     if ambient:
         drift = ", drifting" if ambient.get("drift") else ""
@@ -167,6 +172,24 @@ def _conditions(g) -> Section:
         rows.append([f"{what} (measured)", ", ".join(f"{v:.1f}" for v in ambient["value_nt"]) + " nT, "
                      f"{ambient['measurements']} measurements{drift}"])
     return Section("Conditions", [Table(["item", "value"], rows)])
+
+
+def direction_reach_deg(field_nt) -> float:
+    """The largest angle from any direction to the nearest field direction the data took: where a
+    calibration holds without extrapolating (a turntable's elevations leave the poles out)."""
+    f = np.asarray(field_nt, float)
+    f = f[np.linalg.norm(f, axis=1) > 0]
+    if not len(f):
+        return 180.0
+    taken = np.unique(np.round(f / np.linalg.norm(f, axis=1, keepdims=True), 3), axis=0)
+    k = np.arange(SPHERE_DIRECTIONS) + 0.5
+    z = 1 - 2 * k / SPHERE_DIRECTIONS
+    phi = np.pi * (3 - np.sqrt(5)) * k
+    sphere = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
+    nearest = np.full(SPHERE_DIRECTIONS, -1.0)
+    for lo in range(0, len(taken), DIRECTION_CHUNK):
+        nearest = np.maximum(nearest, (sphere @ taken[lo:lo + DIRECTION_CHUNK].T).max(axis=1))
+    return float(np.degrees(np.arccos(np.clip(nearest.min(), -1.0, 1.0))))
 
 
 def _results(g) -> list[Section]:
@@ -223,7 +246,9 @@ def _measurand(g) -> list[str]:
                     "upper-triangular), and a rotation of it, one that changes with temperature included, "
                     "leaves |B| unchanged and is not seen. Its uncertainty answers for |B| (the interval of "
                     "|B|'s error; rig apply --uncertainty writes it per row as u_norm); for the field's "
-                    "direction only as far as |B| shows it.")
+                    "direction only as far as |B| shows it. It holds over the directions taken (Conditions): "
+                    "farther from them |B|'s error is the fit's extrapolation, which its data cannot state "
+                    "(with no reference direction, nothing holds it there).")
     for model, (_, cal) in g["cals"].items():
         u = cal.uncertainty or {}
         model_error, state = u.get("model_error_nt"), u.get("hysteresis_state_nt")

@@ -150,3 +150,9 @@ def test_the_certificate_states_the_site_field_as_measured_over_the_run(table_ru
     assert "site field (measured)</td><td>" in html
     assert f"{inputs.ambient.n} measurements, drifting" in html
     assert "ambient field (measured)" not in html
+    # the site field 22.8 deg off the vertical, the table tilted up to 60 deg: the DUT sees it at most
+    # 82.8 deg from its own z, so the direction opposite that is 97.2 deg from the nearest one taken
+    site = np.array([19_148.0, 894.0, 45_587.0])
+    farthest = 180.0 - (np.degrees(np.arccos(site[2] / np.linalg.norm(site))) + 60.0)
+    reach = float(html.split("every direction within ", 1)[1].split(" deg", 1)[0])
+    assert reach == pytest.approx(farthest, abs=2.5)
