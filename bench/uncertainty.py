@@ -52,6 +52,7 @@ from bench.reference_chain import PLACES_MM, prepared, run, validation_grid  # n
 from calib import calfile  # noqa: E402
 from calib.calibration import standard_uncertainty  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
+from calib.directions import nearest_deg, spacing_deg  # noqa: E402
 from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
 from rig.config import load_station  # noqa: E402
 from rig.core.paths import calibration_file  # noqa: E402
@@ -190,13 +191,16 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         error, radius = _judged(cal, h, temps, fields)
         described = dataclasses.replace(cal, params={k: np.asarray(v, float) for k, v in true.items()})
         parts = None if model == "scalar" else _parts(cal, described, h, temps, fields)
+        taken = cal.stats.get("field_directions")  # rig apply's warning: beyond the directions taken
+        beyond = np.zeros(len(error), bool) if not taken else \
+            nearest_deg(taken, cal.apply(h, temps)) > spacing_deg(taken)
         worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
         out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
                          "points": (error <= radius).tolist(),
                          "worst": (error[worst] <= radius[worst]).tolist(),
                          "rms_error": float(np.sqrt(np.mean(error**2))), "stated_max": float(radius.max()),
                          "file_max": float(cal.uncertainty.get(file_figure(model), np.nan)),
-                         "ratio": (error / radius).tolist(), "parts": parts})
+                         "ratio": (error / radius).tolist(), "parts": parts, "beyond": beyond.tolist()})
     return {"index": index, "rows": out_rows}
 
 
@@ -283,6 +287,12 @@ def coverage(worlds: int, seed: int, out: Path, jobs: int, wider: float = WIDER,
     print(f"  error / radius: median {np.median(ratio):.2f}, 95th percentile {np.quantile(ratio, 0.95):.2f}; "
           f"per DUT: RMS true error median {np.median([r['rms_error'] for r in rows]):.1f} nT, stated "
           f"{file_figure(model)} median {np.nanmedian([r['file_max'] for r in rows]):.1f} nT")
+    beyond = np.array([v for r in rows for v in r["beyond"]], bool)
+    if beyond.any():
+        inside = np.array(points, bool)
+        print(f"  within the directions each calibration took: {np.mean(inside[~beyond]):.1%} of "
+              f"{int((~beyond).sum())}; beyond them (rig apply warns): {np.mean(inside[beyond]):.1%} of "
+              f"{int(beyond.sum())}")
     parts = [r["parts"] for r in rows if r.get("parts")]
     if parts:
         ms = {k: float(np.mean([p[k] for p in parts])) for k in parts[0]}

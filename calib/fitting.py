@@ -7,6 +7,7 @@ import numpy as np
 import calib.models as models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
+from calib.directions import taken_directions
 from calib.errors import DataError
 from calib.robust import irls
 from calib.stats import residual_stats
@@ -61,6 +62,9 @@ def fit(
     )
     if ds.temp_c is not None and used.any():  # the temperatures the calibration is valid between
         stats["temperature_range_c"] = [float(ds.temp_c[used].min()), float(ds.temp_c[used].max())]
+    if used.any():  # and the field directions, as the calibrated field has them (calib/directions.py)
+        calibrated = cal.apply(ds.h_nt[used], None if ds.temp_c is None else ds.temp_c[used])
+        stats["field_directions"] = np.round(taken_directions(calibrated), 4).tolist()
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
     cal.stats = stats

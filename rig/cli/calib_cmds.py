@@ -190,6 +190,35 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, 
     csvio.write_csv(output, out)
     click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration}){note}; "
                + equation_line(cal))
+    for line in beyond_calibration(cal, ds.temp_c, field):
+        click.echo(f"warning: {line}", err=True)
+
+
+def beyond_calibration(cal, temp_c, field_nt) -> list[str]:
+    """What of the rows lies beyond the calibration's own data, where its field and its uncertainty are
+    extrapolated: temperatures outside its range, field directions farther from those it took than they
+    are from each other (calib/directions.py)."""
+    from calib.directions import nearest_deg, spacing_deg
+
+    out = []
+    span = cal.stats.get("temperature_range_c")
+    if span is not None and temp_c is not None:
+        temps = np.asarray(temp_c, float)
+        outside = (temps < span[0]) | (temps > span[1])
+        if outside.any():
+            out.append(f"{int(outside.sum())} rows outside the calibration's temperatures ({span[0]:.1f} "
+                       f".. {span[1]:.1f} degC; they reach {temps.min():.1f} .. {temps.max():.1f}): "
+                       "extrapolated")
+    taken = cal.stats.get("field_directions")
+    if taken:
+        angles, apart = nearest_deg(taken, field_nt), spacing_deg(taken)
+        far = angles > apart
+        if far.any():
+            out.append(f"{int(far.sum())} rows at field directions farther from any the calibration took "
+                       f"than those are apart ({apart:.0f} deg; up to {angles.max():.0f} deg): extrapolated"
+                       + (", and a scalar fit has no reference direction to hold it there"
+                          if cal.model == "scalar" else ""))
+    return out
 
 
 def equation_line(cal) -> str:

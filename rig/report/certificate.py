@@ -27,13 +27,11 @@ import numpy as np
 
 from calib import calfile
 from calib.digest import sha256_text
+from calib.directions import reach_deg, taken_directions
 from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file, inside
 from rig.reference.modelerror import CORRECTED, CORRECTED_U
 from rig.report.html import ItemList, Section, Table, render_html
-
-SPHERE_DIRECTIONS = 6000  # the sphere's directions a reach is judged at (about 2.6 deg apart)
-DIRECTION_CHUNK = 500
 
 ITEMS = ("Identification", "Calibration laboratory", "Item calibrated", "Method and plan", "Dates",
          "Conditions", "Results", "Uncertainty budget", "Traceability", "Model checks", "Software",
@@ -163,7 +161,7 @@ def _conditions(g) -> Section:
     rows = [["DUT temperature", f"{ds.temp_c.min():.2f} .. {ds.temp_c.max():.2f} degC"],
             ["field magnitude", f"{norms.min():.0f} .. {norms.max():.0f} nT"],
             ["field directions (the DUT's frame)",
-             f"every direction within {direction_reach_deg(ds.ref_nt):.0f} deg of one taken"],
+             f"every direction within {reach_deg(taken_directions(ds.ref_nt)):.0f} deg of one taken"],
             ["samples", f"{len(ds)} ({ds.source.get('rows_rejected', 0)} flagged and left out)"]]
     if ambient:
         drift = ", drifting" if ambient.get("drift") else ""
@@ -172,24 +170,6 @@ def _conditions(g) -> Section:
         rows.append([f"{what} (measured)", ", ".join(f"{v:.1f}" for v in ambient["value_nt"]) + " nT, "
                      f"{ambient['measurements']} measurements{drift}"])
     return Section("Conditions", [Table(["item", "value"], rows)])
-
-
-def direction_reach_deg(field_nt) -> float:
-    """The largest angle from any direction to the nearest field direction the data took: where a
-    calibration holds without extrapolating (a turntable's elevations leave the poles out)."""
-    f = np.asarray(field_nt, float)
-    f = f[np.linalg.norm(f, axis=1) > 0]
-    if not len(f):
-        return 180.0
-    taken = np.unique(np.round(f / np.linalg.norm(f, axis=1, keepdims=True), 3), axis=0)
-    k = np.arange(SPHERE_DIRECTIONS) + 0.5
-    z = 1 - 2 * k / SPHERE_DIRECTIONS
-    phi = np.pi * (3 - np.sqrt(5)) * k
-    sphere = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
-    nearest = np.full(SPHERE_DIRECTIONS, -1.0)
-    for lo in range(0, len(taken), DIRECTION_CHUNK):
-        nearest = np.maximum(nearest, (sphere @ taken[lo:lo + DIRECTION_CHUNK].T).max(axis=1))
-    return float(np.degrees(np.arccos(np.clip(nearest.min(), -1.0, 1.0))))
 
 
 def _results(g) -> list[Section]:

@@ -234,3 +234,29 @@ def test_refit_reads_a_real_session_file(tmp_path, capsys):
     assert cal.source["kind"] == "session" and cal.source["rows_used"] == 5 * len(points)
     for name in ("S", "b_nt"):
         assert np.max(np.abs((cal.params[name] - truth[name]) / cal.std_errors[name])) < 4.5
+
+
+def test_apply_warns_of_rows_beyond_the_calibrations_temperatures_and_directions(tmp_path, capsys):
+    """Fitted on the upper half of the cube's 26 directions between -30 and 70 degC, the calibration is
+    applied to the field straight down (90 deg from the nearest direction taken, which are 45 deg apart
+    at most) and at 80 degC: each is counted, once, and the rows within both give no warning."""
+    rng = np.random.default_rng(3)
+    dirs = synthetic.coil_directions()
+    fitted, truth = synthetic.t24_dataset(rng, directions=dirs[dirs[:, 2] >= 0], samples_per_point=3)
+    fitted.group = None
+    train, cal_path = tmp_path / "train.csv", tmp_path / "cal.yaml"
+    csvio.write_csv(train, csvio.contract_columns(fitted))
+    assert _run(capsys, "refit", train, "--model", "t24", "-o", cal_path)[0] == 0
+    code, _, err = _run(capsys, "apply", cal_path, train, "-o", tmp_path / "same.csv")
+    assert code == 0 and "warning" not in err
+    up_and_down = np.array([[0, 0, 1.0], [0, 0, -1.0]])
+    used, _ = synthetic.t24_dataset(rng, params=truth.params, directions=up_and_down, temps_c=(20.0, 80.0),
+                                    samples_per_point=2)
+    used.group = None
+    beyond = tmp_path / "beyond.csv"
+    csvio.write_csv(beyond, csvio.contract_columns(used))
+    code, _, err = _run(capsys, "apply", cal_path, beyond, "-o", tmp_path / "out.csv")
+    lines = err.strip().splitlines()
+    assert code == 0 and len(lines) == 2 and all(line.startswith("warning: ") for line in lines)
+    assert "4 rows outside the calibration's temperatures" in lines[0] and "80.0" in lines[0]
+    assert "4 rows at field directions" in lines[1] and "(45 deg; up to 90 deg)" in lines[1]
