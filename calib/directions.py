@@ -18,6 +18,7 @@ MAX_DIRECTIONS = 1000  # recorded at most: coarser rounding until they fit
 ROUNDINGS = (0.02, 0.05, 0.1, 0.2)  # of the unit vectors' components (about 1, 3, 6 and 11 deg)
 SPHERE_DIRECTIONS = 6000  # the sphere's directions a reach is judged at (about 2.6 deg apart)
 CHUNK = 500
+TWINS_DEG = 10.0  # directions nearer than this count as one for their spacing
 
 
 def _unit(vectors) -> np.ndarray:
@@ -53,14 +54,25 @@ def nearest_deg(taken, field_nt) -> np.ndarray:
 
 
 def spacing_deg(taken) -> float:
-    """How far apart the taken directions are: the largest angle from one of them to its nearest other
-    (a direction nearer than that to one taken is among them). 180 with fewer than two."""
+    """How far apart the taken directions are: the largest angle from one of them to its nearest other (a
+    direction nearer than that to one taken is among them), once those within TWINS_DEG of each other are
+    one (a pose taken again at another temperature, a degree or two off). TWINS_DEG with one direction
+    only; 180 with none."""
     taken = np.asarray(taken, float).reshape(-1, 3)
-    if len(taken) < 2:
+    if not len(taken):
         return 180.0
     cos = taken @ taken.T
-    np.fill_diagonal(cos, -1.0)
-    return float(np.degrees(np.arccos(np.clip(cos.max(axis=1).min(), -1.0, 1.0))))
+    twins, kept = np.cos(np.radians(TWINS_DEG)), []
+    free = np.ones(len(taken), bool)
+    for i in range(len(taken)):  # each direction stands for the ones within TWINS_DEG not yet taken
+        if free[i]:
+            kept.append(i)
+            free &= cos[i] < twins
+    if len(kept) < 2:
+        return TWINS_DEG
+    apart = cos[np.ix_(kept, kept)]
+    np.fill_diagonal(apart, -1.0)
+    return float(np.degrees(np.arccos(np.clip(apart.max(axis=1).min(), -1.0, 1.0))))
 
 
 def reach_deg(taken) -> float:

@@ -50,3 +50,7 @@ def test_a_field_among_the_directions_taken_is_near_one_and_one_below_them_is_no
     assert angles[1] < 45.0  # between azimuths on the equator
     assert angles[2] == pytest.approx(90.0, abs=0.5)  # straight down: a quarter turn from el 0
     assert angles[3] == 0.0
+    # each pose taken again at another temperature, a degree or two off: the spacing is the poses'
+    turned = grid + np.random.default_rng(2).normal(0, 0.02, grid.shape)
+    again = taken_directions(np.vstack([grid, turned])[np.vstack([grid, turned])[:, 2] > -0.5])
+    assert len(again) > 16 and spacing_deg(again) == pytest.approx(45.0, abs=3.0)
