@@ -15,9 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 MAX_DIRECTIONS = 1000  # recorded at most: coarser rounding until they fit
+MAX_ROWS = 100_000  # of a longer record, this many rows evenly spread over it
 ROUNDINGS = (0.02, 0.05, 0.1, 0.2)  # of the unit vectors' components (about 1, 3, 6 and 11 deg)
 SPHERE_DIRECTIONS = 6000  # the sphere's directions a reach is judged at (about 2.6 deg apart)
 CHUNK = 500
+ROW_CHUNK = 20_000
 TWINS_DEG = 10.0  # directions nearer than this count as one for their spacing
 
 
@@ -27,12 +29,24 @@ def _unit(vectors) -> np.ndarray:
     return v[size > 0] / size[size > 0, None]
 
 
+def spread_rows(n: int) -> np.ndarray:
+    """Indices of at most MAX_ROWS of n rows, evenly spread over them."""
+    return np.arange(n) if n <= MAX_ROWS else np.linspace(0, n - 1, MAX_ROWS).astype(int)
+
+
 def taken_directions(field_nt) -> np.ndarray:
     """(M,3): the distinct directions of the fields (rounded to the finest of ROUNDINGS that leaves at most
-    MAX_DIRECTIONS), unit vectors."""
-    unit = _unit(field_nt)
+    MAX_DIRECTIONS), unit vectors; of a long record, MAX_ROWS rows evenly spread over it (a direction is
+    held for many rows)."""
+    field = np.asarray(field_nt, float).reshape(-1, 3)
+    unit = _unit(field[spread_rows(len(field))])
     for step in ROUNDINGS:
-        taken = _unit(np.unique(np.round(unit / step) * step, axis=0))
+        cells = np.round(unit / step).astype(np.int64)  # each component within +-1/step
+        half = int(np.ceil(1.0 / step))
+        width = 2 * half + 1
+        keys = ((cells[:, 0] + half) * width + cells[:, 1] + half) * width + cells[:, 2] + half
+        first = np.unique(keys, return_index=True)[1]
+        taken = _unit(cells[first] * step)
         if len(taken) <= MAX_DIRECTIONS:
             break
     return taken
@@ -48,8 +62,10 @@ def nearest_deg(taken, field_nt) -> np.ndarray:
     if not len(taken):
         return np.where(size > 0, 180.0, 0.0)
     best = np.full(len(unit), -1.0)
-    for lo in range(0, len(taken), CHUNK):
-        best = np.maximum(best, (unit @ taken[lo:lo + CHUNK].T).max(axis=1))
+    for row in range(0, len(unit), ROW_CHUNK):  # a block of rows x of taken directions at a time
+        rows = slice(row, row + ROW_CHUNK)
+        for lo in range(0, len(taken), CHUNK):
+            best[rows] = np.maximum(best[rows], (unit[rows] @ taken[lo:lo + CHUNK].T).max(axis=1))
     return np.where(size > 0, np.degrees(np.arccos(np.clip(best, -1.0, 1.0))), 0.0)
 
 

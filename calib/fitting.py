@@ -7,7 +7,7 @@ import numpy as np
 import calib.models as models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.directions import taken_directions
+from calib.directions import spread_rows, taken_directions
 from calib.errors import DataError
 from calib.robust import irls
 from calib.stats import residual_stats
@@ -63,7 +63,8 @@ def fit(
     if ds.temp_c is not None and used.any():  # the temperatures the calibration is valid between
         stats["temperature_range_c"] = [float(ds.temp_c[used].min()), float(ds.temp_c[used].max())]
     if used.any():  # and the field directions, as the calibrated field has them (calib/directions.py)
-        calibrated = cal.apply(ds.h_nt[used], None if ds.temp_c is None else ds.temp_c[used])
+        rows = np.flatnonzero(used)[spread_rows(int(used.sum()))]
+        calibrated = cal.apply(ds.h_nt[rows], None if ds.temp_c is None else ds.temp_c[rows])
         stats["field_directions"] = np.round(taken_directions(calibrated), 4).tolist()
     if flagged.any():
         stats["outlier_rows_first"] = np.flatnonzero(flagged)[:20].tolist()
