@@ -91,10 +91,15 @@ def spacing_deg(taken) -> float:
     return float(np.degrees(np.arccos(np.clip(apart.max(axis=1).min(), -1.0, 1.0))))
 
 
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors on a golden-angle spiral from the north pole to the south pole."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    radius = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.column_stack([radius * np.cos(phi), radius * np.sin(phi), z])
+
+
 def reach_deg(taken) -> float:
     """The largest angle from any direction to the nearest taken one."""
-    k = np.arange(SPHERE_DIRECTIONS) + 0.5
-    z = 1 - 2 * k / SPHERE_DIRECTIONS
-    phi = np.pi * (3 - np.sqrt(5)) * k
-    sphere = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
-    return float(nearest_deg(taken, sphere).max())
+    return float(nearest_deg(taken, fibonacci_directions(SPHERE_DIRECTIONS)).max())

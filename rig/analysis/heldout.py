@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.directions import fibonacci_directions, nearest_deg  # the probes: the plans' own spiral
 from calib.models import REGISTRY, VECTOR_MODELS  # VECTOR_MODELS: outputs in the reference frame
 from rig.core.errors import FitError
-from rig.fieldsources.fieldsets import fibonacci_directions  # the probes: the plans' own spiral
 
 STEP_LABEL = re.compile(r"^T(\d+)")  # plan step ids: T03-O07 = temperature 3 x orientation 7
 COVERAGE_PROBES = 200  # directions, evenly spread, at which coverage is checked
@@ -215,13 +215,7 @@ def nearest_sample_deg(probe_unit: np.ndarray, direction_nt: np.ndarray) -> np.n
     v = np.asarray(direction_nt, dtype=float)
     norms = np.linalg.norm(v, axis=1)
     v = v[norms > 0] / norms[norms > 0, None]
-    if len(v) == 0:
-        return np.full(len(probe_unit), 180.0)
-    v = np.unique(np.round(v, 3), axis=0)
-    best = np.full(len(probe_unit), -1.0)
-    for chunk in range(0, len(v), 2000):  # bounded memory for large sample sets
-        best = np.maximum(best, (probe_unit @ v[chunk : chunk + 2000].T).max(axis=1))
-    return np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
+    return nearest_deg(np.unique(np.round(v, 3), axis=0), probe_unit)
 
 
 def coverage_gaps(

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
+from calib.directions import fibonacci_directions
 from rig.core.configbase import Strict
 from rig.core.numbers import ANGLE_DEG, NT, NT_MAX, NT_VEC, Count, bounded_vec3
 from rig.fieldsources import fieldsets
@@ -51,7 +52,7 @@ class FibonacciFields(_Magnitudes):
     n: Count(10_000, lower=4)
 
     def targets(self) -> list[tuple[float, ...]]:
-        return _vectors(fieldsets.fibonacci_directions(self.n), self.magnitude_list())
+        return _vectors(fibonacci_directions(self.n), self.magnitude_list())
 
     def count(self) -> int:
         return self.n * len(self.magnitude_list())

@@ -41,15 +41,6 @@ def cube24_directions(reference: np.ndarray = CUBE24_REFERENCE) -> np.ndarray:
     return np.array([r @ ref for r in cube_rotations()])
 
 
-def fibonacci_directions(n: int) -> np.ndarray:
-    """(n, 3) unit vectors on a golden-angle spiral from the north pole to the south pole."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    radius = np.sqrt(1.0 - z * z)
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
-    return np.column_stack([radius * np.cos(phi), radius * np.sin(phi), z])
-
-
 def normalised(directions) -> np.ndarray:
     d = np.asarray(directions, float).reshape(-1, 3)
     norms = np.linalg.norm(d, axis=1)

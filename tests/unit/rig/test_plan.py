@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from calib.directions import fibonacci_directions
 from rig.config import DEFAULT_STATION, Plan, Station, load_station
 from rig.core.errors import ConfigError, LimitError
 from rig.fieldsources import fieldsets
@@ -143,7 +144,7 @@ def test_cube24_directions_are_distinct_and_span_every_axis():
 
 
 def test_fibonacci_directions_are_spread_evenly():
-    d = fieldsets.fibonacci_directions(200)
+    d = fibonacci_directions(200)
     assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
     assert np.linalg.norm(d.mean(axis=0)) < 0.01
     nearest = [np.sort(np.linalg.norm(d - v, axis=1))[1] for v in d]
