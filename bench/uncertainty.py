@@ -52,7 +52,7 @@ from bench.reference_chain import PLACES_MM, prepared, run, validation_grid  # n
 from calib import calfile  # noqa: E402
 from calib.calibration import standard_uncertainty  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
-from calib.directions import nearest_deg, spacing_deg  # noqa: E402
+from calib.directions import beyond_taken  # noqa: E402
 from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
 from rig.config import load_station  # noqa: E402
 from rig.core.paths import calibration_file  # noqa: E402
@@ -192,8 +192,7 @@ def _one_world(seed: int, index: int, out: str, wider: float, table: bool = Fals
         described = dataclasses.replace(cal, params={k: np.asarray(v, float) for k, v in true.items()})
         parts = None if model == "scalar" else _parts(cal, described, h, temps, fields)
         taken = cal.stats.get("field_directions")  # rig apply's warning: beyond the directions taken
-        beyond = np.zeros(len(error), bool) if not taken else \
-            nearest_deg(taken, cal.apply(h, temps)) > spacing_deg(taken)
+        beyond = beyond_taken(taken, cal.apply(h, temps))[0] if taken else np.zeros(len(error), bool)
         worst = np.argsort(radius)[-max(1, int(round(WORST_SHARE * len(error)))):]
         out_rows.append({"world": index, "dut": dut, "inside": inside, "z": z,
                          "points": (error <= radius).tolist(),

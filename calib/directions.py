@@ -6,6 +6,7 @@ tilted at most 60 deg under a steep site field never shows the DUT the field fro
 
     taken = taken_directions(ref_nt)            # (M,3) unit vectors, recorded in the calibration's stats
     spacing_deg(taken)                          # how far apart the taken directions are
+    far, angles, apart = beyond_taken(taken, field_nt)   # the fields farther than that from all of them
     nearest_deg(taken, field_nt)                # (N,): each field's angle to the nearest taken direction
     reach_deg(taken)                            # the largest such angle over every direction
 """
@@ -23,7 +24,8 @@ ROW_CHUNK = 20_000
 TWINS_DEG = 10.0  # directions nearer than this count as one for their spacing
 
 
-def _unit(vectors) -> np.ndarray:
+def unit_vectors(vectors) -> np.ndarray:
+    """(M,3): the non-zero vectors among `vectors`, scaled to unit length."""
     v = np.asarray(vectors, float).reshape(-1, 3)
     size = np.linalg.norm(v, axis=1)
     return v[size > 0] / size[size > 0, None]
@@ -39,14 +41,14 @@ def taken_directions(field_nt) -> np.ndarray:
     MAX_DIRECTIONS), unit vectors; of a long record, MAX_ROWS rows evenly spread over it (a direction is
     held for many rows)."""
     field = np.asarray(field_nt, float).reshape(-1, 3)
-    unit = _unit(field[spread_rows(len(field))])
+    unit = unit_vectors(field[spread_rows(len(field))])
     for step in ROUNDINGS:
         cells = np.round(unit / step).astype(np.int64)  # each component within +-1/step
         half = int(np.ceil(1.0 / step))
         width = 2 * half + 1
         keys = ((cells[:, 0] + half) * width + cells[:, 1] + half) * width + cells[:, 2] + half
         first = np.unique(keys, return_index=True)[1]
-        taken = _unit(cells[first] * step)
+        taken = unit_vectors(cells[first] * step)
         if len(taken) <= MAX_DIRECTIONS:
             break
     return taken
@@ -98,6 +100,13 @@ def fibonacci_directions(n: int) -> np.ndarray:
     radius = np.sqrt(1.0 - z * z)
     phi = np.pi * (3.0 - np.sqrt(5.0)) * i
     return np.column_stack([radius * np.cos(phi), radius * np.sin(phi), z])
+
+
+def beyond_taken(taken, field_nt) -> tuple[np.ndarray, np.ndarray, float]:
+    """(which fields lie beyond the taken directions: farther from every one of them than they are apart,
+    each field's angle to the nearest, that spacing)."""
+    angles, apart = nearest_deg(taken, field_nt), spacing_deg(taken)
+    return angles > apart, angles, apart
 
 
 def reach_deg(taken) -> float:

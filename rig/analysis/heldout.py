@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.directions import fibonacci_directions, nearest_deg  # the probes: the plans' own spiral
+from calib.directions import fibonacci_directions, nearest_deg, unit_vectors  # probes: the plans' spiral
 from calib.models import REGISTRY, VECTOR_MODELS  # VECTOR_MODELS: outputs in the reference frame
 from rig.core.errors import FitError
 
@@ -212,10 +212,7 @@ def step_table(ds, flagged: np.ndarray, err: Errors) -> list[StepRow]:
 
 def nearest_sample_deg(probe_unit: np.ndarray, direction_nt: np.ndarray) -> np.ndarray:
     """Angle (deg) from each probe unit vector (M, 3) to the nearest sample direction."""
-    v = np.asarray(direction_nt, dtype=float)
-    norms = np.linalg.norm(v, axis=1)
-    v = v[norms > 0] / norms[norms > 0, None]
-    return nearest_deg(np.unique(np.round(v, 3), axis=0), probe_unit)
+    return nearest_deg(np.unique(np.round(unit_vectors(direction_nt), 3), axis=0), probe_unit)
 
 
 def coverage_gaps(

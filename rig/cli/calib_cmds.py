@@ -198,7 +198,7 @@ def beyond_calibration(cal, temp_c, field_nt) -> list[str]:
     """What of the rows lies beyond the calibration's own data, where its field and its uncertainty are
     extrapolated: temperatures outside its range, field directions farther from those it took than they
     are from each other (calib/directions.py)."""
-    from calib.directions import nearest_deg, spacing_deg
+    from calib.directions import beyond_taken
 
     out = []
     span = cal.stats.get("temperature_range_c")
@@ -211,8 +211,7 @@ def beyond_calibration(cal, temp_c, field_nt) -> list[str]:
                        "extrapolated")
     taken = cal.stats.get("field_directions")
     if taken:
-        angles, apart = nearest_deg(taken, field_nt), spacing_deg(taken)
-        far = angles > apart
+        far, angles, apart = beyond_taken(taken, field_nt)
         if far.any():
             out.append(f"{int(far.sum())} rows at field directions farther from any the calibration took "
                        f"than those are apart ({apart:.0f} deg; up to {angles.max():.0f} deg): extrapolated"
