@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 import calib
-from calib import synthetic, t24_paper
-from calib.gram import GramAccumulator
-from calib.models import p12_matrix
+from calib import synthetic
+from calib.models import t24_paper
+from calib.models.gram import GramAccumulator
+from calib.models.registry import p12_matrix
 
 SEEDS = range(20)
 P12_SEEDS = range(100)  # P12 fits are cheap; 20 seeds leave the ratio uncertain by ~3 %

@@ -1,5 +1,5 @@
-"""The uncertainty budgets of a 64-DUT campaign (calib/budgeting.py): time per DUT and model, and the
-whole campaign's budgets on one process and on two.
+"""The uncertainty budgets of a 64-DUT campaign (calib/uncertainty/budgeting.py): time per DUT and model, and
+the whole campaign's budgets on one process and on two.
 
 Each DUT: the demo plan's data (26 coil fields at -20 and 60 degC, 5 samples each: 260 samples) of a
 synthetic T24 sensor, fitted with T24, P12 and the scalar model, and the inputs rig/budget.py draws today,
@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import calib  # noqa: E402
 from calib import synthetic  # noqa: E402
-from calib.budgeting import budget  # noqa: E402
-from calib.propagation import InputSource, matrix_source, offset_source, temperature_source  # noqa: E402
+from calib.uncertainty.budgeting import budget  # noqa: E402
+from calib.uncertainty.propagation import InputSource, matrix_source, offset_source, temperature_source  # noqa: E402
 
 COIL_NT_PER_A = 10_000.0
 MODELS = ("t24", "p12", "scalar")

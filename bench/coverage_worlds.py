@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib import calfile
 from calib.calibration import standard_uncertainty
+from calib.io import calfile
 from calib.synthetic import random_t24_params
 from drivers.sim.dutmodel import DutDeviations
 

@@ -1,6 +1,6 @@
 """A 1e6-row CSV (hx,hy,hz,temp,bx,by,bz in shortest exact form, 132 MB) written to a temporary directory:
 
-- reading it with the compiled scanner (calib.csvio.read_csv with the compiled paths asked for: the
+- reading it with the compiled scanner (calib.io.csvio.read_csv with the compiled paths asked for: the
   scanner on every core, sha256 of the bytes alongside), and with the columnar pyarrow reader, which
   calib uses below csvfast.COMPILED_BREAK_EVEN_BYTES (loading numba would cost a new process more than
   the scanner saves) and wherever the scanner cannot read a file;
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from timing import compiled_paths, median_time
 
-from calib import csvfast, csvio
+from calib.io import csvfast, csvio
 from rig.cli import main as rig_main
 
 ROWS = 1_000_000

@@ -7,7 +7,8 @@ plan `rig design --from` the step session makes of configs/plans/sequential-camp
 (designed: planned on what the step session measured, never on the station's `sim:`), and
 configs/plans/sequential-campaign.yaml itself (decided during the run, measuring its DUTs itself). The
 designed and sequential plans aim at the standard errors the step plan is predicted to reach on this
-station with the noise its session measured (calib/design.py), so the comparison is at equal precision;
+station with the noise its session measured (calib/design/optimal.py), so the comparison is at equal
+precision;
 --targets plan keeps the plan's own stop_when instead. Each plan's `rig check` estimate is printed beside
 the chamber time its run took.
 
@@ -35,7 +36,7 @@ import numpy as np
 import yaml
 
 from calib.calibration import Calibration
-from calib.design import information, std_errors
+from calib.design.optimal import information, std_errors
 from rig.devices.bench import dut_truths  # the truth the held-out errors are judged against, nothing else
 from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
@@ -136,8 +137,9 @@ def t24_of(session: Path, dut: str) -> Calibration:
 def expected_held_out_nt(session: Path, validation: Path, dut: str) -> float:
     """The RMS held-out error the session's own data predicts (sigma^2 G^-1 at the validation rows, three
     axes): the expectation around which one campaign's held-out error scatters."""
-    from calib.design import covariance, regressors
-    from calib.gram import GramAccumulator
+    from calib.design.optimal import covariance
+    from calib.equations import t24_regressors
+    from calib.models.gram import GramAccumulator
     from rig.analysis.lagfit import lag_corrected, session_is_ramp
 
     ds = read_dataset(session, dut)
@@ -147,7 +149,7 @@ def expected_held_out_nt(session: Path, validation: Path, dut: str) -> float:
     acc.add(ds.h_nt, ds.temp_c, ds.ref_nt)
     sigma2 = sum(v**2 for v in acc.solve().stats["sigma_nt"].values())
     val = read_dataset(validation, dut)
-    x = regressors(val.h_nt, val.temp_c, 0.0)
+    x = t24_regressors(val.h_nt, val.temp_c, 0.0)
     cov = covariance(acc.gram[:8, :8], 20.0)  # absolute tau: x at tau itself
     return float(np.sqrt(sigma2 * np.einsum("ni,ij,nj->n", x, cov, x).mean()))
 

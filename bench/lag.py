@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from calib.lag import estimate_lag
 from calib.synthetic import t24_ramp_dataset
+from calib.thermal.lag import estimate_lag
 
 
 def run(lag_s: float, lagging: str, direction: str, seeds: int) -> str:

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import csvio, synthetic
+from calib import synthetic
+from calib.io import csvio
 
 OUT = Path(__file__).resolve().parent.parent / "examples" / "t24_synthetic.csv"
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import calfile
 from calib.calibration import Calibration
+from calib.io import calfile
 from rig.config import load_station
 from rig.devices.bench import reference_truths
 

@@ -4,7 +4,7 @@ out of sample (0.46 % in sample on the whole recording). Skips a recording whose
 
 Each is fitted with orientation balancing off (the plain least-squares fit, the same estimator as
 magcc's LM fit), with the default (the variant chosen by validation inside the training rows,
-calib/scalar_choice.py) and robust.
+calib/models/scalar_choice.py) and robust.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib import csvio  # noqa: E402
+from calib.io import csvio  # noqa: E402
 
 # shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
 BESIDE_REPO = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"

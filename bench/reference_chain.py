@@ -43,9 +43,9 @@ import numpy as np
 import yaml
 
 import calib
-from calib import calfile
 from calib.calibration import Calibration
-from calib.uncertainty import raw_for
+from calib.io import calfile
+from calib.uncertainty.montecarlo import raw_for
 from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
 from drivers.sim.truths import world_deviations
 from rig.config import load_station

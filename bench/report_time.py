@@ -30,7 +30,7 @@ TEMPS_C = (-30.0, -15.0, 0.0, 15.0, 25.0, 40.0, 55.0, 70.0)
 
 def field_vectors(n: int):
     """The full campaign's field set: 24 cube rotations at 30 and 60 uT (48); other n: Fibonacci at 50 uT."""
-    from calib.directions import fibonacci_directions
+    from calib.stats.directions import fibonacci_directions
     from rig.fieldsources import fieldsets
 
     if n == 48:

@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 from timing import compiled_paths, median_time
 
-from calib import csvfast, csvio, gram_kernel
+from calib.io import csvfast, csvio
+from calib.models import gram_kernel
 from rig.cli import main as rig_main
 
 ROWS = 1_000_000

@@ -16,8 +16,9 @@ import tracemalloc
 import numpy as np
 from timing import compiled_paths, median_time
 
-from calib import compiled, gram_kernel, synthetic
-from calib.gram import GramAccumulator
+from calib import compiled, synthetic
+from calib.models import gram_kernel
+from calib.models.gram import GramAccumulator
 
 BREAK_EVEN_ROWS = gram_kernel.COMPILED_BREAK_EVEN_ROWS  # calib's, before compiled_paths() lowers it
 

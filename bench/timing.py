@@ -22,7 +22,8 @@ def median_time(fn, repeat: int = 5) -> float:
 def compiled_paths():
     """The compiled scanner and Gram kernel for every input size while inside (calib takes them only
     from their break-even sizes on, where they repay loading numba in a new process)."""
-    from calib import csvfast, gram_kernel
+    from calib.io import csvfast
+    from calib.models import gram_kernel
 
     saved = csvfast.COMPILED_BREAK_EVEN_BYTES, gram_kernel.COMPILED_BREAK_EVEN_ROWS
     csvfast.COMPILED_BREAK_EVEN_BYTES = gram_kernel.COMPILED_BREAK_EVEN_ROWS = 0

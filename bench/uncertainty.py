@@ -6,9 +6,9 @@
    of the true T24 parameters within their expanded uncertainty (U = k u, k from each one's effective
    degrees of freedom) per group, and of the true vector error at validation points (other directions
    and magnitudes, temperatures between the plan's, either thermal direction) within the 95 % radius the
-   file gives there (calib/fielderror.py: its covariance and model error), over all points and over each
-   DUT's worst 5 % (the points with the largest stated radius: where the calibration is least certain).
-   Goal 90-98 %. The true parameters: the model's best description of the DUT over the fields and
+   file gives there (calib/uncertainty/fielderror.py: its covariance and model error), over all points and
+   over each DUT's worst 5 % (the points with the largest stated radius: where the calibration is least
+   certain). Goal 90-98 %. The true parameters: the model's best description of the DUT over the fields and
    temperatures its data were taken at (`conditions`). --model p12 fits and judges P12 instead (its k,
    angles and offsets; its field error at the same points, where its model error is most of it);
    --model scalar the |B|-only fit (its A, c and their temperature terms against the best scalar fit; at
@@ -49,11 +49,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import calib  # noqa: E402
 from bench.coverage_worlds import BASE, TABLE_FIELDS, WIDER, random_world, table_world  # noqa: E402
 from bench.reference_chain import PLACES_MM, prepared, run, validation_grid  # noqa: E402
-from calib import calfile  # noqa: E402
 from calib.calibration import standard_uncertainty  # noqa: E402
 from calib.dataset import Dataset  # noqa: E402
-from calib.directions import beyond_taken  # noqa: E402
-from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
+from calib.io import calfile  # noqa: E402
+from calib.stats.directions import beyond_taken  # noqa: E402
+from calib.uncertainty.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
 from rig.config import load_station  # noqa: E402
 from rig.core.paths import calibration_file  # noqa: E402
 from rig.devices.bench import dut_truths  # noqa: E402

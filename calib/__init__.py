@@ -2,10 +2,11 @@
 
 `calib.fit(dataset, model)` fits T24, T36 (T24 with quadratic temperature terms), P12 or the scalar
 (ellipsoid) model and returns a `Calibration`;
-`calib.gram.GramAccumulator` is the streaming T24 solver a running campaign updates live;
-`calib.calfile` saves/loads calibration files, `calib.csvio` reads/writes the CSV contract;
-`calib.checks` tests what T24 leaves out, `calib.tempmodel` chooses T24 or T36, `calib.budgeting` states a
-calibration's uncertainty (linear propagation and adaptive Monte Carlo).
+`calib.models.gram.GramAccumulator` is the streaming T24 solver a running campaign updates live;
+`calib.io.calfile` saves/loads calibration files, `calib.io.csvio` reads/writes the CSV contract;
+`calib.checks.model_checks` tests what T24 leaves out, `calib.models.tempmodel` chooses T24 or T36,
+`calib.uncertainty.budgeting` states a calibration's uncertainty (linear propagation and adaptive Monte
+Carlo).
 
 The three names below are loaded on first use, so `import calib.errors` (which every CLI start needs)
 does not import numpy and the solvers.

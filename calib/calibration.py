@@ -31,7 +31,8 @@ def _utc_now() -> str:
 
 @dataclass
 class Calibration:
-    """Result of a fit. `params` and `std_errors` share keys (see calib.models for names and shapes)."""
+    """Result of a fit. `params` and `std_errors` share keys (see calib.models.registry for names and
+    shapes)."""
 
     model: str
     params: dict[str, np.ndarray]
@@ -41,8 +42,8 @@ class Calibration:
     source: dict = field(default_factory=dict)
     software_version: str = "unknown"  # the caller states it: calib does not know who packaged it
     created_utc: str = field(default_factory=_utc_now)
-    # the uncertainty budget (calib/uncertainty.py Budget.as_dict): expanded uncertainties with the keys and
-    # shapes of `params`, and each input's contribution; None when it was not evaluated
+    # the uncertainty budget (calib/uncertainty/montecarlo.py Budget.as_dict): expanded uncertainties with the
+    # keys and shapes of `params`, and each input's contribution; None when it was not evaluated
     uncertainty: dict | None = None
     # per-row flags of a robust fit (True = flagged as outlier); not saved in the calibration file
     outliers: np.ndarray | None = field(default=None, repr=False, compare=False)

@@ -1,7 +1,8 @@
 """The calibration models as equations: each model's parameters (names and shapes, the contract of the
 calibration file) and the calibrated field they give (parameters in, field out). No fitting here: the
-fits (calib/t24.py, p12.py, scalar.py) and the registry that ties a model to its fit (calib/models.py) sit
-above this module, and calib/calibration.py uses it to apply and validate a calibration.
+fits (calib/models/t24.py, p12.py, scalar.py) and the registry that ties a model to its fit
+(calib/models/registry.py) sit above this module, and calib/calibration.py uses it to apply and validate a
+calibration.
 
 - t24 (absolute-tau convention of the paper): B = (S + T K) h + b + T kb, T the DUT temperature in degC.
 - t36 (same convention): B = (S + T K + T^2 K2) h + b + T kb + T^2 kb2, T24 with quadratic temperature terms.
@@ -34,6 +35,22 @@ OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
     "t36": {},
 }
 MODELS = tuple(PARAM_SHAPES)
+
+
+def t24_regressors(h_nt, temp_c, temp_ref_c: float = 0.0) -> np.ndarray:
+    """T24's regressors x = [1, t, h, t h] (N, 8), t = tau - temp_ref_c: the columns every output axis is
+    linear in (the paper's Gram matrix is their sum of outer products)."""
+    h = np.asarray(h_nt, float).reshape(-1, 3)
+    t = np.broadcast_to(np.asarray(temp_c, float) - temp_ref_c, (h.shape[0],))
+    return np.column_stack([np.ones(len(h)), t, h, t[:, None] * h])
+
+
+def t36_regressors(h_nt, temp_c, temp_ref_c: float = 0.0) -> np.ndarray:
+    """T36's regressors x = [1, t, t^2, h, t h, t^2 h] (N, 12), t = tau - temp_ref_c."""
+    h = np.asarray(h_nt, float).reshape(-1, 3)
+    t = np.broadcast_to(np.asarray(temp_c, float) - temp_ref_c, (h.shape[0],))
+    t2 = t * t
+    return np.column_stack([np.ones(len(h)), t, t2, h, t[:, None] * h, t2[:, None] * h])
 
 # Each model's equation as its calibration file states it (key `equation`), in the file's own parameter
 # names. tau is the DUT temperature in degC as measured (the file's `tau: absolute_c`); a constant an

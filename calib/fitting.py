@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-import calib.models as models
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.directions import spread_rows, taken_directions
 from calib.errors import DataError
-from calib.robust import irls
-from calib.stats import residual_stats
+from calib.models import registry
+from calib.stats.directions import spread_rows, taken_directions
+from calib.stats.residuals import residual_stats
+from calib.stats.robust import irls
 
 
 def fit(
@@ -24,18 +24,18 @@ def fit(
     balance_orientations: bool | None = None,
     software_version: str = "unknown",
 ) -> Calibration:
-    """Fit `model` (a name in calib.models.REGISTRY: "t24", "p12", "scalar", "t36") to `ds`.
+    """Fit `model` (a name in calib.models.registry.REGISTRY: "t24", "p12", "scalar", "t36") to `ds`.
 
     robust: Huber IRLS; rows beyond the flag threshold are counted in stats.n_outliers, listed in
     `Calibration.outliers` and left out of the final fit. temp_ref_c: centre of the temperature terms
     (default: middle of the data's range). field_norm_nt, temperature_terms, balance_orientations:
-    scalar model only (see calib.scalar.fit_weighted); None = chosen by validation inside `ds`
-    (calib/scalar_choice.py), the choice and its scores recorded in stats.
+    scalar model only (see calib.models.scalar.fit_weighted); None = chosen by validation inside `ds`
+    (calib/models/scalar_choice.py), the choice and its scores recorded in stats.
     software_version: recorded in the calibration file (the application passes its own version).
     """
     check_dataset(ds)
-    spec = models.spec(model)
-    options = models.FitOptions(temp_ref_c, field_norm_nt, temperature_terms, balance_orientations)
+    spec = registry.spec(model)
+    options = registry.FitOptions(temp_ref_c, field_norm_nt, temperature_terms, balance_orientations)
     choice: dict = {}
     if spec.choose is not None:
         fit_weighted, choice = spec.choose(ds, options, robust)
@@ -62,7 +62,7 @@ def fit(
     )
     if ds.temp_c is not None and used.any():  # the temperatures the calibration is valid between
         stats["temperature_range_c"] = [float(ds.temp_c[used].min()), float(ds.temp_c[used].max())]
-    if used.any():  # and the field directions, as the calibrated field has them (calib/directions.py)
+    if used.any():  # and the field directions, as the calibrated field has them (calib/stats/directions.py)
         rows = np.flatnonzero(used)[spread_rows(int(used.sum()))]
         calibrated = cal.apply(ds.h_nt[rows], None if ds.temp_c is None else ds.temp_c[rows])
         stats["field_directions"] = np.round(taken_directions(calibrated), 4).tolist()

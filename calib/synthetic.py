@@ -194,7 +194,7 @@ def ramp_profile_c(
 
 def first_order_lag(t_s: np.ndarray, x: np.ndarray, lag_s: float, substep_s: float = 1.0) -> np.ndarray:
     """y following x with dy/dt = (x - y)/lag_s from y = x at t_s[0]: integrated on sub-steps with x held at
-    each sub-step's midpoint (the world simulator's way, not calib.lag's closed form)."""
+    each sub-step's midpoint (the world simulator's way, not calib.thermal.lag's closed form)."""
     if lag_s <= 0:
         return np.asarray(x, float).copy()
     fine = np.arange(t_s[0], t_s[-1] + substep_s, substep_s)

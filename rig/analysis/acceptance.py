@@ -12,16 +12,17 @@ Criteria (each only when the plan gives it; names as they appear in `failed`):
                        calibration without a budget fails it
     std_error.<name>   largest standard error of parameter <name>
     bounds.<name>      every element of parameter <name> within [low, high]
-    lag                thermal lag time constant (calib/lag.py); data with no lag information (step and
+    lag                thermal lag time constant (calib/thermal/lag.py); data with no lag information (step
+    and
                        dwell) is not judged on it, and says so in `notes`
     coverage           always: the DUT temperatures its calibration's data covers (the fit's
                        `temperature_range_c`, at the element where the lag was corrected) reach both ends of
                        the plan's range within the plan's stability band; a calibration that would
                        extrapolate over part of the range fails
     model checks       with `model_checks` (the default): a check of the DUT's T24 calibration
-                       (calib/checks.py: linearity in temperature, thermal hysteresis, linearity in the
-                       field) that fails and that the judged model does not capture fails the DUT, named
-                       with its statistic and p; only T36, judged because it validated better
+                       (calib/checks/model_checks.py: linearity in temperature, thermal hysteresis, linearity
+                       in the field) that fails and that the judged model does not capture fails the DUT,
+                       named with its statistic and p; only T36, judged because it validated better
                        (rig/analysis/tempchoice.py), captures a failed linearity in temperature. A check
                        the data could not run is "not run": said in the verdict line, never a failure
 A DUT whose model could not be fitted fails with criterion "fit". Its judged model is the plan's, or T36
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from calib.atomic import atomic_write
+from calib.io.atomic import atomic_write
 from rig.core.errors import ERRORS
 
 PASS, FAIL = "PASS", "FAIL"
@@ -81,7 +82,7 @@ def _finite(x: float | None) -> float | None:
 def heldout_rms_nt(ds, model: str, robust: bool) -> float | None:
     """RMS error on held-out points: k-fold with whole points held out (as the report does)."""
     import calib
-    from calib.models import REGISTRY
+    from calib.models.registry import REGISTRY
     from rig.analysis import heldout
 
     points = ds.columns.get("point")
@@ -91,7 +92,7 @@ def heldout_rms_nt(ds, model: str, robust: bool) -> float | None:
 
 
 def _lag_s(ds) -> tuple[float | None, str | None]:
-    from calib.lag import estimate_lag
+    from calib.thermal.lag import estimate_lag
 
     t = ds.columns.get("t")
     if t is None or ds.temp_c is None or ds.ref_nt is None:
@@ -119,7 +120,7 @@ def model_check_findings(t24_stats: dict | None, judged_model: str) -> tuple[lis
     """(failures, checks not run) of a DUT's T24 model checks (its calibration's stats) for the model its
     verdict judges: a failed check fails the DUT unless that model captures it (T36, chosen, captures a
     failed linearity in temperature; nothing captures a hysteresis or a field non-linearity)."""
-    from calib.checks import TEMPERATURE
+    from calib.checks.model_checks import TEMPERATURE
     from rig.analysis.judged import chosen_temperature_model
 
     checks = (t24_stats or {}).get("model_checks")

@@ -9,7 +9,7 @@ for all of them, so anyone combining DUTs (an array, a gradiometer) needs cov(th
 
 The file (JSON) holds, per model, the parameter labels (the order of the calibration files' covariance)
 and, per shared input, its covariance Sigma_q (Q,Q) once and each DUT's sensitivity J (P,Q) = d theta / d q
-(calib.propagation; exact for T24, first order for the others):
+(calib.uncertainty.propagation; exact for T24, first order for the others):
 
     cov(theta_a, theta_b) = sum over shared inputs s of  J_a,s Sigma_s J_b,s^T        (a != b)
 
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.atomic import atomic_write
+from calib.io.atomic import atomic_write
 from rig.core.errors import DataError
 from rig.core.paths import inside
 

@@ -89,7 +89,7 @@ class SessionFits:
             return exc
 
     def _written(self, dut: str, model: str, result, rows: int) -> DutFit:
-        from calib import calfile
+        from calib.io import calfile
         from rig.core.paths import calibration_file
 
         if isinstance(result, Exception):

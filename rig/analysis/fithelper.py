@@ -51,7 +51,7 @@ def main(argv: list[str]) -> int:
     session, models, robust = argv
     # What the fits use is imported before the first DUT arrives: a helper started with the run has it
     # ready by the run's end. The session is opened at the first DUT, once the run has recorded it all.
-    from calib import calfile  # noqa: F401
+    from calib.io import calfile  # noqa: F401
     from rig.analysis import sessionfit, tempchoice  # noqa: F401
     from rig.reference import budget, chain_record  # noqa: F401
 

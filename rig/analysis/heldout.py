@@ -12,8 +12,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.directions import fibonacci_directions, nearest_deg, unit_vectors  # probes: the plans' spiral
-from calib.models import REGISTRY, VECTOR_MODELS  # VECTOR_MODELS: outputs in the reference frame
+from calib.models.registry import REGISTRY, VECTOR_MODELS  # VECTOR_MODELS: outputs in the reference frame
+from calib.stats.directions import (  # probes: the plans' spiral
+    fibonacci_directions,
+    nearest_deg,
+    unit_vectors,
+)
 from rig.core.errors import FitError
 
 STEP_LABEL = re.compile(r"^T(\d+)")  # plan step ids: T03-O07 = temperature 3 x orientation 7
@@ -152,7 +156,7 @@ def outlier_rows(cal, err: Errors) -> np.ndarray:
     file (which keeps no flags), rows whose residual lies beyond the robust fit's own flag threshold."""
     if cal.outliers is not None and len(cal.outliers) == len(err.norm_after):
         return np.asarray(cal.outliers, bool)
-    from calib.robust import FLAG_D, robust_scale, row_distance
+    from calib.stats.robust import FLAG_D, robust_scale, row_distance
 
     res = err.vector_after if err.vector_after is not None else err.norm_after[:, None]
     return row_distance(res, robust_scale(res)) > FLAG_D[res.shape[1]]
@@ -173,7 +177,7 @@ def step_of_each_row(ds) -> np.ndarray:
             return np.array([int(m.group(1)) for m in found])
     if ds.temp_c is None:
         return np.ones(len(ds), int)
-    from calib.stats import temperature_steps
+    from calib.stats.residuals import temperature_steps
 
     steps, _ = temperature_steps(ds.temp_c)  # numbered from the coldest
     return steps + 1

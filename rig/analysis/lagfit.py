@@ -1,7 +1,8 @@
 """The lag-corrected fit of a continuous ramp: each sample's temperature moved to its DUT element's.
 
-A ramp shows each DUT's thermal lag (calib/lag.py estimates it from the up and down legs); the fit then
-uses the element's temperature instead of the probe's. Used by the post-run fits (rig/analysis/postrun.py) and
+A ramp shows each DUT's thermal lag (calib/thermal/lag.py estimates it from the up and down legs); the fit
+then uses the element's temperature instead of the probe's. Used by the post-run fits
+(rig/analysis/postrun.py) and
 `rig refit` of a ramp session.
 """
 
@@ -17,9 +18,9 @@ from rig.core.errors import ERRORS
 
 
 def lag_corrected(ds) -> tuple[Any, dict]:
-    """The dataset in time order with its temperature column moved to the element's (calib/lag.py), and
-    what was estimated (JSON-ready, for the calibration's stats)."""
-    from calib.lag import estimate_lag
+    """The dataset in time order with its temperature column moved to the element's (calib/thermal/lag.py),
+    and what was estimated (JSON-ready, for the calibration's stats)."""
+    from calib.thermal.lag import estimate_lag
 
     ds = ds.subset(np.argsort(ds.columns["t"], kind="stable"))
     try:

@@ -22,7 +22,7 @@ from rig.core.errors import ERRORS
 
 class LiveFit:
     def __init__(self, temp_ref_c: float):
-        from calib.gram import GramAccumulator
+        from calib.models.gram import GramAccumulator
 
         self.acc = GramAccumulator(temp_ref_c)
         self._figures: dict | None = None

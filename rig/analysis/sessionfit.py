@@ -126,7 +126,7 @@ def state_uncertainty(inputs, dut: str, ds, cal):
     """The calibration's uncertainty budget (without a reference chain: the fit's statistical part); a
     budget that cannot be made is a warning in its stats, never a lost calibration. Returns the calib
     Budget (None without one)."""
-    from calib.uncertainty import statistical_only
+    from calib.uncertainty.montecarlo import statistical_only
     from rig.reference.budget import uncertainty_section
 
     try:
@@ -144,9 +144,9 @@ def state_uncertainty(inputs, dut: str, ds, cal):
 
 
 def check_linearity(cal, ds) -> None:
-    """T24's linearity in temperature (calib/linearity.py) in the calibration's stats; a warning when it
-    does not hold."""
-    from calib.linearity import linearity
+    """T24's linearity in temperature (calib/checks/linearity.py) in the calibration's stats; a warning when
+    it does not hold."""
+    from calib.checks.linearity import linearity
 
     check = linearity(ds.h_nt, ds.temp_c, ds.ref_nt)
     cal.stats["linearity"] = check

@@ -4,16 +4,16 @@
     wants_t36(cal24)                      # whether the post-run fits add a T36 calibration
     share_choice(cal24, cal36)            # the same record in the T36 calibration's stats
 
-A T24 calibration whose linearity-in-temperature check (calib/checks.py) fails on data that can show a
-curve (the check ran: three or more temperatures) gets calib/tempmodel.py's choice: both models fitted to
-held-out blocks of the same rows, T36 chosen only when it validates better beyond the fold noise. The
-record holds the two held-out errors, which one won and why. rig/analysis/judged.py follows it: where the
+A T24 calibration whose linearity-in-temperature check (calib/checks/model_checks.py) fails on data that can
+show a curve (the check ran: three or more temperatures) gets calib/models/tempmodel.py's choice: both models
+fitted to held-out blocks of the same rows, T36 chosen only when it validates better beyond the fold noise.
+The record holds the two held-out errors, which one won and why. rig/analysis/judged.py follows it: where the
 plan judges T24 and T36 won, the DUT's judged calibration is its T36.
 """
 
 from __future__ import annotations
 
-from calib.checks import TEMPERATURE
+from calib.checks.model_checks import TEMPERATURE
 from rig.core.errors import ERRORS
 
 CHOICE_KEY = "temperature_model"
@@ -27,8 +27,8 @@ def temperature_check(stats: dict) -> dict | None:
 
 def record_temperature_model(cal, ds) -> None:
     """For a T24 calibration whose linearity in temperature fails: the choice between T24 and T36
-    (calib/tempmodel.py) in its stats; a choice that cannot be made is recorded as T24, with why."""
-    from calib.tempmodel import choose_temperature_model
+    (calib/models/tempmodel.py) in its stats; a choice that cannot be made is recorded as T24, with why."""
+    from calib.models.tempmodel import choose_temperature_model
 
     check = temperature_check(cal.stats)
     if check is None or check.get("verdict") != "fails":

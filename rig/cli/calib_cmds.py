@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from calib.models import MODELS, REGISTRY
+from calib.models.registry import MODELS, REGISTRY
 from rig import __version__
 from rig.session.schema import looks_like_session
 
@@ -38,7 +38,7 @@ def load_dataset(path: str, *, dut: str | None, raw_unit: str, counts_per_unit, 
                  extra_columns: bool = True):
     """A Dataset from a session file (by its name or content; via rig.session.reader) or a CSV file
     (extra_columns: keep the columns outside the CSV contract; a fit does not need them)."""
-    from calib import csvio
+    from calib.io import csvio
     from rig.core.errors import DataError
 
     p = Path(path)
@@ -108,7 +108,7 @@ def refit(
     fitted exactly as its run fitted it (rig/analysis/sessionfit.py): references with the run's best
     ambient, a moving schedule's lag corrected, its plan's options unless given here."""
     import calib
-    from calib import calfile
+    from calib.io import calfile
 
     ds = load_dataset(
         data,
@@ -140,7 +140,7 @@ def refit(
         if prepared.lag is not None:
             click.echo(prepared.lag["message"])
     else:
-        from calib.uncertainty import statistical_only
+        from calib.uncertainty.montecarlo import statistical_only
 
         cal = calib.fit(ds, model, robust=bool(robust), software_version=__version__, **options)
         cal.uncertainty = statistical_only(ds, cal)
@@ -164,7 +164,7 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, 
     Reference columns bx,by,bz already in DATA are kept as ref_bx,ref_by,ref_bz. The raw unit and
     column mapping default to those the calibration was fitted with.
     """
-    from calib import calfile, csvio
+    from calib.io import calfile, csvio
     from rig.core.errors import DataError
 
     cal = calfile.load(calibration)
@@ -197,8 +197,8 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, 
 def beyond_calibration(cal, temp_c, field_nt) -> list[str]:
     """What of the rows lies beyond the calibration's own data, where its field and its uncertainty are
     extrapolated: temperatures outside its range, field directions farther from those it took than they
-    are from each other (calib/directions.py)."""
-    from calib.directions import beyond_taken
+    are from each other (calib/stats/directions.py)."""
+    from calib.stats.directions import beyond_taken
 
     out = []
     span = cal.stats.get("temperature_range_c")
@@ -234,8 +234,9 @@ UNCERTAINTY_COLUMNS = ("u_bx", "u_by", "u_bz", "u_b", "u_norm")
 
 
 def _uncertainty_columns(cal, ds, out: dict, calibration: str) -> str:
-    """Each row's expanded uncertainty (calib/fielderror.py) into `out`; what the user should know."""
-    from calib.fielderror import expanded_at, expanded_norm_at, parameter_covariance
+    """Each row's expanded uncertainty (calib/uncertainty/fielderror.py) into `out`; what the user should
+    know."""
+    from calib.uncertainty.fielderror import expanded_at, expanded_norm_at, parameter_covariance
     from rig.core.errors import DataError
 
     if cal.uncertainty is None:

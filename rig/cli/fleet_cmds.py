@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from calib.models import MODELS
+from calib.models.registry import MODELS
 from rig import __version__
 from rig.core.errors import ERRORS, MagrigError
 from rig.fleet import DATE_FORMATS

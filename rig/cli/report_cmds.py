@@ -54,8 +54,8 @@ def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Pat
 )
 def export_cal_cmd(calibration: Path, fmt: str, name: str | None, output: Path | None) -> None:
     """Export a calibration for firmware (C header) or other tools (JSON, CSV of parameters)."""
-    from calib import calfile
-    from calib.atomic import atomic_write
+    from calib.io import calfile
+    from calib.io.atomic import atomic_write
     from rig.report.exports import export_calibration
 
     cal = calfile.load(calibration)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from calib.atomic import atomic_write
+from calib.io.atomic import atomic_write
 from rig.core.errors import ConfigError
 from rig.reference.loading import load_campaign
 from rig.schedules.compile import check_campaign

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from calib.directions import fibonacci_directions
+from calib.stats.directions import fibonacci_directions
 from rig.core.configbase import Strict
 from rig.core.numbers import ANGLE_DEG, NT, NT_MAX, NT_VEC, Count, bounded_vec3
 from rig.fieldsources import fieldsets

@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field, model_validator
 
-from calib.models import MODELS as CALIBRATION_MODELS
+from calib.models.registry import MODELS as CALIBRATION_MODELS
 from rig.config.fields import FieldSet
 from rig.config.notify import Notify
 from rig.config.temperatures import AnyTemperatures, RampTemperatures, SequentialTemperatures
@@ -35,8 +35,8 @@ class Fit(Strict):
 
 class Acceptance(Strict):
     """Per-DUT PASS/FAIL limits on the calibration of `model` (default: the first of fit.models); see
-    rig/analysis/acceptance.py. Parameter names are the model's (calib.models.REGISTRY), e.g. S, b_nt for
-    t24."""
+    rig/analysis/acceptance.py. Parameter names are the model's (calib.models.registry.REGISTRY), e.g. S, b_nt
+    for t24."""
 
     model: Literal[CALIBRATION_MODELS] | None = None
     max_heldout_rms_nt: NT | None = Field(None, description="RMS error on held-out points")
@@ -53,7 +53,7 @@ class Acceptance(Strict):
 
     def check_against(self, models: list[str]) -> None:
         """The judged model is fitted, the parameters named are its own, each bound is low <= high."""
-        from calib.models import REGISTRY
+        from calib.models.registry import REGISTRY
 
         model = self.model or models[0]
         if model not in models:
@@ -104,11 +104,11 @@ class Plan(Strict):
         None, description="word to the operator (rig/config/notify.py); replaces the station's notify:")
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
-        "them (calib/targets.py)")
+        "them (calib/design/targets.py)")
 
     @model_validator(mode="after")
     def _stop_groups(self):
-        from calib.targets import GROUP_KEYS
+        from calib.design.targets import GROUP_KEYS
 
         for group in self.stop_when or {}:
             if group not in GROUP_KEYS:

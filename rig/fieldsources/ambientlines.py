@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import Estimated, InputSource
+from calib.uncertainty.propagation import Estimated, InputSource
 
 
 def ambient_source(model, times, name: str, by=None) -> InputSource:

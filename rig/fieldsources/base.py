@@ -210,7 +210,8 @@ class FieldSourceConfig(DeviceConfig):
 
     def budget_chain(self, run, dut: str, ds):
         """The budget's sources of the reference field for one DUT's data: an object whose
-        `sources(notes)` lists calib.propagation InputSources (rig/reference/budget.py RunInputs is
+        `sources(notes)` lists calib.uncertainty.propagation InputSources (rig/reference/budget.py RunInputs
+        is
         `run`)."""
         raise NotImplementedError
 

@@ -6,7 +6,8 @@ Coils (lab frame):      B = C @ I + ambient        C: coil constants 3x3 (nT/A),
                         (rig/fieldsources/coils/config.py, coils/geometry.py)
 Turntable (table frame): B_sensor = R^T @ B_site,  R = Rz(az) @ Ry(el)  (drivers.turntable.rotation_deg);
                         the table's home pose has x north, y east, z down, so B_site is NED. A
-                        commissioned table (calib/tablefit.py) adds its axes' tilt and zero offsets.
+                        commissioned table (calib/commissioning/tablefit.py) adds its axes' tilt and zero
+                        offsets.
 Site field: a vector given in the station, measured by a reference magnetometer, or the World Magnetic
 Model (WMM-2025, pygeomag) at the site's latitude, longitude, altitude and date, in nT north/east/down.
 
@@ -113,8 +114,9 @@ class CoilReference:
 
 
 class TableReference:
-    """Targets are (az, el) orientations, which are also the device's setting. The table is calib.tablefit's
-    seven parameters: the ideal table in `site_field_nt` (`ideal`), or a commissioned one."""
+    """Targets are (az, el) orientations, which are also the device's setting. The table is
+    calib.commissioning.tablefit's seven parameters: the ideal table in `site_field_nt` (`ideal`), or a
+    commissioned one."""
 
     def __init__(self, params):
         self.params = np.asarray(params, float)
@@ -133,7 +135,7 @@ class TableReference:
 
     def field_nt(self, angles_deg, where: str | None = None) -> np.ndarray:
         """The field on the table at (az, el); the same for every DUT on it (a uniform site field)."""
-        from calib.tablefit import table_field_nt as fitted_field
+        from calib.commissioning.tablefit import table_field_nt as fitted_field
 
         return fitted_field(self.params, [angles_deg])[0]
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import psycopg
 from psycopg.types.json import Jsonb
 
-from calib.atomic import atomic_write
+from calib.io.atomic import atomic_write
 from rig.fleet import FleetError
 from rig.fleet.refit import RESULT_COLUMNS, failed_row, refit_db, refit_file
 

@@ -12,7 +12,7 @@ import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.digest import sha256_text
+from calib.io.digest import sha256_text
 from rig.core.errors import SessionError
 from rig.session.reader import open_read_only
 from rig.session.schema import APPLICATION_ID, SESSION_SUFFIXES, is_session_file

@@ -1,6 +1,6 @@
 """The uncertainty budget of a session's calibrations: every input the reference field and the temperature
-rest on, as input quantities for calib.budgeting.budget (the law of propagation where it is exact or
-checked to hold, the adaptive Monte Carlo of GUM S1 where it is needed).
+rest on, as input quantities for calib.uncertainty.budgeting.budget (the law of propagation where it is exact
+or checked to hold, the adaptive Monte Carlo of GUM S1 where it is needed).
 
     run = RunInputs.of_session(reader)               # once per session (read-only)
     ds, ambient = run.refined(ds)                    # references with the run's best ambient
@@ -34,12 +34,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.budgeting import budget as calib_budget
 from calib.calibration import Calibration, standard_uncertainty
-from calib.fielderror import expanded_norm_at
-from calib.linearise import ParamLayout
-from calib.propagation import InputSource, affine_map, reference_source, temperature_source
-from calib.uncertainty import Budget
+from calib.uncertainty.budgeting import budget as calib_budget
+from calib.uncertainty.fielderror import expanded_norm_at
+from calib.uncertainty.linearise import ParamLayout
+from calib.uncertainty.montecarlo import Budget
+from calib.uncertainty.propagation import InputSource, affine_map, reference_source, temperature_source
 from rig.core.errors import DataError
 from rig.reference import chain_record, modelerror
 from rig.reference.ambient import AmbientModel
@@ -260,10 +260,10 @@ def reference_covariance(cal: Calibration) -> np.ndarray:
 def uncertainty_section(b: Budget, cal: Calibration) -> dict:
     """The calibration file's `uncertainty:` section: the budget (its parameters' full covariance
     included), and the model error a user adds at any field and temperature to what that covariance
-    gives (rig apply --uncertainty, calib/fielderror.py): the normal part, and the DUT's thermal state at
-    a point of use (+-d per axis, two-point) apart, so that the radius there follows its distribution.
-    Beside the largest radius of the vector error, the largest 95 % interval of |B|'s error over the same
-    grid, as rig apply computes it (`expanded_norm_error_nt`): what a scalar fit answers for."""
+    gives (rig apply --uncertainty, calib/uncertainty/fielderror.py): the normal part, and the DUT's thermal
+    state at a point of use (+-d per axis, two-point) apart, so that the radius there follows its
+    distribution. Beside the largest radius of the vector error, the largest 95 % interval of |B|'s error over
+    the same grid, as rig apply computes it (`expanded_norm_error_nt`): what a scalar fit answers for."""
     out = b.as_dict()
     out["model_error_nt"] = model_error_nt(b).tolist()
     state = model_error_nt(b, two_point=True)

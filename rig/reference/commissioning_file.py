@@ -27,8 +27,8 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from calib.atomic import atomic_write
-from calib.digest import sha256_file, sha256_text
+from calib.io.atomic import atomic_write
+from calib.io.digest import sha256_file, sha256_text
 from rig.core.configbase import Strict
 from rig.core.errors import ConfigError
 from rig.core.numbers import NT_VEC, FiniteFloat, Vec3
@@ -223,7 +223,7 @@ class Commissioning:
 
     @property
     def table_params(self) -> np.ndarray:
-        from calib.tablefit import PARAM_NAMES
+        from calib.commissioning.tablefit import PARAM_NAMES
 
         return np.array([self.record.table.params[n] for n in PARAM_NAMES], float)
 

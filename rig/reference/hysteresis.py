@@ -8,8 +8,8 @@ d together with the other terms they find; the readings are then taken to the DU
 h + d_n S^-1 d (d_n the thermal direction of each sample, S the DUT's scale at the data's middle
 temperature), and every model is fitted to them. What the budget keeps is the correction's own
 uncertainty and the state a reading is in at a point of use (+-d). A linear fit's budget (T24, T36, P12)
-takes the correction along in its linearisation (calib/correction.py): every source that changes the
-references moves the estimate too. The scalar fit's Monte Carlo refits do not redo the correction: its
+takes the correction along in its linearisation (calib/uncertainty/correction.py): every source that changes
+the references moves the estimate too. The scalar fit's Monte Carlo refits do not redo the correction: its
 budget keeps the hysteresis line, the estimate fitted again on the corrected readings (about zero) and
 its u widened by the errors that change from one step to the next.
 

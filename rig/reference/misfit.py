@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import InputSource
+from calib.uncertainty.propagation import InputSource
 
 MISFIT_SIGNIFICANCE = 3.0
 AFFINE_SIGNIFICANCE = 3.0  # standard errors beyond the affine part the noise alone would give

@@ -9,14 +9,14 @@ and temperatures, in its mean thermal state. A term T24 lacks then costs the cal
 cannot follow of it, and a thermal hysteresis costs the parameters what the fit took from an unbalanced
 history besides:
 
-- The model checks (calib/checks.py): T24 against T24 plus one deviation (a quadratic temperature term,
-  a thermal hysteresis of the offset, a cubic field term). The terms the checks find (p < P_TERM) are
+- The model checks (calib/checks/model_checks.py): T24 against T24 plus one deviation (a quadratic temperature
+  term, a thermal hysteresis of the offset, a cubic field term). The terms the checks find (p < P_TERM) are
   fitted together with T24 (over a few temperature steps a curvature and a hysteresis share what the
   steps show: their estimates are correlated) and enter the budget as one source whose quantities are
   their coefficients, as u^2 + b^2 (the estimate b, uncorrected, a bias of unknown sign): a curvature or
   a cubic term moves the true field at the grid points by what a T24 fit over the grid cannot follow of
-  it (calib.propagation InputSource.field_nt); the hysteresis moved the data by d_n c (d_n the thermal
-  direction of each sample), which the parameters absorbed. At a point of use the DUT may be in either
+  it (calib.uncertainty.propagation InputSource.field_nt); the hysteresis moved the data by d_n c (d_n the
+  thermal direction of each sample), which the parameters absorbed. At a point of use the DUT may be in either
   thermal state: +-c, a field error of its own ("thermal hysteresis state"). Another model's parameters
   (P12, the scalar fit, T36) absorb the hysteresis alike: their budgets take it as T24's checks find it
   in the same data; what else they cannot follow is in their own residual (the misfit).
@@ -30,7 +30,7 @@ history besides:
 A hysteresis the checks find is corrected in the readings before any model is fitted
 (rig/reference/hysteresis.py): it no longer biases the parameters. A linear fit's budget (T24, T36, P12)
 then takes the correction's uncertainty along in its linearisation (`TermsFit.data_correction`,
-calib/correction.py) and the terms' line leaves the hysteresis out; the scalar fit's keeps it, its
+calib/uncertainty/correction.py) and the terms' line leaves the hysteresis out; the scalar fit's keeps it, its
 estimate fitted again on the corrected readings (about zero) with its u. The thermal state at a point of
 use keeps the size the correction had.
 """
@@ -39,10 +39,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.checks import FIELD_SCALE_NT, model_checks
-from calib.correction import DataCorrection
-from calib.design import regressors as t24_regressors
-from calib.propagation import InputSource
+from calib.checks.model_checks import FIELD_SCALE_NT, model_checks
+from calib.equations import t24_regressors
+from calib.uncertainty.correction import DataCorrection
+from calib.uncertainty.propagation import InputSource
 from rig.reference.misfit import everywhere, misfit_source, within_point_noise
 from rig.reference.wander import wander_source
 
@@ -140,8 +140,8 @@ def model_sources(ds, cal, direction, weights=None,
     """(the budget's model-check sources (T24), its misfit and the offset's wander (rig/reference/
     wander.py); notes; for a model fitted to the reference vector, the readings' noise the fit's
     statistics should take (`_noise_and_wander`); the hysteresis correction the readings were given, as a
-    linear fit's budget takes it along (calib/correction.py), or None). step_reference_var (3,): the
-    variance of the reference's own error from one temperature step to the next (the ambient's scatter
+    linear fit's budget takes it along (calib/uncertainty/correction.py), or None). step_reference_var (3,):
+    the variance of the reference's own error from one temperature step to the next (the ambient's scatter
     between its measurements), which the terms' estimates share with the offset's wander."""
     notes: list[str] = []
     w = np.ones(len(ds)) if weights is None else np.asarray(weights, float)
@@ -360,9 +360,9 @@ class TermsFit:
 
     def data_correction(self, direction, noise) -> DataCorrection | None:
         """The hysteresis correction the readings were given (rig/reference/hysteresis.py), as the
-        budget's linearisation takes it along (calib/correction.py): its estimate's map from the references
-        (this joint fit's, on the corrected readings: the same map), its variance from the readings' noise
-        (the fit's statistics' own, `noise` (3,), else this fit's white residual)."""
+        budget's linearisation takes it along (calib/uncertainty/correction.py): its estimate's map from the
+        references (this joint fit's, on the corrected readings: the same map), its variance from the
+        readings' noise (the fit's statistics' own, `noise` (3,), else this fit's white residual)."""
         if self.correction is None or "hysteresis" not in self.found or direction is None:
             return None
         at = self.column("hysteresis")

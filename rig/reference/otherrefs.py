@@ -6,7 +6,7 @@ With the coils at 0 A, settled, both are read together, so the lab field's drift
 difference, and it is the difference that is recorded and fitted (G times the offset between the two):
 the commissioning's own ambient, in both, is not counted twice. Two instruments do not share their
 calibration errors as one moved does:
-the difference carries both calibrations' covariance at what each read (calib/propagation.py
+the difference carries both calibrations' covariance at what each read (calib/uncertainty/propagation.py
 reference_source), besides both readings' standard errors.
 
     others = other_ambients(rig, station, primary, calibrations)   # [{name, position_mm, difference...}]
@@ -18,7 +18,7 @@ import logging
 
 import numpy as np
 
-from calib.propagation import reference_source
+from calib.uncertainty.propagation import reference_source
 from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import DeviceError
 from rig.reference.budget import reference_covariance

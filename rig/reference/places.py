@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.digest import sha256_file
+from calib.io.digest import sha256_file
 from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import ConfigError
 from rig.devices.build import open_rig

@@ -22,7 +22,7 @@ import datetime as dt
 import json
 from pathlib import Path
 
-from calib.digest import sha256_file
+from calib.io.digest import sha256_file
 from rig import __version__
 from rig.config import Station
 from rig.core.errors import ConfigError, DeviceError

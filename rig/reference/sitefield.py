@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import calfile, models
 from calib.calibration import Calibration
+from calib.io import calfile
+from calib.models import registry
 from rig.core.errors import ERRORS, ConfigError, DataError, DeviceFault
 from rig.core.yamlload import locate_in_text
 from rig.engine.commands import FAILED, Hold
@@ -92,13 +93,13 @@ def load_reference_calibrations(station, station_path: str | Path, station_text:
         if cal.uncertainty is None:
             raise refuse("calibration", f"{path}: states no uncertainty (no `uncertainty:` section): a "
                          "reference magnetometer's calibration must state its expanded uncertainty")
-        if not models.spec(cal.model).vector:
+        if not registry.spec(cal.model).vector:
             raise refuse("calibration", f"{path}: a {cal.model} calibration gives the field only up to a "
-                         f"rotation; a reference needs a vector model ({', '.join(models.VECTOR_MODELS)})")
+                         f"rotation; a reference needs a vector model ({', '.join(registry.VECTOR_MODELS)})")
         made_for = cal.source.get("device_type")
         if made_for is not None and made_for != ref.type:
             raise refuse("calibration", f"{path}: made for a {made_for}, not this {ref.type}")
-        if models.needs_temperature(cal.model, cal.params) and ref.temp_source is None:
+        if registry.needs_temperature(cal.model, cal.params) and ref.temp_source is None:
             raise refuse("temp_source", f"its {cal.model} calibration has temperature terms: name a "
                          "temperature sensor beside it, or 'self'")
         out[ref.name] = cal
@@ -144,7 +145,7 @@ class ReferenceReader:
             raise DeviceFault(self.name, what,
                               f"only {len(raw)} of {self.config.samples} readings were usable")
         temp_c = np.array(temps, float)
-        needs_temp = models.needs_temperature(self.calibration.model, self.calibration.params)
+        needs_temp = registry.needs_temperature(self.calibration.model, self.calibration.params)
         if needs_temp and np.isnan(temp_c).any():
             raise DeviceFault(self.name, what, "its temperature source gave no temperature")
         field = self.calibration.apply(np.array(raw, float), temp_c if needs_temp else None)

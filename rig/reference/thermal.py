@@ -13,8 +13,8 @@ file's `thermal:` section, rig/reference/commissioning_file.py).
 3. The chamber and each DUT position: the set point is stepped by `step_c` at the station's limit rate
    (checked against the limits before it is written) and the air and every DUT's temperature are logged
    every POLL_S until every DUT has settled (its temperature still for a dwell) or MAX_STEP_S; the air's
-   real rate and overshoot (calib/thermal.py `air_motion`) and each DUT's first-order lag and offset behind
-   the air (`first_order_fit`).
+   real rate and overshoot (calib/thermal/response.py `air_motion`) and each DUT's first-order lag and offset
+   behind the air (`first_order_fit`).
 The procedure that calls it leaves the coils or table safe and the chamber at its safe set point on every
 exit; a DUT whose lag the step does not show ends it with one line naming the DUT.
 """
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.thermal import air_motion, first_order_fit
+from calib.thermal.response import air_motion, first_order_fit
 from rig.core.errors import ConfigError, DeviceError
 from rig.devices.interleave import read_all
 from rig.engine.stability import STABLE, StabilityCriteria, StabilityDetector

@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import Estimated, InputSource
-from calib.rowgroups import RowGroups
+from calib.uncertainty.propagation import Estimated, InputSource
+from calib.uncertainty.rowgroups import RowGroups
 
 WANDER_FACTOR = 3.0
 SIGNIFICANCE = 3.0

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import calfile
-from calib.digest import sha256_text
-from calib.directions import reach_deg, taken_directions
+from calib.io import calfile
+from calib.io.digest import sha256_text
+from calib.stats.directions import reach_deg, taken_directions
 from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file, inside
 from rig.reference.modelerror import CORRECTED, CORRECTED_U

@@ -59,7 +59,8 @@ def _c_array(name: str, a: np.ndarray) -> str:
 
 
 def uncertainty_comment(uncertainty: dict | None) -> list[str]:
-    """Comment lines of a calibration's uncertainty (calib/uncertainty.py), every text made safe."""
+    """Comment lines of a calibration's uncertainty (calib/uncertainty/montecarlo.py), every text made
+    safe."""
     if not uncertainty:
         return [" * Uncertainty: not stated."]
 

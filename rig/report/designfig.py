@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from calib.planner import Schedule
+from calib.design.planner import Schedule
 from rig.report.figures import new_figure, png_bytes
 
 
@@ -38,7 +38,7 @@ def schedule_figure(schedule: Schedule, title: str) -> Figure:
 
 
 def write_schedule_figure(schedule: Schedule, title: str, path: Path) -> None:
-    from calib.atomic import atomic_write
+    from calib.io.atomic import atomic_write
 
     data = png_bytes(schedule_figure(schedule, title))
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 
-from calib.models import MODELS
+from calib.models.registry import MODELS
 from rig.analysis import heldout
 from rig.core.errors import DataError, FitError
 from rig.report.sources import DutInput, StepInfo, listed

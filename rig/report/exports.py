@@ -204,8 +204,8 @@ def csv_export(params: dict, std_errors: dict, expanded: dict | None = None) -> 
 
 
 def flight_form(cal) -> FlightForm:
-    """The flight form of a calib.Calibration (parameter names as in calib.models)."""
-    from calib import models
+    """The flight form of a calib.Calibration (parameter names as in calib.models.registry)."""
+    from calib.models import registry
 
     p = cal.params
     if cal.model == "t24":
@@ -213,7 +213,7 @@ def flight_form(cal) -> FlightForm:
     if cal.model == "t36":
         return t36_form(p["S"], p["K"], p["K2"], p["b_nt"], p["kb_nt_per_c"], p["kb2_nt_per_c2"])
     if cal.model == "p12":
-        return inverse_form("p12", np.linalg.inv(models.p12_matrix(p["k"], p["angles_deg"])), p["b_nt"])
+        return inverse_form("p12", np.linalg.inv(registry.p12_matrix(p["k"], p["angles_deg"])), p["b_nt"])
     if cal.model == "scalar":
         return inverse_form("scalar", p["A"], p["c_nt"], p.get("KA_per_c"), p.get("kc_nt_per_c"),
                             cal.equation_keys().get("tau_0_c"))

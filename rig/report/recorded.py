@@ -9,7 +9,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.digest import sha256_file
+from calib.io.digest import sha256_file
 from rig.core.errors import ERRORS
 
 
@@ -29,8 +29,8 @@ class Recorded:
 
 def recorded_calibrations(reader, dut: str) -> dict[str, Recorded]:
     """{model: Recorded} of one DUT, in the order the run fitted them; {} before the run's fits."""
-    from calib import calfile
     from calib.calibration import Calibration
+    from calib.io import calfile
     from rig.core.paths import calibration_file
 
     last = {f["model"]: f for f in reader.fits() if f["dut"] == dut}

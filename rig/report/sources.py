@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.digest import sha256_file as sha256_of
-from calib.digest import sha256_text
+from calib.io.digest import sha256_file as sha256_of
+from calib.io.digest import sha256_text
 from rig import __version__
 from rig.analysis.judged import judged_for_dut
 from rig.core.errors import DataError, SessionError
@@ -45,8 +45,8 @@ class DutInput:
     calibration: object | None = None  # a given calib.Calibration (from a file); None: fit here
     flagged: dict[str, list[str]] = field(default_factory=dict)  # flag -> point ids of flagged samples
     flagged_rows: Counter = field(default_factory=Counter)  # flag -> number of samples
-    # the uncertainty budget to show (calib/uncertainty.py) and whose it is: the given calibration's, or
-    # that of the session's own calibration of this DUT
+    # the uncertainty budget to show (calib/uncertainty/montecarlo.py) and whose it is: the given
+    # calibration's, or that of the session's own calibration of this DUT
     uncertainty: dict | None = None
     uncertainty_of: str = ""
     origin: str = ""  # where the calibration shown comes from (its file, its sha256), in words
@@ -260,7 +260,7 @@ def from_calibration(
     cal_path: str | Path, data_path: str | Path | None, dut: str | None = None
 ) -> ReportInputs:
     """A calibration file and the CSV it was fitted on (the CSV contract: hx,hy,hz[,temp][,bx,by,bz])."""
-    from calib import calfile, csvio
+    from calib.io import calfile, csvio
 
     cal_path = Path(cal_path)
     cal = calfile.load(cal_path)

@@ -109,7 +109,8 @@ class PlanCheck:
     source_lines: list[str] = field(default_factory=list)  # the schedule's and field source's figures
     warnings: list[str] = field(default_factory=list)
     temperatures_word: str = "temperatures"  # "sweeps" for a continuous ramp
-    prediction: Any = None  # a designed schedule's predicted errors (calib.planner.Schedule), for figures
+    prediction: Any = None  # a designed schedule's predicted errors (calib.design.planner.Schedule), for
+                            # figures
     size_line: str | None = None  # the schedule's own first line, when points x fields does not say it
 
     def duration_text(self) -> str:
@@ -141,7 +142,7 @@ class ScheduleCheck:
     duration_keys: dict[str, KeyPath]
     lines: list[str] = field(default_factory=list)
     temperatures_word: str = "temperatures"
-    prediction: Any = None  # calib.planner.Schedule of a designed schedule
+    prediction: Any = None  # calib.design.planner.Schedule of a designed schedule
     design_points: list[Point] | None = None  # judged by the T24 design test (default: points; [] skips it)
     size_line: str | None = None  # replaces "N points = temperatures x fields"
     stop_when_line: bool = True  # False: the schedule's own lines say how it stops
@@ -235,7 +236,7 @@ def check_duration(plan: Plan, breakdown: dict[str, float], keys: dict[str, KeyP
 def t24_design_problem(points: list[Point], station: Station) -> str | None:
     """What a T24 fit could not identify from this plan (None if all is fine), judged on the nominal
     fields and setpoints with calib's own Gram test: the sensor's axes are taken as the lab's."""
-    from calib.gram import GramAccumulator
+    from calib.models.gram import GramAccumulator
 
     fields = np.array([station.field_source.nominal_field_nt(p.command) for p in points])
     temps = np.array([p.setpoint_c for p in points])

@@ -1,7 +1,7 @@
 """`rig design`: a plan's targets, its station's DUTs and chamber, turned into the least-time plan.
 
     inputs = design_inputs(plan, station, session=None)     # targets, each DUT's noise and lag, the range
-    designed = design_plan(plan, station, inputs)            # fields, samples, legs (calib/planner.py)
+    designed = design_plan(plan, station, inputs)            # fields, samples, legs (calib/design/planner.py)
     text = designed_plan_text(plan_text, designed, ...)      # a normal plan file: rig check / rig run take it
 
 Where the numbers come from (rig/schedules/inputs.py, each with its origin printed):
@@ -14,10 +14,11 @@ Where the numbers come from (rig/schedules/inputs.py, each with its origin print
 - the range: the plan's temperatures (steps: lowest and highest; ramp or sequential: range_c), at the DUTs;
 - the chamber's pace and starting air, the pace of a point: measured (--from, the thermal commissioning),
   else the station's stated limit and the drivers' stated conversion times, said so.
-The field set is the I-optimal (or D-optimal) exact design over the plan's own fields (calib/design.py,
-Fedorov exchange on the [1, h] part of T24, which separates from the temperatures); the samples per point
-are as many as keep one sweep within the ramp check's span; the legs come from calib/planner.py, each end
-held until the slowest DUT is within END_TOLERANCE_SHARE of the plan's stability band of it.
+The field set is the I-optimal (or D-optimal) exact design over the plan's own fields
+(calib/design/optimal.py, Fedorov exchange on the [1, h] part of T24, which separates from the temperatures);
+the samples per point are as many as keep one sweep within the ramp check's span; the legs come from
+calib/design/planner.py, each end held until the slowest DUT is within END_TOLERANCE_SHARE of the plan's
+stability band of it.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.design import exchange
-from calib.planner import (
+from calib.design.optimal import exchange
+from calib.design.planner import (
     CHECK,
     ChamberModel,
     DutModel,
@@ -134,7 +135,7 @@ def design_fields(plan: Plan, station: Station, criterion: str) -> list[tuple[fl
     x = np.column_stack([np.ones(len(h)), h])
     if len(targets) <= MIN_SWEEP_FIELDS:
         return list(targets)
-    from calib.design import optimal_weights
+    from calib.design.optimal import optimal_weights
 
     w, _ = optimal_weights(x, criterion, tol=1e-3)
     support = int(np.sum(w >= 1e-3 * w.max()))

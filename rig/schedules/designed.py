@@ -8,7 +8,7 @@ waits for the air to reach it. So the point list is known before the run and sta
     L02-S003-F07     leg 2, sweep 3 of that leg, field 7 (O07 for a turntable's orientation)
 
 Its part of `rig check`: the chamber's limits, the sweep's pace, the duration, and the standard errors the
-design predicts for each DUT against chamber time (rig/schedules/design.py, calib/planner.py).
+design predicts for each DUT against chamber time (rig/schedules/design.py, calib/design/planner.py).
 """
 
 from __future__ import annotations

@@ -214,8 +214,8 @@ def require_duts(inputs: PlanningInputs, station: Station) -> None:
 
 
 def dut_models(inputs: PlanningInputs):
-    """calib.planner.DutModel of every DUT (require_duts first)."""
-    from calib.planner import DutModel
+    """calib.design.planner.DutModel of every DUT (require_duts first)."""
+    from calib.design.planner import DutModel
 
     return [DutModel(d.name, max(d.noise_nt, 1e-3), d.lag_s, d.offset_c or 0.0) for d in inputs.duts.values()]
 

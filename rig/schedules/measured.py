@@ -9,10 +9,10 @@
   moved, rig/analysis/lagfit.py), per fitted sample and axis, as that session read it;
 - its lag behind the air and where it settles relative to it: its recorded temperature (its samples and
   the session's temperature log, which follows it between points too) against the air the session logged
-  (calib/thermal.py `first_order_fit`), else the settling in its longest hold at one nominal temperature
-  (calib/lag.py `settling_lag_s`, offset unknown);
+  (calib/thermal/response.py `first_order_fit`), else the settling in its longest hold at one nominal
+  temperature (calib/thermal/lag.py `settling_lag_s`, offset unknown);
 - the chamber: the air's pace and overshoot after each set-point change the session logged
-  (calib/thermal.py `air_motion`), the air at its start;
+  (calib/thermal/response.py `air_motion`), the air at its start;
 - the pace: the median time between two samples of a point (every DUT read once), and the median time a
   point takes beyond its samples and its `settle_s` (moving and settling the field source, reading the
   chamber), from the points' times.
@@ -97,7 +97,7 @@ def _moving(plan_text: str) -> bool:
 
 def _dut(name, ds, air, temps, moving: bool, where: str) -> tuple[DutInput, str | None]:
     import calib
-    from calib.thermal import first_order_fit
+    from calib.thermal.response import first_order_fit
 
     note = None
     if moving:
@@ -106,7 +106,7 @@ def _dut(name, ds, air, temps, moving: bool, where: str) -> tuple[DutInput, str 
         fitted_ds, lag_info = lag_corrected(ds)
         if lag_info.get("tau_s") is not None:
             note = (f"{name}: recorded temperature lags the element by {lag_info['tau_s']:.0f} "
-                    f"+- {lag_info['tau_se_s']:.0f} s (calib/lag.py); corrected by the fit")
+                    f"+- {lag_info['tau_se_s']:.0f} s (calib/thermal/lag.py); corrected by the fit")
     else:
         fitted_ds = ds
     sigma = max(calib.fit(fitted_ds, "t24").stats["sigma_nt"].values())
@@ -126,7 +126,7 @@ def _dut(name, ds, air, temps, moving: bool, where: str) -> tuple[DutInput, str 
 def _hold_lag(ds) -> float | None:
     """Settling time constant in the session's longest hold: a run of two or more sweeps at one nominal
     air temperature (a ramp's end hold, a designed leg's end), the longest showing the most decay."""
-    from calib.lag import settling_lag_s
+    from calib.thermal.lag import settling_lag_s
 
     t, setpoint = ds.columns["t"], ds.columns["setpoint_c"]
     order = np.argsort(t, kind="stable")
@@ -142,7 +142,7 @@ def _hold_lag(ds) -> float | None:
 
 
 def _chamber(rows: list[dict], where: str) -> ChamberInput | None:
-    from calib.thermal import air_motion
+    from calib.thermal.response import air_motion
 
     log = _air_log(rows)
     if log is None:

@@ -145,9 +145,9 @@ class RampMode:
 # --- stop when good enough ------------------------------------------------------------------------------
 class StopWhen:
     """An on_point callback: after the last point of a sweep (or temperature step), stop the run once
-    every DUT's live T24 fit meets the plan's `stop_when` targets (calib/targets.py); on a designed plan,
-    whose ends are held until every DUT is close to them, also not before every DUT's temperature has come
-    within the plan's band of both ends of its range (else the calibration would extrapolate, and
+    every DUT's live T24 fit meets the plan's `stop_when` targets (calib/design/targets.py); on a designed
+    plan, whose ends are held until every DUT is close to them, also not before every DUT's temperature has
+    come within the plan's band of both ends of its range (else the calibration would extrapolate, and
     acceptance fails it: precision reached early is no reason to leave an end unvisited). A ramp cannot
     promise that: its DUTs lag the air; acceptance judges what it covered."""
 
@@ -175,7 +175,7 @@ class StopWhen:
                 if low > lo + self.band_c or high < hi - self.band_c]
 
     def __call__(self, point_id: str) -> None:
-        from calib.targets import check_targets
+        from calib.design.targets import check_targets
 
         short = self._short_of_range()
         if point_id not in self.group_ends or short:

@@ -1,8 +1,8 @@
 """A sequential schedule (`temperatures: {mode: sequential, ...}`): the campaign decides its sweeps as it goes
-(rig/schedules/sequential_run.py runs it; calib/planner.py decides). It needs no prior: what is known of the
-DUTs (measured or stated, rig/schedules/inputs.py) only shapes its first leg, and the run measures each DUT's
-lag and noise itself. Before the run only the first sweep is known: to the end of `range_c` the design from
-the known values starts with, or, when a DUT's lag is not known, to the nearer end (the run's own
+(rig/schedules/sequential_run.py runs it; calib/design/planner.py decides). It needs no prior: what is known
+of the DUTs (measured or stated, rig/schedules/inputs.py) only shapes its first leg, and the run measures each
+DUT's lag and noise itself. Before the run only the first sweep is known: to the end of `range_c` the design
+from the known values starts with, or, when a DUT's lag is not known, to the nearer end (the run's own
 characterisation: it stays on that leg until it has measured every DUT's lag), at the fastest rate, with the
 optimal exact set of `fields_per_sweep` of the plan's fields. After the last point of every sweep the run
 decides the next sweep (stay, next leg, or stop) and records it in the session, in the same transaction as
@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.design import exchange
-from calib.planner import MAX_SWEEPS, ChamberModel, Pace, crossing_rate, design_schedule
+from calib.design.optimal import exchange
+from calib.design.planner import MAX_SWEEPS, ChamberModel, Pace, crossing_rate, design_schedule
 from rig.config import Plan, SequentialTemperatures, Station
 from rig.core.errors import ConfigError, LimitError, SessionError
 from rig.core.points import RampPoint

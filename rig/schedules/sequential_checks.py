@@ -4,10 +4,10 @@
     decision, found = decide_with_checks(added, chamber, lambda ch: next_leg(..., ch, ...), datasets)
 
 After every leg (a decision that stops or starts a new leg) T24's linearity in temperature
-(calib/checks.py) is run on each DUT's data so far, its temperatures at the element. When it fails for a
-DUT (significant and larger than half the noise: the check's own verdict), the run does not finish on
-data that cannot tell T24 from a curve: it adds interior temperatures (the midpoints of the largest gaps
-between the range's ends and the check temperatures so far, calib/sequential.py
+(calib/checks/model_checks.py) is run on each DUT's data so far, its temperatures at the element. When it
+fails for a DUT (significant and larger than half the noise: the check's own verdict), the run does not finish
+on data that cannot tell T24 from a curve: it adds interior temperatures (the midpoints of the largest gaps
+between the range's ends and the check temperatures so far, calib/design/sequential.py
 `interior_temperatures`) as further check legs, up to `temperatures.max_added_checks`, and decides again
 with them. The decision records which check failed, for which DUTs, and what was added; the temperatures
 added so far are recorded with every later decision, so a resume goes on with them.
@@ -18,10 +18,10 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
-from calib.checks import TEMPERATURE, temperature_linearity
+from calib.checks.model_checks import TEMPERATURE, temperature_linearity
 from calib.dataset import Dataset
-from calib.planner import ChamberModel
-from calib.sequential import Decision, interior_temperatures
+from calib.design.planner import ChamberModel
+from calib.design.sequential import Decision, interior_temperatures
 
 
 @dataclass
@@ -63,9 +63,10 @@ def linearity_failures(data: Mapping[str, Dataset]) -> dict[str, dict]:
 
 def decide_with_checks(added: AddedChecks, chamber: ChamberModel, decide: Callable[[ChamberModel], Decision],
                        data: Callable[[], Mapping[str, Dataset]]) -> tuple[Decision, dict | None]:
-    """`decide(chamber)` (calib/sequential.py `next_leg` on the run's state) with the added temperatures
-    among the checks; after a leg the model check on `data()`, and when it adds temperatures the decision
-    taken again with them (the run then does not stop). Returns (decision, the check's record or None)."""
+    """`decide(chamber)` (calib/design/sequential.py `next_leg` on the run's state) with the added
+    temperatures among the checks; after a leg the model check on `data()`, and when it adds temperatures the
+    decision taken again with them (the run then does not stop). Returns (decision, the check's record or
+    None)."""
     chamber = added.chamber(chamber)
     decision = decide(chamber)
     if not (decision.stop or decision.new_leg):

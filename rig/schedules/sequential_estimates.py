@@ -1,6 +1,6 @@
 """What a sequential run knows of its DUTs, measured by itself (rig/schedules/sequential_run.py decides
 with it): each DUT's lag behind the air and where it settles relative to the air, from its recorded
-temperature against the air the run logs (calib/thermal.py `first_order_fit`), and its noise.
+temperature against the air the run logs (calib/thermal/response.py `first_order_fit`), and its noise.
 
 After every sweep each DUT's lag is fitted again from all the data so far; the estimate in use is replaced
 when the new one differs from it by more than ADOPT_SIGMAS of their standard errors and ADOPT_SHARE of the
@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from calib.errors import DataError
-from calib.thermal import FirstOrderFit, first_order_fit
+from calib.thermal.response import FirstOrderFit, first_order_fit
 
 ADOPT_SIGMAS = 3.0
 ADOPT_SHARE = 0.1

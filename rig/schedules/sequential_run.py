@@ -5,20 +5,20 @@ A point runs as on a continuous ramp (rig/schedules/moving_tasks.py: StartRamp w
 MoveField, Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from wherever the
 air is. CollectPoint of a sweep's last point calls `decide` with the point's rows before storing them:
 
-1. each DUT's data so far, its temperature moved to the element's (calib/lag.py, when the lag shows),
-   gives its Gram, noise and standard errors; the worst ratio to the targets (calib/targets.py);
+1. each DUT's data so far, its temperature moved to the element's (calib/thermal/lag.py, when the lag shows),
+   gives its Gram, noise and standard errors; the worst ratio to the targets (calib/design/targets.py);
 2. each DUT's lag behind the air and where it settles, fitted again from its temperature against the air
    the run logs, replaces the one in use when it differs (rig/schedules/sequential_estimates.py): the
    run measures what it plans with, and needs no prior. While a DUT's lag is not known yet the run stays
    on its first leg (its characterisation);
-3. calib/sequential.py `next_leg`: stop (every DUT meets its targets, the model check's temperatures are
-   done and every DUT's data covers both ends of the range; or max_duration_h is reached), stay at the
+3. calib/design/sequential.py `next_leg`: stop (every DUT meets its targets, the model check's temperatures
+   are done and every DUT's data covers both ends of the range; or max_duration_h is reached), stay at the
    current leg's temperature (an end until every DUT has come close enough to it), or start the next leg;
    after a leg, T24's linearity in temperature on the data so far: where it fails, interior temperatures
    are added as check legs instead of finishing (rig/schedules/sequential_checks.py);
 4. a new leg ramps at the plan's rate, no faster than the slowest DUT can follow (its lag in use);
 5. the sweep's fields: `fields_per_sweep` of the plan's fields, picked one by one for the largest drop
-   in the variance of the worst DUT's worst parameter (calib/design.py `gain_for`), at the temperature
+   in the variance of the worst DUT's worst parameter (calib/design/optimal.py `gain_for`), at the temperature
    its element is expected at.
 
 The decision (with the estimates in use) and the sweep's points go into the session in the same transaction as
@@ -36,9 +36,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.design import gain_for, regressors, worst_parameter
-from calib.planner import CHECK, END, DutModel, Leg, State, crossing_rate, temp_ref_of
-from calib.sequential import next_leg
+from calib.design.optimal import gain_for, worst_parameter
+from calib.design.planner import CHECK, END, DutModel, Leg, State, crossing_rate, temp_ref_of
+from calib.design.sequential import next_leg
+from calib.equations import t24_regressors
 from rig.config import SequentialTemperatures
 from rig.core.errors import ERRORS
 from rig.core.points import RampPoint
@@ -65,7 +66,8 @@ class _Rows:
     h: list = field(default_factory=list)
     temp: list = field(default_factory=list)
     ref: list = field(default_factory=list)
-    direction: str = "auto"  # the lag model found first (calib/lag.py); kept after, as fitting both is slow
+    # the lag model found first (calib/thermal/lag.py); kept after, as fitting both is slow
+    direction: str = "auto"
     lag: tuple[float, float | None] | None = None  # the last identifiable (tau, its se)
     lag_rows: int = 0  # the rows of the last lag fit
     lag_leg: int | None = None  # the leg of the last lag fit
@@ -97,9 +99,9 @@ class Measured:
 
 def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int | None = None) -> Measured:
     """Gram, noise, worst target ratio and element temperature of one DUT from its rows so far."""
-    from calib.gram import GramAccumulator
-    from calib.lag import element_temperature, estimate_lag
-    from calib.targets import check_targets
+    from calib.design.targets import check_targets
+    from calib.models.gram import GramAccumulator
+    from calib.thermal.lag import element_temperature, estimate_lag
 
     t, h, temp, ref = rows.arrays()
     acc = GramAccumulator(temp_ref_c)
@@ -324,7 +326,7 @@ class SequentialMode(RampMode):
     def _pace(self):
         """The estimated sweep, timed as the points so far were taken once a sweep's worth are (median,
         so that a point waiting for the air does not count)."""
-        from calib.planner import Pace
+        from calib.design.planner import Pace
 
         pace = self.schedule.pace(self.schedule.first_picks())
         taken = list(self.runner.status.point_durations_s)
@@ -342,8 +344,8 @@ class SequentialMode(RampMode):
         return [legs[k] for k in sorted(legs)]
 
     def _rate(self) -> float:
-        """The plan's rate, no faster than the slowest DUT follows a crossing (calib/planner.py): the lag
-        of its recorded temperature behind the air, as in use."""
+        """The plan's rate, no faster than the slowest DUT follows a crossing (calib/design/planner.py): the
+        lag of its recorded temperature behind the air, as in use."""
         lo, hi = sorted(self.temps.range_c)
         slowest = max(e.lag_s for e in self.in_use.values())
         return crossing_rate(self.schedule.rate(), hi - lo, slowest)
@@ -357,7 +359,7 @@ class SequentialMode(RampMode):
         temp = worst.element_c
         if temp is None:
             temp = to_c if to_c is not None else point.setpoint_c
-        x = regressors(h, np.full(len(h), temp), self.temp_ref_c)
+        x = t24_regressors(h, np.full(len(h), temp), self.temp_ref_c)
         gram = worst.gram.copy()
         _, row = worst_parameter(gram, self.temp_ref_c, self.targets)
         samples = self.runner.plan.samples_per_point

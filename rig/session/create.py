@@ -13,7 +13,7 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-from calib.digest import sha256_text
+from calib.io.digest import sha256_text
 from rig.core.errors import SessionError
 from rig.session.events import legacy_event
 from rig.session.rows import insert_points

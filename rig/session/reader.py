@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.digest import sha256_file, sha256_text
+from calib.io.digest import sha256_file, sha256_text
 from rig.core.errors import ERRORS, SessionError
 from rig.session.events import Event, event_from_row
 from rig.session.schema import check_file, read_decisions, verify
 
-# The CSV contract of calib.csvio (hx,hy,hz raw nT; temp degC; bx,by,bz reference nT; group) plus context.
+# The CSV contract of calib.io.csvio (hx,hy,hz raw nT; temp degC; bx,by,bz reference nT; group) plus context.
 EXPORT_COLUMNS = ["point", "group", "t", "hx", "hy", "hz", "temp", "bx", "by", "bz", "setpoint_c",
                   "dut_temp", "ref_temp", "ox", "oy", "oz", "flags"]
 

@@ -1,6 +1,6 @@
 """What the cockpit offers for download, each made by the very code of the CLI command that writes it:
 
-    calibration file, YAML or JSON      calib.calfile.save              (rig run, rig refit)
+    calibration file, YAML or JSON      calib.io.calfile.save              (rig run, rig refit)
     C header, flight JSON, parameters   rig.report.exports.export_calibration  (rig export-cal)
     samples CSV                         rig.report.exports.write_samples_csv   (rig export)
     report                              rig.report.build.build_report   (rig report)
@@ -59,7 +59,7 @@ def calibration(path: Path, dut: str, model: str):
 
 
 def calibration_download(path: Path, kind: str, dut: str, model: str, scratch: Path) -> Download:
-    from calib import calfile
+    from calib.io import calfile
     from rig.core.paths import calibration_file
     from rig.report.exports import export_calibration
 

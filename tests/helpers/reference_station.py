@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.digest import sha256_file
+from calib.io.digest import sha256_file
 from rig.config import CONFIGS_DIR
 from rig.reference import commissioning_file
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from rig.config import load_station
 from rig.devices.bench import dut_truths
 from rig.reference.loading import load_campaign

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from rig.fieldsources.coils.gradientfit import element_std_errors
 from rig.fieldsources.fieldmaths import reference_for
 from rig.reference import commissioning_file

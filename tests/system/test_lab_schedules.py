@@ -10,7 +10,7 @@ import json
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from rig.config import CONFIGS_DIR, load_station
 from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign

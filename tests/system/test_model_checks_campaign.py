@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import pytest
 import yaml
 
-from calib.checks import FIELD, HYSTERESIS
+from calib.checks.model_checks import FIELD, HYSTERESIS
 from rig.analysis.acceptance import judge_session
 from rig.analysis.judged import judged_cell, judged_fits
 from rig.cli import main

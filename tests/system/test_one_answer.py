@@ -141,7 +141,7 @@ def understated(session: Path, fit: dict, folder: Path) -> tuple[Path, list[dict
             recorded = json.loads(text)
             recorded["uncertainty"]["expanded_vector_error_nt"] = stated
             db.execute("UPDATE fits SET calibration_json = ? WHERE id = ?", (json.dumps(recorded), row_id))
-    return copy / session.name, [dict(fit, path=path, calibration=calib.calfile.load(path))]
+    return copy / session.name, [dict(fit, path=path, calibration=calib.io.calfile.load(path))]
 
 
 def test_a_residual_above_its_stated_uncertainty_is_flagged_wherever_it_is_shown(commissioned, tmp_path,

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
-from calib.lag import estimate_lag
+from calib.io import calfile
+from calib.thermal.lag import estimate_lag
 from drivers.clock import SimClock
 from drivers.sim.world import DutTruth, World
 from rig.reference.loading import load_campaign
@@ -125,7 +125,7 @@ def test_kill_9_in_the_middle_of_a_ramp_then_resume_goes_on_without_duplicates(t
 
 def test_the_lag_of_a_simulated_temperature_sensor_is_recovered():
     """A TMP117-like reading lagging the element by 150 s (sensor_lag_s) on a 2 degC/min up-and-down
-    ramp: calib.lag finds the lag within a few standard errors and the right direction."""
+    ramp: calib.thermal.lag finds the lag within a few standard errors and the right direction."""
     clock = SimClock()
     world = World(clock, air_c=0.0, ramp_c_per_min=2.0)
     rng = np.random.default_rng(3)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from drivers.sim.world import TableAxes
 from rig.core.errors import DeviceFault
 from rig.fieldsources.fieldmaths import TableReference

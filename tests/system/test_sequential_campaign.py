@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan

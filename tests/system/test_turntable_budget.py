@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 import calib
-from calib import calfile
-from calib.tablefit import table_field_nt
+from calib.commissioning.tablefit import table_field_nt
+from calib.io import calfile
 from rig.core.paths import calibration_file
 from rig.fieldsources.turntable.budget import _with_home, table_rows
 from rig.reference.budget import RunInputs

@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 import calib
-from calib import calfile
-from calib.budgeting import cross_covariance_of
-from calib.fielderror import expanded_at, expanded_norm_at
+from calib.io import calfile
+from calib.uncertainty.budgeting import cross_covariance_of
+from calib.uncertainty.fielderror import expanded_at, expanded_norm_at
 from rig.analysis.crosscov import cross_covariance, cross_covariance_path
 from rig.analysis.sessionfit import SessionFitter
 from rig.config import load_station
@@ -139,7 +139,7 @@ def _budget(inputs, dut, ds, **kw):
 MEASURED = {  # source: what the "on" world turned on, and the least its line must grow by (nT)
     "coil non-linearity": "a coil off linear by 8e-4 per ampere",
     # the hysteresis is corrected in the readings: its estimate's uncertainty moves every line through the
-    # correction (calib/correction.py), no line of its own
+    # correction (calib/uncertainty/correction.py), no line of its own
     "model checks (temperature)": "quadratic temperature terms",
     "thermal hysteresis state": "a thermal hysteresis of the offset",
     "offset wander": "1/f noise and a random walk of the offset",
@@ -158,7 +158,7 @@ def test_a_source_turned_on_in_the_simulator_moves_its_line_and_the_uncertainty_
             sources, _, noise, correction = inputs.sources("dut1", data["dut1"], cal)
             kept = [s for s in sources if s.name != source]
             assert len(kept) == len(sources) - 1, f"{source} missing from the budget"
-            from calib.budgeting import budget as calib_budget
+            from calib.uncertainty.budgeting import budget as calib_budget
 
             without = calib_budget(data["dut1"], cal, kept, inputs._grid, rng=np.random.default_rng(1),
                                    monte_carlo="never", noise_nt=noise, correction=correction)

@@ -1,6 +1,7 @@
 """The input quantities of a coil station's reference field in a calibration's budget (rig/reference/budget.py
 asks the station's field source for them), for one DUT: the field at each of its samples is B = M(r) I +
-ambient, from the sample's currents I, and every source below moves it linearly (calib.propagation):
+ambient, from the sample's currents I, and every source below moves it linearly
+(calib.uncertainty.propagation):
 
 - coil matrix: the centre matrix's commissioning covariance (else the declared `constants_uncertainty_ppm`
   of each element's column); shared by every DUT of the campaign;
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.propagation import InputSource, matrix_source
+from calib.uncertainty.propagation import InputSource, matrix_source
 from rig.fieldsources.ambientlines import ambient_source, by_position, stated_gradient_source
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.geometry import pair_field, rotation_between

@@ -4,9 +4,9 @@ With the reference at the centre (or anywhere, when the coils' geometry carries 
 centre), the coils are driven through a designed set of currents, repeated `repeats` times:
     0; each coil +I/2, +I, +I/2, 0, -I/2, -I, -I/2, 0 (up and down: hysteresis; two levels: linearity);
     each pair of coils at 0.7 I in the four sign combinations; all three at I/2 in the eight;
-and the 3x3 matrix and the ambient are fitted with their covariance (calib/coilfit.py) against the currents
-the supply reports (its read-back, averaged), as every run's references use them: the read-back's gain
-and offset errors then cancel between the commissioning and the run. The zero setting,
+and the 3x3 matrix and the ambient are fitted with their covariance (calib/commissioning/coilfit.py) against
+the currents the supply reports (its read-back, averaged), as every run's references use them: the read-back's
+gain and offset errors then cancel between the commissioning and the run. The zero setting,
 visited again and again, shows the drift; each level approached from both sides, the hysteresis.
 A coil that does not respond, or a field that is not linear in its current, is a fault named by its axis.
 """
@@ -17,7 +17,7 @@ import itertools
 
 import numpy as np
 
-from calib.coilfit import fit_coil_matrix
+from calib.commissioning.coilfit import fit_coil_matrix
 from calib.errors import FitError
 from rig.core.errors import ConfigError, DeviceFault
 from rig.fieldsources.coils.commissioned import fit_readback

@@ -2,8 +2,9 @@
 (rig/reference/budget.py asks the station's field source for them): the table's axes (commissioned), the
 site field measured at home over the run and the reference magnetometer that measured it, and the lab
 field's gradient between the reference's place and the DUT's as the table turns. Each moves the field at
-every sample through its sensitivity (N,3,Q), taken by central differences of calib.tablefit.table_field_nt
-(exact: the field is linear in the site field and in the home reading)."""
+every sample through its sensitivity (N,3,Q), taken by central differences of
+calib.commissioning.tablefit.table_field_nt (exact: the field is linear in the site field and in the home
+reading)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import dataclasses
 
 import numpy as np
 
-from calib.propagation import InputSource
-from calib.tablefit import site_from_home, table_field_nt
+from calib.commissioning.tablefit import site_from_home, table_field_nt
+from calib.uncertainty.propagation import InputSource
 from drivers.turntable import rotation_deg
 from rig.fieldsources.ambientlines import ambient_source, stated_gradient_source
 

@@ -1,13 +1,13 @@
 """What `rig commission` measures of a turntable, and how (rig/reference/procedure.py drives it): the
 reference on the table is read at every azimuth (45 deg apart) x elevation (-90..90, 45 apart) within the
-table's limits, home first and last, and the table's axes are fitted (calib/tablefit.py)."""
+table's limits, home first and last, and the table's axes are fitted (calib/commissioning/tablefit.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from calib.commissioning.tablefit import PARAM_NAMES, fit_table_axes
 from calib.errors import FitError
-from calib.tablefit import PARAM_NAMES, fit_table_axes
 from rig.core.errors import DeviceFault
 from rig.fieldsources.commissioning import Reading, arrays, drift_nt, rows
 

@@ -5,10 +5,10 @@ home. Sensor-frame field = R^T B_site, R = Rz(az) @ Ry(el) (drivers.turntable.ro
 field is a vector given in the station, the World Magnetic Model at the site, or measured by a reference
 magnetometer at the start of the campaign.
 
-A commissioned table (`commissioning: FILE`, written by `rig commission`; calib/tablefit.py) adds how its
-axes differ from the drawing: the elevation axis' tilt, the encoders' zero offsets and the reference's
-mount. Its site field is then the one the commissioning measured, or, when the site field is measured at
-the start of a run, that measurement carried through the commissioned axes.
+A commissioned table (`commissioning: FILE`, written by `rig commission`; calib/commissioning/tablefit.py)
+adds how its axes differ from the drawing: the elevation axis' tilt, the encoders' zero offsets and the
+reference's mount. Its site field is then the one the commissioning measured, or, when the site field is
+measured at the start of a run, that measurement carried through the commissioned axes.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ class Turntable(FieldSourceConfig, TurntableOptions):
         if measured_nt is not None:
             if axes is None:
                 return TableReference.ideal(measured_nt)
-            from calib.tablefit import site_from_home
+            from calib.commissioning.tablefit import site_from_home
 
             return TableReference(np.concatenate([site_from_home(axes, measured_nt), axes[3:]]))
         if axes is not None:
@@ -178,7 +178,8 @@ class Turntable(FieldSourceConfig, TurntableOptions):
 
     # --- the reference chain ------------------------------------------------------------------------
     commissioning_section: ClassVar[str] = "table"
-    commissioning_covariance_size: ClassVar[int] = 7  # the table's parameters (calib/tablefit.py)
+    commissioning_covariance_size: ClassVar[int] = 7  # the table's parameters
+                                                      # (calib/commissioning/tablefit.py)
 
     def commissioning_design(self, current_a, repeats):
         return commissioning.design(self, repeats)

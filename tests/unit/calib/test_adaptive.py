@@ -1,12 +1,12 @@
-"""The adaptive Monte Carlo procedure of GUM S1 7.9 (calib/adaptive.py): its tolerance, its stopping rule,
-its coverage intervals and how it counts failed draws."""
+"""The adaptive Monte Carlo procedure of GUM S1 7.9 (calib/uncertainty/adaptive.py): its tolerance, its
+stopping rule, its coverage intervals and how it counts failed draws."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.adaptive import adaptive_monte_carlo, numerical_tolerance, shortest_interval
+from calib.uncertainty.adaptive import adaptive_monte_carlo, numerical_tolerance, shortest_interval
 
 
 def normal_batch(rng, m):

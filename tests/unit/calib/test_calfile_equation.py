@@ -12,9 +12,10 @@ import pytest
 import yaml
 
 import calib
-from calib import calfile, csvio, synthetic
+from calib import synthetic
 from calib.calibration import Calibration
 from calib.errors import DataError
+from calib.io import calfile, csvio
 from rig.cli import main
 
 # The equations as a reader of the file finds them: literal text, not our constants.

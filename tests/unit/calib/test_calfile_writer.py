@@ -1,4 +1,4 @@
-"""calib/calfile.py writes lists of floats in one pass: the text is byte for byte what PyYAML's own safe
+"""calib/io/calfile.py writes lists of floats in one pass: the text is byte for byte what PyYAML's own safe
 dumper writes, for every kind of float and for strings that look like floats, and it reads back."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib.calfile import _Dumper
+from calib.io.calfile import _Dumper
 
 
 def _document(rng) -> dict:
@@ -38,8 +38,8 @@ def test_the_float_lists_are_written_as_pyyamls_own_dumper_writes_them():
 def test_a_file_without_anchors_reads_the_same_through_libyaml_and_an_undefined_alias_is_refused(tmp_path):
     """calfile reads a text without "&" with libyaml's parser (no anchor, so no alias to refuse): the same
     data as the pure-Python loader that refuses aliases; an alias with no anchor is still a DataError."""
-    from calib import calfile
     from calib.errors import DataError
+    from calib.io import calfile
 
     text = yaml.dump(_document(np.random.default_rng(5)), Dumper=_Dumper, sort_keys=False,
                      default_flow_style=None, width=120)

@@ -1,12 +1,13 @@
-"""The model checks (calib/checks.py): each fires on data with its deviation, stays quiet on exact T24 data
-with noise (p uniform, verdict "holds"), says when it cannot test, and follows the stated verdict rule."""
+"""The model checks (calib/checks/model_checks.py): each fires on data with its deviation, stays quiet on
+exact T24 data with noise (p uniform, verdict "holds"), says when it cannot test, and follows the stated
+verdict rule."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.checks import (
+from calib.checks.model_checks import (
     FIELD,
     HYSTERESIS,
     TEMPERATURE,

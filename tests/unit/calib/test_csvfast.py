@@ -7,8 +7,8 @@ import random
 import numpy as np
 import pytest
 
-from calib import csvfast, csvio
 from calib.errors import DataError
+from calib.io import csvfast, csvio
 
 pytestmark = pytest.mark.skipif(csvfast._scanner() is None, reason="numba not available: no compiled scanner")
 

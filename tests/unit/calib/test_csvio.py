@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from calib import csvio
 from calib.errors import DataError
+from calib.io import csvio
 
 
 def _write(tmp_path, text, name="data.csv"):

@@ -1,4 +1,5 @@
-"""The design maths (calib/design.py): known optima on small cases, and predictions the fit confirms."""
+"""The design maths (calib/design/optimal.py): known optima on small cases, and predictions the fit
+confirms."""
 
 from __future__ import annotations
 
@@ -7,22 +8,22 @@ import itertools
 import numpy as np
 import pytest
 
-from calib.design import (
+from calib.design.optimal import (
     criterion_value,
     exact_design,
     exchange,
     gain_for,
     information,
     optimal_weights,
-    regressors,
     std_errors,
     target_ratios,
     worst_parameter,
 )
+from calib.design.targets import check_targets
+from calib.equations import t24_regressors
 from calib.errors import DataError, FitError
-from calib.gram import GramAccumulator
+from calib.models.gram import GramAccumulator
 from calib.synthetic import coil_directions, random_t24_params
-from calib.targets import check_targets
 
 
 def fibonacci(n: int) -> np.ndarray:
@@ -57,7 +58,7 @@ def test_t24_d_optimum_is_the_largest_field_balanced_at_the_two_ends_of_the_rang
     dirs = coil_directions(26)
     fields = np.vstack([30_000 * dirs, 60_000 * dirs])
     f, t = (np.array(a) for a in zip(*itertools.product(fields, temps), strict=True))
-    x = regressors(f, t, 20.0)
+    x = t24_regressors(f, t, 20.0)
     w, efficiency = optimal_weights(x, "D", tol=1e-4)
     assert efficiency >= 1 - 1e-4
     big = np.linalg.norm(f, axis=1) > 45_000
@@ -117,12 +118,12 @@ def test_gain_is_the_drop_in_variance_of_the_parameter():
     g = information(fields, temps, 5, temp_ref_c=20.0)
     group, row = worst_parameter(g, 20.0, {"K": 1e-6, "S": 1e-3})
     assert group == "K" and row in (5, 6, 7)
-    cands = regressors(50_000 * coil_directions(26), np.full(26, 70.0), 20.0)
+    cands = t24_regressors(50_000 * coil_directions(26), np.full(26, 70.0), 20.0)
     gains = gain_for(g, 20.0, row, cands, 10)
     before = std_errors(g, 1.0, 20.0)["K"].max() ** 2
     for k in (0, int(np.argmax(gains))):
         after_g = g + 10 * np.outer(cands[k], cands[k])
-        from calib.design import covariance
+        from calib.design.optimal import covariance
 
         drop = covariance(g, 20.0)[row, row] - covariance(after_g, 20.0)[row, row]
         assert drop == pytest.approx(gains[k], rel=1e-6)
@@ -143,7 +144,7 @@ def test_an_unidentifiable_design_gives_infinite_errors_and_bad_input_is_refused
     se = std_errors(g, 20.0, 20.0)
     assert np.all(np.isinf(se["K"]))
     with pytest.raises(DataError, match="criterion"):
-        optimal_weights(regressors(fields, np.zeros(26), 0.0), "A")
+        optimal_weights(t24_regressors(fields, np.zeros(26), 0.0), "A")
     with pytest.raises(DataError, match="candidates"):
         optimal_weights(np.ones((3, 8)))
     with pytest.raises(FitError, match="zero on every candidate"):

@@ -1,10 +1,10 @@
-"""The field directions a calibration's data took (calib/directions.py): how far every direction is from
+"""The field directions a calibration's data took (calib/stats/directions.py): how far every direction is from
 them, and how far apart they are."""
 
 import numpy as np
 import pytest
 
-from calib.directions import nearest_deg, reach_deg, spacing_deg, taken_directions
+from calib.stats.directions import nearest_deg, reach_deg, spacing_deg, taken_directions
 
 
 def _fibonacci(n: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""calib/distributions.py against mpmath and closed forms."""
+"""calib/stats/distributions.py against mpmath and closed forms."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import mpmath
 import numpy as np
 import pytest
 
-from calib.distributions import chi2_sf, erf, f_sf, gaussian_radius, shifted_interval, shifted_radius
+from calib.stats.distributions import chi2_sf, erf, f_sf, gaussian_radius, shifted_interval, shifted_radius
 
 
 @pytest.mark.parametrize(("x", "d1", "d2"), [(1.0, 3, 100), (5.0, 12, 500), (0.1, 1, 10), (2.5, 36, 3000),

@@ -1,5 +1,5 @@
-"""A calibration file's uncertainty at any reading (calib/fielderror.py): the parameters' covariance and
-the model error, the file's exact round trip, old files, and a malformed covariance refused."""
+"""A calibration file's uncertainty at any reading (calib/uncertainty/fielderror.py): the parameters'
+covariance and the model error, the file's exact round trip, old files, and a malformed covariance refused."""
 
 from __future__ import annotations
 
@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 import calib
-from calib import calfile, synthetic
-from calib.budgeting import budget
+from calib import synthetic
 from calib.calibration import Calibration
 from calib.errors import DataError
-from calib.fielderror import expanded_at, expanded_norm_at, field_covariance, parameter_covariance
-from calib.propagation import matrix_source, offset_source
+from calib.io import calfile
+from calib.uncertainty.budgeting import budget
+from calib.uncertainty.fielderror import expanded_at, expanded_norm_at, field_covariance, parameter_covariance
+from calib.uncertainty.propagation import matrix_source, offset_source
 
 
 def _calibrated(seed: int = 1):
@@ -115,7 +116,7 @@ def test_a_thermal_state_is_its_two_point_mixture_not_a_normal_error(tmp_path):
         x = rng.multivariate_normal(np.zeros(3), without[n], 200_000)
         x += rng.choice([-1.0, 1.0], (len(x), 3)) * d
         assert np.mean(np.linalg.norm(x, axis=1) <= radius[n]) == pytest.approx(0.95, abs=0.003)
-    from calib.distributions import gaussian_radius
+    from calib.stats.distributions import gaussian_radius
 
     assert np.all(radius < gaussian_radius(cov))
     path = tmp_path / "state.yaml"

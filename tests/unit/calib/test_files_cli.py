@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 import calib
-from calib import calfile, csvio, synthetic
+from calib import synthetic
+from calib.io import calfile, csvio
 from rig.cli import main
 from rig.core.errors import DataError
 

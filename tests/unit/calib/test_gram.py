@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 import calib
-from calib import compiled, gram_kernel, synthetic
+from calib import compiled, synthetic
 from calib.errors import FitError
-from calib.gram import GramAccumulator
+from calib.models import gram_kernel
+from calib.models.gram import GramAccumulator
 
 
 def _dataset(seed=0, **kw):

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from calib.errors import DataError
-from calib.lag import element_temperature, estimate_lag
 from calib.synthetic import t24_dataset, t24_ramp_dataset
+from calib.thermal.lag import element_temperature, estimate_lag
 
 
 def estimate(ds, **kw):

@@ -1,5 +1,5 @@
-"""When the law of propagation is the whole answer (calib/lawcheck.py), a source's direct effect on the true
-field (InputSource.field_nt) against draws of it, and a Monte Carlo whose refits all fail."""
+"""When the law of propagation is the whole answer (calib/uncertainty/lawcheck.py), a source's direct effect
+on the true field (InputSource.field_nt) against draws of it, and a Monte Carlo whose refits all fail."""
 
 from __future__ import annotations
 
@@ -8,12 +8,18 @@ import pytest
 
 import calib
 from calib import synthetic
-from calib.adaptive import adaptive_monte_carlo
-from calib.budgeting import budget
-from calib.distributions import gaussian_radius
-from calib.lawcheck import normal_interval_holds, validate_temperature
-from calib.linearise import ParamLayout, linearised
-from calib.propagation import InputSource, matrix_source, offset_source, propagate_linear, temperature_source
+from calib.stats.distributions import gaussian_radius
+from calib.uncertainty.adaptive import adaptive_monte_carlo
+from calib.uncertainty.budgeting import budget
+from calib.uncertainty.lawcheck import normal_interval_holds, validate_temperature
+from calib.uncertainty.linearise import ParamLayout, linearised
+from calib.uncertainty.propagation import (
+    InputSource,
+    matrix_source,
+    offset_source,
+    propagate_linear,
+    temperature_source,
+)
 
 COIL_NT_PER_A = 10_000.0
 

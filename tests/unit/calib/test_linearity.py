@@ -1,11 +1,11 @@
-"""The model check of T24's linearity in temperature (calib/linearity.py)."""
+"""The model check of T24's linearity in temperature (calib/checks/linearity.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.linearity import chi2_sf_even, linearity
+from calib.checks.linearity import chi2_sf_even, linearity
 from calib.synthetic import coil_directions, random_t24_params
 
 

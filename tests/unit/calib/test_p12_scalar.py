@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import calib
-from calib import p12, scalar, synthetic
+from calib import synthetic
 from calib.dataset import Dataset
 from calib.errors import FitError
+from calib.models import p12, scalar
 
 
 def test_p12_recovers_truth_within_a_few_standard_errors():

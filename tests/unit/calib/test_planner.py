@@ -1,4 +1,5 @@
-"""The least-time schedule (calib/planner.py): its thermal prediction, its search, and its decisions."""
+"""The least-time schedule (calib/design/planner.py): its thermal prediction, its search, and its
+decisions."""
 
 from __future__ import annotations
 
@@ -7,9 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from calib.errors import DataError
-from calib.lag import settling_lag_s
-from calib.planner import (
+from calib.design.planner import (
     CHECK,
     END,
     ChamberModel,
@@ -27,8 +26,10 @@ from calib.planner import (
     sweeps_with_hold,
     worst_ratios,
 )
-from calib.sequential import next_leg
+from calib.design.sequential import next_leg
+from calib.errors import DataError
 from calib.synthetic import coil_directions
+from calib.thermal.lag import settling_lag_s
 
 FIELDS = 50_000 * coil_directions(26)
 PACE = Pace(FIELDS, 20, 4.0)  # a sweep of 104 s
@@ -157,7 +158,7 @@ def test_an_overshoot_beyond_the_ends_brings_the_slowest_dut_there_sooner():
     still come within the end tolerance, and with a slow DUT that happens sooner."""
     from dataclasses import replace
 
-    from calib.planner import air_end
+    from calib.design.planner import air_end
 
     models = [DutModel("fast", 21.0, 300.0, offset_c=0.2), DutModel("slow", 21.0, 900.0, offset_c=-0.3)]
     covered = replace(CHAMBER, end_tolerance_c=0.25, air_limits_c=(-40.0, 85.0))

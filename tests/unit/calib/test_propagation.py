@@ -1,5 +1,6 @@
-"""Uncertainty propagation (calib/propagation.py, calib/linearise.py, calib/mcrefit.py, calib/budgeting.py)
-against refits made independently here: plain least squares in the absolute-tau regressors, calib.fit."""
+"""Uncertainty propagation (calib/uncertainty/propagation.py, calib/uncertainty/linearise.py,
+calib/uncertainty/mcrefit.py, calib/uncertainty/budgeting.py) against refits made independently here: plain
+least squares in the absolute-tau regressors, calib.fit."""
 
 from __future__ import annotations
 
@@ -10,14 +11,17 @@ import numpy as np
 import pytest
 
 import calib
-from calib import mcrefit, synthetic
-from calib.budgeting import budget, cross_covariance_of
+from calib import synthetic
 from calib.calibration import Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError, FitError
-from calib.linearise import ParamLayout, linearised
-from calib.mcrefit import ScalarRefit, TemperatureRefit
-from calib.propagation import (
+from calib.stats.student import coverage_factor, t_quantile
+from calib.uncertainty import mcrefit
+from calib.uncertainty.budgeting import budget, cross_covariance_of
+from calib.uncertainty.linearise import ParamLayout, linearised
+from calib.uncertainty.mcrefit import ScalarRefit, TemperatureRefit
+from calib.uncertainty.montecarlo import Draw, Source, monte_carlo
+from calib.uncertainty.propagation import (
     STATISTICAL,
     cross_covariance,
     matrix_source,
@@ -25,8 +29,6 @@ from calib.propagation import (
     propagate_linear,
     temperature_source,
 )
-from calib.student import coverage_factor, t_quantile
-from calib.uncertainty import Draw, Source, monte_carlo
 
 COIL_NT_PER_A = 10_000.0
 
@@ -396,7 +398,7 @@ def test_the_old_monte_carlo_counts_the_draws_it_could_not_refit():
 def test_a_reference_magnetometers_error_moves_what_it_measured():
     """The source's first-order change of the references against the field a drawn reference calibration
     reports for the same readings, B = A2 A^-1 (B' - c) + c2."""
-    from calib.propagation import affine_map, reference_source
+    from calib.uncertainty.propagation import affine_map, reference_source
 
     ref_ds, _ = synthetic.t24_dataset(np.random.default_rng(24), samples_per_point=2)
     ref_cal = calib.fit(ref_ds, "t24")
@@ -433,7 +435,7 @@ def test_a_long_scalar_recording_is_refitted_on_a_thinned_share_that_spreads_as_
     evenly spaced share, its noise scaled by M/N and its own solution the origin. Its u and its intervals
     are then the whole data's (the map's, which holds here), not sqrt(N/M) wider, nor shifted by the
     share's own solution."""
-    import calib.budgeting as budgeting
+    import calib.uncertainty.budgeting as budgeting
 
     monkeypatch.setattr(budgeting, "SCALAR_MC_ROWS", 512)
     ds, currents = scalar_case(23, n=4096)
@@ -453,7 +455,7 @@ def test_a_long_scalar_recording_is_refitted_on_a_thinned_share_that_spreads_as_
 
 
 def test_a_thinned_share_whose_own_solution_is_not_found_leaves_the_whole_data_to_refit(monkeypatch):
-    import calib.budgeting as budgeting
+    import calib.uncertainty.budgeting as budgeting
 
     monkeypatch.setattr(budgeting, "SCALAR_MC_ROWS", 256)
     monkeypatch.setattr(ScalarRefit, "own_solution", lambda self: None)
@@ -466,8 +468,9 @@ def test_a_thinned_share_whose_own_solution_is_not_found_leaves_the_whole_data_t
 
 
 def test_one_singular_draw_fails_alone_in_a_stacked_solve():
-    """The refits solve every draw's normal equations stacked (calib.mcrefit._solve): a singular one, whose
-    error would spoil the whole stack, is NaN (then counted failed) and every other draw is solved."""
+    """The refits solve every draw's normal equations stacked (calib.uncertainty.mcrefit._solve): a singular
+    one, whose error would spoil the whole stack, is NaN (then counted failed) and every other draw is
+    solved."""
     rng = np.random.default_rng(4)
     a = rng.normal(size=(4, 5, 5))
     a[2] = 0.0

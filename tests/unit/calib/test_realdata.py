@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib import csvio
+from calib.io import csvio
 
 # shared/ sits beside the repository (as in CI); MAGRIG_REALDATA points elsewhere
 BESIDE_REPO = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"

@@ -9,11 +9,11 @@ import pytest
 
 import calib
 from calib import synthetic
-from calib.coilfit import fit_coil_matrix
+from calib.commissioning.coilfit import fit_coil_matrix
+from calib.commissioning.tablefit import PARAM_NAMES, fit_table_axes, site_from_home, table_field_nt
 from calib.errors import FitError
-from calib.gram import GramAccumulator
-from calib.tablefit import PARAM_NAMES, fit_table_axes, site_from_home, table_field_nt
-from calib.uncertainty import Draw, Source, monte_carlo, raw_for, statistical
+from calib.models.gram import GramAccumulator
+from calib.uncertainty.montecarlo import Draw, Source, monte_carlo, raw_for, statistical
 
 TRUE_M = np.array([[50_480.0, 264.0, -12.0], [35.0, 49_510.0, -263.0], [8.0, 20.0, 50_310.0]])
 AMBIENT = np.array([16_200.0, -350.0, 43_100.0])
@@ -163,7 +163,7 @@ def test_sources_add_up_and_a_larger_input_uncertainty_widens_the_budget():
 
 
 def test_the_t24_reference_map_is_the_refit_of_a_changed_reference():
-    from calib.t24 import reference_map
+    from calib.models.t24 import reference_map
 
     rng = np.random.default_rng(8)
     ds, _ = synthetic.t24_dataset(rng, noise_nt=10.0, samples_per_point=3)

@@ -1,5 +1,5 @@
-"""The compact form of an offset per group of rows (calib/rowgroups.py) gives what the dense a_ref gives:
-the Jacobians of every linearised model, the budget's lines and its Monte Carlo draws."""
+"""The compact form of an offset per group of rows (calib/uncertainty/rowgroups.py) gives what the dense a_ref
+gives: the Jacobians of every linearised model, the budget's lines and its Monte Carlo draws."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import pytest
 
 import calib
 from calib import synthetic
-from calib.budgeting import _by_quantity, _scalar_data, budget
 from calib.dataset import Dataset
-from calib.linearise import linearised
-from calib.propagation import InputSource
-from calib.rowgroups import RowGroups
+from calib.uncertainty.budgeting import _by_quantity, _scalar_data, budget
+from calib.uncertainty.linearise import linearised
+from calib.uncertainty.propagation import InputSource
+from calib.uncertainty.rowgroups import RowGroups
 
 
 def _groups(n: int, k: int, seed: int) -> np.ndarray:

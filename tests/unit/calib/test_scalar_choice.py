@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib import scalar_choice, synthetic
+from calib import synthetic
+from calib.models import scalar_choice
 
 
 def _held_out_error_pct(cal, ds) -> float:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib.dataset import Dataset
-from calib.stats import residual_stats, temperature_steps
+from calib.stats.residuals import residual_stats, temperature_steps
 
 
 def test_steps_split_at_gaps_wider_than_one_degree_and_count_from_the_coldest():

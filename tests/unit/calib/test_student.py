@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 import calib
-from calib import student, synthetic
-from calib.budgeting import budget
-from calib.propagation import Estimated, offset_source
-from calib.student import NORMAL_DOF, P_K2, coverage_factor, effective_dof, t_quantile
+from calib import synthetic
+from calib.stats import student
+from calib.stats.student import NORMAL_DOF, P_K2, coverage_factor, effective_dof, t_quantile
+from calib.uncertainty.budgeting import budget
+from calib.uncertainty.propagation import Estimated, offset_source
 
 # GUM (JCGM 100:2008) Table G.2, p = 95.45 %
 TABLE_G2 = {1: 13.97, 2: 4.53, 3: 3.31, 4: 2.87, 5: 2.65, 6: 2.52, 7: 2.43, 8: 2.37, 10: 2.28, 20: 2.13,

@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from calib import synthetic, t24_paper
-from calib.gram import GramAccumulator
+from calib import synthetic
+from calib.models import t24_paper
+from calib.models.gram import GramAccumulator
 
 
 def _case(temps_c, seed=0):

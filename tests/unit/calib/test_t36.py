@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 import calib
-from calib import calfile, models, synthetic
+from calib import synthetic
 from calib.dataset import Dataset
 from calib.errors import FitError
-from calib.t36 import T36Accumulator, reference_map
+from calib.io import calfile
+from calib.models import registry
+from calib.models.t36 import T36Accumulator, reference_map
 
 TEMPS_C = (-30.0, 0.0, 20.0, 45.0, 70.0)
 
@@ -129,8 +131,8 @@ def test_the_calibration_file_round_trips_and_applies(tmp_path):
 
 
 def test_t36_is_a_registered_vector_model_needing_temperature():
-    spec = models.spec("t36")
-    assert spec.vector and spec.needs_temperature and spec.params == models.PARAM_SHAPES["t36"]
+    spec = registry.spec("t36")
+    assert spec.vector and spec.needs_temperature and spec.params == registry.PARAM_SHAPES["t36"]
     assert set(spec.params) == {"S", "K", "K2", "b_nt", "kb_nt_per_c", "kb2_nt_per_c2"}
     rng = np.random.default_rng(7)
     ds, truth = synthetic.t24_dataset(rng, temps_c=TEMPS_C, samples_per_point=3)

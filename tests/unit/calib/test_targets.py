@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from calib.design.targets import check_targets
 from calib.errors import DataError
-from calib.gram import GramAccumulator
+from calib.models.gram import GramAccumulator
 from calib.synthetic import t24_dataset
-from calib.targets import check_targets
 
 TARGETS = {"S": 1e-4, "K": 2e-6, "kb": 0.05, "b": 3.0}
 

@@ -1,4 +1,4 @@
-"""T24 or T36 by blocked cross-validation (calib/tempmodel.py)."""
+"""T24 or T36 by blocked cross-validation (calib/models/tempmodel.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from calib.dataset import Dataset
 from calib.errors import DataError
+from calib.models.tempmodel import blocks_within_steps, choose_temperature_model
 from calib.synthetic import t24_dataset
-from calib.tempmodel import blocks_within_steps, choose_temperature_model
 
 TEMPS_C = (-30.0, -5.0, 20.0, 45.0, 70.0)
 

@@ -1,15 +1,15 @@
 """A DUT's first-order lag and offset behind the air, and the air's pace and overshoot, measured from
-time series (calib/thermal.py): recovered within their stated standard errors, refused when the rows do not
-show them."""
+time series (calib/thermal/response.py): recovered within their stated standard errors, refused when the rows
+do not show them."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from calib.design.planner import element_path
 from calib.errors import DataError
-from calib.planner import element_path
-from calib.thermal import air_motion, first_order_fit
+from calib.thermal.response import air_motion, first_order_fit
 
 
 def ramp_and_hold(rate_c_per_min: float, to_c: float, end_s: float, dt_s: float = 10.0):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib import calfile, csvio, synthetic
+from calib import synthetic
+from calib.io import calfile, csvio
 from rig.cli import main
 from tests.unit.report.ccheck import max_relative_error, run_header
 

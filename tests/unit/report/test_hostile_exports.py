@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib import calfile, synthetic
+from calib import synthetic
+from calib.io import calfile
 from rig.cli import main
 from rig.core.names import c_identifier, header_guard
 from tests.unit.report.ccheck import max_relative_error, run_header

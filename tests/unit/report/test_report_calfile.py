@@ -8,7 +8,8 @@ from html import unescape
 import numpy as np
 import pytest
 
-from calib import csvio, synthetic
+from calib import synthetic
+from calib.io import csvio
 from rig.cli import main
 from tests.helpers.synthetic_session import SynthOptions, build_session
 

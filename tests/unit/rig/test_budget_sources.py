@@ -283,7 +283,7 @@ def test_p12s_statistics_and_wander_come_from_the_noise_not_from_what_p12_cannot
     parameters' stated spread is their spread over fresh noise."""
     import calib
     from calib import synthetic
-    from calib.linearise import linearised
+    from calib.uncertainty.linearise import linearised
     from rig.reference.modelerror import model_sources
 
     rng = np.random.default_rng(31)

@@ -10,7 +10,9 @@ import click
 import numpy as np
 import pytest
 
-from calib import calfile, compiled, csvfast, csvio, gram_kernel, synthetic
+from calib import compiled, synthetic
+from calib.io import calfile, csvfast, csvio
+from calib.models import gram_kernel
 from rig import cli
 
 HEAVY = ("numpy", "pyarrow", "numba", "pydantic", "rich", "yaml", "matplotlib", "rig.config")

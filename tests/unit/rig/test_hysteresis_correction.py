@@ -6,7 +6,7 @@ import numpy as np
 
 import calib
 from calib import synthetic
-from calib.linearise import linearised
+from calib.uncertainty.linearise import linearised
 from rig.reference.hysteresis import corrected
 from rig.reference.modelerror import CORRECTED, model_sources
 
@@ -69,9 +69,9 @@ def test_the_budget_takes_the_correction_along_as_the_whole_procedure_moves():
     hysteresis and corrected away. The parameters' spread over such draws of the whole procedure (the
     correction, then T24) is what the budget states through the corrected linearisation; through the plain
     one it is not."""
-    from calib.correction import Corrected
-    from calib.propagation import InputSource
-    from calib.rowgroups import RowGroups
+    from calib.uncertainty.correction import Corrected
+    from calib.uncertainty.propagation import InputSource
+    from calib.uncertainty.rowgroups import RowGroups
     from rig.reference.modelerror import TermsFit
 
     rng = np.random.default_rng(43)

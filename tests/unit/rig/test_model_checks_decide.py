@@ -13,10 +13,10 @@ import json
 import numpy as np
 
 import calib
-from calib.checks import FIELD, HYSTERESIS, TEMPERATURE
+from calib.checks.model_checks import FIELD, HYSTERESIS, TEMPERATURE
 from calib.dataset import Dataset
-from calib.planner import CHECK, END, ChamberModel, DutModel, Leg, Pace, State, predict
-from calib.sequential import interior_temperatures, next_leg
+from calib.design.planner import CHECK, END, ChamberModel, DutModel, Leg, Pace, State, predict
+from calib.design.sequential import interior_temperatures, next_leg
 from calib.synthetic import coil_directions, random_t24_params, t24_dataset
 from rig.analysis.acceptance import Verdict, model_check_findings
 from rig.analysis.judged import judged_for_dut

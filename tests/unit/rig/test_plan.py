@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from calib.directions import fibonacci_directions
+from calib.stats.directions import fibonacci_directions
 from rig.config import DEFAULT_STATION, Plan, Station, load_station
 from rig.core.errors import ConfigError, LimitError
 from rig.fieldsources import fieldsets

@@ -203,8 +203,9 @@ def test_an_edited_recorded_plan_is_refused_on_resume(tmp_path):
 def test_written_files_follow_the_umask(tmp_path, umask, mode):
     import numpy as np
 
-    from calib import calfile, synthetic
+    from calib import synthetic
     from calib.fitting import fit
+    from calib.io import calfile
 
     old = os.umask(umask)
     try:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib import calfile
+from calib.io import calfile
 from drivers.clock import SimClock
 from drivers.sim.world import World
 from rig.config import CONFIGS_DIR, Station, load_station

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from calib.gram import GramAccumulator
+from calib.models.gram import GramAccumulator
 from rig.config.plan import Plan
 from rig.schedules.moving_tasks import StopWhen
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import calfile, csvio
+from calib.io import calfile, csvio
 from drivers.sim.world import DutTruth
 from rig.cli import main
 from rig.reference.loading import load_campaign

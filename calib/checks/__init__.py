@@ -1,0 +1,1 @@
+"""Model checks: does the model describe the data, or does the sensor show a term it leaves out?"""
