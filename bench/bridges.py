@@ -19,14 +19,14 @@ import numpy as np
 
 from drivers.clock import SimClock
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.cp2112 import CP2112Sim
-from drivers.sim.ft232h import FT232HSim
-from drivers.sim.hidbus import FakeHid
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.i2c_wire import I2CWire
-from drivers.sim.mcp2221 import MCP2221ASim
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.usbfake import FakeUsbBackend
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.transports.cp2112 import CP2112Sim
+from drivers.sim.transports.ft232h import FT232HSim
+from drivers.sim.transports.hidbus import FakeHid
+from drivers.sim.transports.i2c_bus import FakeSMBus
+from drivers.sim.transports.i2c_wire import I2CWire
+from drivers.sim.transports.mcp2221 import MCP2221ASim
+from drivers.sim.transports.usbfake import FakeUsbBackend
 from drivers.sim.world import DutTruth, World
 from drivers.tca9548a import MuxedBus
 from drivers.transports.cp2112 import CP2112Bus

@@ -37,7 +37,7 @@ import yaml
 from calib.calibration import standard_uncertainty
 from calib.io import calfile
 from calib.synthetic import random_t24_params
-from drivers.sim.dutmodel import DutDeviations
+from drivers.sim.world.dutmodel import DutDeviations
 
 REPO = Path(__file__).resolve().parents[1]
 BASE = REPO / "configs" / "stations" / "sim-lab.yaml"

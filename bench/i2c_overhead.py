@@ -21,12 +21,12 @@ import numpy as np
 from drivers import hmc5883l, mmc5983ma, tmp117
 from drivers.base import Device
 from drivers.clock import SimClock
-from drivers.sim.hmc5883l import HMC5883LSim
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
-from drivers.sim.tmp117 import TMP117Sim
+from drivers.sim.devices.hmc5883l import HMC5883LSim
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.devices.tmp117 import TMP117Sim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import DutTruth, World
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 SCL_HZ = 400_000
 START_STOP_BITS = 1  # a START, repeated START or STOP costs about one bit time

@@ -17,8 +17,8 @@ import time
 from drivers.chamber import F4T_CHAMBER_TEMP
 from drivers.clock import SimClock
 from drivers.coils import CoilController
-from drivers.sim.chamber import ChamberSim
-from drivers.sim.coils import CoilSim
+from drivers.sim.devices.chamber import ChamberSim
+from drivers.sim.devices.coils import CoilSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.watlow import WatlowF4T

@@ -19,11 +19,11 @@ import numpy as np
 
 from drivers.clock import SimClock
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.smbus_doubles import RecordingSMBus
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import DutTruth, World
 from drivers.tca9548a import MuxedBus
+from tests.helpers.smbus_doubles import RecordingSMBus
 
 SCL_HZ = 400_000
 START_STOP_BITS = 1  # a START, repeated START or STOP costs about one bit time

@@ -21,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from drivers.sim.i2c_bus import switch_writes  # noqa: E402
+from drivers.sim.transports.i2c_bus import switch_writes  # noqa: E402
 from rig import config as cfg  # noqa: E402
 from rig.devices.build import open_rig  # noqa: E402
 from rig.devices.interleave import read_all  # noqa: E402

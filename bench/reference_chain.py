@@ -46,8 +46,8 @@ import calib
 from calib.calibration import Calibration
 from calib.io import calfile
 from calib.uncertainty.montecarlo import raw_for
-from drivers.sim.coilfield import CoilGeometry, coil_matrix_at
-from drivers.sim.truths import world_deviations
+from drivers.sim.world.coilfield import CoilGeometry, coil_matrix_at
+from drivers.sim.world.truths import world_deviations
 from rig.config import load_station
 from rig.devices.bench import dut_truths, true_position_m, world_field
 from rig.reference import budget

@@ -27,7 +27,7 @@ import serial
 
 from drivers.clock import SimClock
 from drivers.serialmag import LINE_BYTES, SerialMagnetometer
-from drivers.sim.serialmag import SerialMagSim
+from drivers.sim.devices.serialmag import SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import line_time_s
 

@@ -299,4 +299,4 @@ def _build(link: ModbusTransport, options: CoilOptions, *, name: str, clock: Clo
 
 registry.register(registry.DeviceSpec(
     role="field_source", type="coils", options=CoilOptions, transports=registry.MODBUS_KINDS,
-    build=_build, simulator="drivers.sim.coils:simulate"))
+    build=_build, simulator="drivers.sim.devices.coils:simulate"))

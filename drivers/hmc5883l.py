@@ -261,5 +261,5 @@ PROBE = registry.I2cProbe((ADDRESS,), identify)
 for _options, _has_temperature in ((HMC5883LOptions, False), (HMC5983Options, True)):
     registry.register(registry.DeviceSpec(
         role="magnetometer", type=_options.TYPE, options=_options, transports=("i2c",), build=_build,
-        simulator="drivers.sim.hmc5883l:simulate", has_temperature=_has_temperature,
+        simulator="drivers.sim.devices.hmc5883l:simulate", has_temperature=_has_temperature,
         sample_time=_sample_time_s, rates_hz=_options.RATES_HZ, probe=PROBE))

@@ -3,7 +3,7 @@
     MMC5983MA(bus, address=0x30, *, name="dut1", clock=None, bandwidth=0, set_reset=True,
               read_temperature=True, tries=3)
 
-- `bus`: an smbus2.SMBus (drivers.transports.i2c.open_smbus) or drivers.sim.i2c_bus.FakeSMBus.
+- `bus`: an smbus2.SMBus (drivers.transports.i2c.open_smbus) or drivers.sim.transports.i2c_bus.FakeSMBus.
 - `bandwidth`: BW code 0..3 (measurement time 8 / 4 / 2 / 0.5 ms).
 - `set_reset`: read() does a SET and a RESET measurement and returns H = (H_set - H_reset)/2 with
   the bridge offset (H_set + H_reset)/2 in FieldSample.offset_nt; counts are then the SET codes.
@@ -338,5 +338,5 @@ def identify(bus: SMBusLike, address: int) -> str | None:
 
 registry.register(registry.DeviceSpec(
     role="magnetometer", type="mmc5983ma", options=MMC5983MAOptions, transports=("i2c",), build=_build,
-    simulator="drivers.sim.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s,
+    simulator="drivers.sim.devices.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s,
     probe=registry.I2cProbe((ADDRESS,), identify)))

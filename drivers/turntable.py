@@ -242,4 +242,4 @@ def _build(link: ModbusTransport, options: TurntableOptions, *, name: str, clock
 
 registry.register(registry.DeviceSpec(
     role="field_source", type="turntable", options=TurntableOptions, transports=registry.MODBUS_KINDS,
-    build=_build, simulator="drivers.sim.turntable:simulate"))
+    build=_build, simulator="drivers.sim.devices.turntable:simulate"))

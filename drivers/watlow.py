@@ -141,7 +141,7 @@ def _builder(cls):
 
 registry.register(registry.DeviceSpec(
     role="chamber", type="watlow_f4t", options=ChamberLimits, transports=registry.MODBUS_KINDS,
-    build=_builder(WatlowF4T), simulator="drivers.sim.chamber:simulate"))
+    build=_builder(WatlowF4T), simulator="drivers.sim.devices.chamber:simulate"))
 registry.register(registry.DeviceSpec(
     role="chamber", type="watlow_f4", options=ChamberLimits, transports=registry.MODBUS_KINDS,
-    build=_builder(WatlowF4), simulator="drivers.sim.chamber:simulate"))
+    build=_builder(WatlowF4), simulator="drivers.sim.devices.chamber:simulate"))

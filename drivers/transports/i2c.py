@@ -1,6 +1,6 @@
 """I2C transport: register reads and writes on an injected smbus2-like bus, with retries and a raw log.
 
-    bus = open_smbus(1)                       # real hardware (or drivers.sim.i2c_bus.FakeSMBus())
+    bus = open_smbus(1)                       # real hardware (or drivers.sim.transports.i2c_bus.FakeSMBus())
     link = I2CTransport(bus, 0x30, name="dut1", clock=clock, tries=3)
     link.read_byte(0x08, "status")            # -> int
     link.read_block(0x00, 7, "field data")    # -> bytes, one burst of at most 32 bytes

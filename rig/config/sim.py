@@ -1,7 +1,7 @@
 """The simulated world a station states (`sim:`), used by the devices whose transport is `{kind: sim}`.
 
 Only what the station file says is kept here; a key left out (None) takes the simulator's default
-(drivers/sim/truths.py), applied when rig/devices/bench.py builds the world.
+(drivers/sim/world/truths.py), applied when rig/devices/bench.py builds the world.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ ZERO3 = (0.0, 0.0, 0.0)
 
 class HysteresisSpec(Strict):
     """The offset's thermal hysteresis: +offset_nt after heating, -offset_nt after cooling, through a play
-    of width band_c (drivers/sim/dutmodel.py)."""
+    of width band_c (drivers/sim/world/dutmodel.py)."""
 
     offset_nt: NT_VEC
     band_c: bounded(gt=0, hi=200.0)
@@ -49,7 +49,7 @@ class TruthSpec(Strict):
     kb_nt_per_c: NT_VEC = (0, 0, 0)
     bridge_offset_nt: NT_VEC = (0, 0, 0)
     bridge_offset_tc_nt_per_c: NT_VEC = (0, 0, 0)
-    # beyond T24 (drivers/sim/dutmodel.py): B = (S + tau K + tau^2 K2) h + b + tau kb + tau^2 kb2 + ...
+    # beyond T24 (drivers/sim/world/dutmodel.py): B = (S + tau K + tau^2 K2) h + b + tau kb + tau^2 kb2 + ...
     K2_per_c2: tuple[K2Row, K2Row, K2Row] = (ZERO3, ZERO3, ZERO3)
     kb2_nt_per_c2: bounded_vec3(1e4) = ZERO3
     hysteresis: HysteresisSpec | None = None
@@ -81,7 +81,7 @@ class SimDut(Strict):
 
 
 class CurrentSourceSpec(Strict):
-    """The coil current source's errors per axis (drivers/sim/currentsource.py)."""
+    """The coil current source's errors per axis (drivers/sim/world/currentsource.py)."""
 
     gain_error_ppm: PPM_VEC = ZERO3
     offset_ma: bounded_vec3(1e4) = ZERO3
@@ -94,7 +94,8 @@ TILT_DEG = bounded(lo=-10.0, hi=10.0)
 
 
 class LoopSpec(Strict):
-    """The two loops of one axis's pair, each on its own: [+ side, - side] (drivers/sim/coilfield.py)."""
+    """The two loops of one axis's pair, each on its own: [+ side, - side]
+    (drivers/sim/world/coilfield.py)."""
 
     turns_error_ppm: tuple[bounded(lo=-1e5, hi=1e5), bounded(lo=-1e5, hi=1e5)] = (0.0, 0.0)
     offset_mm: tuple[MM_VEC, MM_VEC] = (ZERO3, ZERO3)
@@ -116,7 +117,7 @@ class AmbientStepsSpec(Strict):
 
 
 class ChamberSpec(Strict):
-    """The simulated chamber as it really is (drivers/sim/chamberair.py)."""
+    """The simulated chamber as it really is (drivers/sim/world/chamberair.py)."""
 
     max_rate_c_per_min: RAMP_C_PER_MIN | None = Field(None, description="default: the simulator's")
     overshoot_c: bounded(lo=0, hi=20.0) = Field(0.0, description="after a change at the full rate")
@@ -125,7 +126,7 @@ class ChamberSpec(Strict):
 
 
 class TableAxesSpec(Strict):
-    """How the simulated turntable differs from its drawing (drivers/sim/world.py TableAxes)."""
+    """How the simulated turntable differs from its drawing (drivers/sim/world/__init__.py TableAxes)."""
 
     az_tilt_deg: tuple[ANGLE_DEG, ANGLE_DEG] = (0.0, 0.0)
     el_tilt_deg: ANGLE_DEG = 0.0

@@ -127,7 +127,8 @@ OneIn = Count(10**9, lower=2)  # one operation in this many fails
 
 
 class SimFaults(Strict):
-    """Faults a simulated device plays for a rehearsal (drivers/sim/faults.py), seeded by `sim.seed`."""
+    """Faults a simulated device plays for a rehearsal (drivers/sim/devices/faults.py), seeded by
+    `sim.seed`."""
 
     no_reply: OneIn | None = None
     exception: OneIn | None = None

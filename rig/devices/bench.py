@@ -8,21 +8,21 @@ whose transport is `{kind: sim}`. The only production module that imports driver
 
 Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
 field source (`world_field`: the `sim:` truth over what the station declares), the DUT truths and the
-simulator's defaults from drivers/sim/truths.py. A station may mix real and simulated devices (a dry run with
-a real chamber): the simulated ones share the world, the real ones talk to their real transports, and a
+simulator's defaults from drivers/sim/world/truths.py. A station may mix real and simulated devices (a dry run
+with a real chamber): the simulated ones share the world, the real ones talk to their real transports, and a
 simulated probe beside a real DUT reads a mount that follows the simulated air.
 
 A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
-(drivers/sim/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device name.
-Simulated chips wired explicitly (`{kind: sim, bus: 0, address: 0x30}`, or behind a switch with
+(drivers/sim/devices/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device
+name. Simulated chips wired explicitly (`{kind: sim, bus: 0, address: 0x30}`, or behind a switch with
 `mux: {address: 0x70, channel: 3}`) share ONE simulated bus per bus number, with a TCA9548A model per
 switch, so the channel switching is exercised (a chip without `address` or `mux` keeps a bus of its own);
 simulated serial devices naming the same `line:` share one pty (SerialMagLine), each by its device id.
 A chip behind a simulated USB-to-I2C bridge (`{kind: mcp2221 | cp2112 | ft232h, sim: true, ...}`) sits on
-that bridge's own simulated bus (its switches too); the bridge's simulator (drivers/sim/mcp2221.py,
+that bridge's own simulated bus (its switches too); the bridge's simulator (drivers/sim/transports/mcp2221.py,
 cp2112.py, ft232h.py) is plugged into one simulated USB (a hidapi stand-in, a pyusb backend), and the
 REAL bridge transport is opened on it: `i2c_bus(label)` is that transport.
-A simulated serial device runs on a pty (drivers/sim/pty.py: POSIX only): where the system has none
+A simulated serial device runs on a pty (drivers/sim/transports/pty.py: POSIX only): where the system has none
 (Windows), such a device is refused with one line before anything is written; the rest runs.
 """
 
@@ -35,16 +35,16 @@ import numpy as np
 
 from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
-from drivers.sim.faults import DeviceFaults, Window
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.truths import (
+from drivers.sim.devices.faults import DeviceFaults, Window
+from drivers.sim.transports.i2c_bus import FakeSMBus
+from drivers.sim.world import DutTruth, World
+from drivers.sim.world.truths import (
     AIR_C,
     DUT_KEYS,
     dut_truth,
     mount_truth,
     world_deviations,
 )
-from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.core.configbase import BRIDGE_KINDS, ModbusTcp
 from rig.core.errors import ConfigError
@@ -127,7 +127,8 @@ def world_field(station) -> dict:
 
 
 def make_world(station, clock: Clock) -> World:
-    """The station's world: its field source's field, its deviations (drivers/sim/truths.py), its DUTs."""
+    """The station's world: its field source's field, its deviations (drivers/sim/world/truths.py), its
+    DUTs."""
     air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
     world = World(clock, air_c=air_c, seed=station.sim.seed, **world_field(station),
                   **world_deviations(station.sim.model_dump()))
@@ -240,23 +241,23 @@ class SimBench:
         """The simulated bridge `label`: its simulator on the simulated USB, and the real transport
         opened on it (once)."""
         if label not in self.bridges:
-            from drivers.sim.i2c_wire import I2CWire
+            from drivers.sim.transports.i2c_wire import I2CWire
 
             t = next(d.transport for d in self.station.devices()
                      if d.simulated and getattr(d.transport, "bus", None) == label)
             wire = I2CWire(self._world_bus(label))
             if t.kind == "ft232h":  # pyusb and pyftdi (the `bridges` extra): only an FT232H needs them
-                from drivers.sim.ft232h import FT232HSim
-                from drivers.sim.usbfake import FakeUsbBackend
+                from drivers.sim.transports.ft232h import FT232HSim
+                from drivers.sim.transports.usbfake import FakeUsbBackend
 
                 serial = _url_serial(t.url) or f"FT0SIM{len(self.bridges):02d}"
                 chip = FT232HSim(wire, self.clock, serial=serial)
                 self.usb_backend = self.usb_backend or FakeUsbBackend()
                 self.usb_backend.plug(chip)
             else:
-                from drivers.sim.cp2112 import CP2112Sim
-                from drivers.sim.hidbus import FakeHid
-                from drivers.sim.mcp2221 import MCP2221ASim
+                from drivers.sim.transports.cp2112 import CP2112Sim
+                from drivers.sim.transports.hidbus import FakeHid
+                from drivers.sim.transports.mcp2221 import MCP2221ASim
 
                 model = MCP2221ASim if t.kind == "mcp2221" else CP2112Sim
                 chip = model(wire, self.clock, serial=t.serial or f"SIM{len(self.bridges):04d}")
@@ -289,7 +290,7 @@ class SimBench:
             members = [d for d in self.station.devices()
                        if d.simulated and getattr(d.transport, "line", None) == name]
             endpoints = [self._simulator(d)(d.sim_request(self.world)) for d in members]
-            from drivers.sim.serialmag import SerialMagLine  # loads only where the pty above did
+            from drivers.sim.devices.serialmag import SerialMagLine  # loads only where the pty above did
 
             firmware = SerialMagLine([e.firmware for e in endpoints])
             port = self._start(firmware)

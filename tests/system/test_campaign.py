@@ -108,7 +108,7 @@ def test_interrupt_ends_with_coils_off_and_chamber_at_safe_setpoint(tmp_path, si
 
 
 def _coil_sim(rig):
-    from drivers.sim.coils import CoilSim
+    from drivers.sim.devices.coils import CoilSim
 
     return next(s for s in rig.built.sims if isinstance(s, CoilSim))
 

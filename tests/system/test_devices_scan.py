@@ -10,7 +10,7 @@ import yaml
 
 from drivers import busscan
 from drivers.clock import SimClock
-from drivers.sim.serialmag import SerialMagLine, SerialMagSim
+from drivers.sim.devices.serialmag import SerialMagLine, SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.config import load_station

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from drivers.clock import RealClock
-from drivers.sim.chamber import ChamberSim
+from drivers.sim.devices.chamber import ChamberSim
 from drivers.sim.world import World
 from tests.system.campaign_helpers import SIM_STATION, events, run_rig, session_counts
 

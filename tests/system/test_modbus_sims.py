@@ -7,10 +7,10 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.coils import CoilController
-from drivers.sim.chamber import ChamberSim
-from drivers.sim.coils import CoilSim
-from drivers.sim.modbus_server import ModbusSimServer
-from drivers.sim.turntable import TurntableSim
+from drivers.sim.devices.chamber import ChamberSim
+from drivers.sim.devices.coils import CoilSim
+from drivers.sim.devices.modbus_server import ModbusSimServer
+from drivers.sim.devices.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import Turntable

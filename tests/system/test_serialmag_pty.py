@@ -13,7 +13,7 @@ import serial
 from drivers.clock import SimClock
 from drivers.errors import ProtocolError
 from drivers.serialmag import SerialMagnetometer
-from drivers.sim.serialmag import SerialMagLine, SerialMagSim
+from drivers.sim.devices.serialmag import SerialMagLine, SerialMagSim
 from drivers.sim.world import DutTruth, World
 from drivers.transports.serial import SerialLine
 from rig.core.errors import DeviceNotFound, DeviceTimeout

@@ -25,8 +25,13 @@ RIG_TIERS = ("core", "session fieldsources", "config", "devices engine", "refere
 # from lower tiers. calib/__init__.py (the package's face: fit, Calibration, Dataset) sits on top.
 CALIB_TIERS = ("errors compiled dataset", "stats", "equations", "calibration",
                "io commissioning synthetic checks", "models", "fitting thermal", "design uncertainty")
+# drivers from the bottom up: transports below the device vocabulary, the registry above it, one module per
+# device family, and the simulators on top (their world, their wires, then the simulated devices).
+DRIVERS_TIERS = ("errors clock", "steps", "transports", "base", "registry",
+                 "chamber coils turntable mmc5983ma hmc5883l tmp117 serialmag tca9548a", "watlow busscan",
+                 "sim.world sim.transports", "sim.devices")
 MAX_MODULE_LINES = 500  # a module is split where its meanings part, long before this
-LONG_MODULES = {"drivers/serialmag.py", "drivers/sim/serialmag.py"}  # one device's protocol each
+LONG_MODULES = {"drivers/serialmag.py"}  # one device's protocol
 STATION_BUILDER = "rig/devices/bench.py"  # the one production module that may import drivers.sim
 # where a station's `sim:` may be read: the simulated bench builds the world from it, rig/config/ states it
 TRUTH_FOLDERS = ("rig/devices/", "rig/config/")
@@ -66,77 +71,106 @@ def test_calib_imports_no_drivers():
     assert offenders(sources("calib"), "drivers") == []
 
 
-def _calib_graph() -> dict[str, set[str]]:
-    """calib's modules -> the calib modules their import statements name (`from calib import x` names the
-    package, whose __init__ names calib.fitting and the rest: a module doing so closes a circle)."""
+def package_graph(package: str) -> dict[str, set[str]]:
+    """A package's modules -> the modules of the same package their import statements name (`from calib
+    import x` names the package, whose __init__ names calib.fitting and the rest: a module doing so closes
+    a circle)."""
     modules = {".".join(p.relative_to(REPO).with_suffix("").parts).removesuffix(".__init__"): p
-               for p in sources("calib")}
+               for p in sources(package)}
+    # a folder whose __init__ imports nothing (a docstring) is a name, not a room: `from drivers import
+    # registry` names drivers.registry alone
+    names_only = {m for m, p in modules.items() if p.name == "__init__.py" and not imported_modules(p)}
     graph = {}
     for name, path in modules.items():
+        if name in names_only:
+            continue
         named = set()
         for m in imported_modules(path):
             while m and m not in modules:
                 m = m.rpartition(".")[0]
-            if m and m != name:
+            if m and m != name and m not in names_only:
                 named.add(m)
         graph[name] = named
     return graph
 
 
-def test_calib_imports_point_one_way():
-    graph, done, path = _calib_graph(), set(), []
+def circle_in(graph: dict[str, set[str]]) -> list[str] | None:
+    done, path = set(), []
 
-    def visit(module: str) -> None:
+    def visit(module: str) -> list[str] | None:
         if module in path:
-            raise AssertionError("import circle: " + " -> ".join(path[path.index(module):] + [module]))
+            return path[path.index(module):] + [module]
         if module in done:
-            return
+            return None
         path.append(module)
         for dep in sorted(graph[module]):
-            visit(dep)
+            if found := visit(dep):
+                return found
         path.pop()
         done.add(module)
+        return None
 
-    for module in sorted(graph):
-        visit(module)
-    assert {"calib.calibration", "calib.models.registry", "calib.equations"} <= done
-
-
-def calib_tier_of(module: str) -> int | None:
-    """The tier of calib.X or calib.X.y (X a top-level module or a folder)."""
-    parts = module.split(".")
-    return tier_of(parts[1], CALIB_TIERS) if len(parts) > 1 else None
+    return next((c for m in sorted(graph) if (c := visit(m))), None)
 
 
-def calib_upward_imports(graph: dict[str, set[str]]) -> list[str]:
+@pytest.mark.parametrize("package", ["calib", "drivers"])
+def test_imports_point_one_way_within(package):
+    graph = package_graph(package)
+    assert circle_in(graph) is None
+    assert {"calib.calibration", "calib.models.registry", "calib.equations"} <= set(package_graph("calib"))
+
+
+def test_the_circle_detector_detects():
+    assert circle_in({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert circle_in({"a": {"b"}, "b": set()}) is None
+
+
+def room_of(module: str, tiers: tuple[str, ...]) -> tuple[str, int | None]:
+    """(room, tier) of pkg.X.Y...: the room is "X.Y" where the tiers name it (a folder with tiers of its
+    own), else "X"."""
+    parts = module.split(".")[1:]
+    for depth in (2, 1):
+        room = ".".join(parts[:depth])
+        if len(parts) >= depth and (tier := tier_of(room, tiers)) is not None:
+            return room, tier
+    return (parts[0] if parts else ""), None
+
+
+def package_upward_imports(graph: dict[str, set[str]], tiers: tuple[str, ...]) -> list[str]:
+    """`pkg.F.x imports pkg.G...` where G is not below F (or is a sibling of F on its tier)."""
     found = []
     for module, deps in sorted(graph.items()):
-        mine = calib_tier_of(module)
-        if mine is None:  # calib/__init__.py
+        mine_room, mine = room_of(module, tiers)
+        if mine is None:  # the package's __init__
             continue
         for dep in sorted(deps):
-            theirs = calib_tier_of(dep)
-            same_folder = dep.split(".")[1] == module.split(".")[1]
-            if not same_folder and (theirs is None or theirs >= mine):
+            room, theirs = room_of(dep, tiers)
+            if room != mine_room and (theirs is None or theirs >= mine):
                 found.append(f"{module} imports {dep}")
     return found
 
 
-def test_every_calib_module_lives_in_a_declared_tier():
-    stray = [m for m in _calib_graph() if m != "calib" and calib_tier_of(m) is None]
+@pytest.mark.parametrize(("package", "tiers"), [("calib", CALIB_TIERS), ("drivers", DRIVERS_TIERS)])
+def test_every_module_lives_in_a_declared_tier(package, tiers):
+    stray = [m for m in package_graph(package) if m != package and room_of(m, tiers)[1] is None]
     assert stray == []
 
 
-def test_calib_imports_downwards_only():
-    assert calib_upward_imports(_calib_graph()) == []
+@pytest.mark.parametrize(("package", "tiers"), [("calib", CALIB_TIERS), ("drivers", DRIVERS_TIERS)])
+def test_imports_point_downwards_only_within(package, tiers):
+    assert package_upward_imports(package_graph(package), tiers) == []
 
 
-def test_the_calib_upward_import_detector_detects():
+def test_the_package_upward_import_detector_detects():
     graph = {"calib.stats.robust": {"calib.models.t24", "calib.errors"},
              "calib.models.t24": {"calib.models.gram", "calib.stats.residuals"},
              "calib.io.calfile": {"calib.checks.nested"}}
-    assert calib_upward_imports(graph) == ["calib.io.calfile imports calib.checks.nested",
-                                           "calib.stats.robust imports calib.models.t24"]
+    assert package_upward_imports(graph, CALIB_TIERS) == ["calib.io.calfile imports calib.checks.nested",
+                                                          "calib.stats.robust imports calib.models.t24"]
+    sims = {"drivers.sim.world.dutmodel": {"drivers.sim.devices.tmp117"},
+            "drivers.sim.devices.tmp117": {"drivers.sim.world", "drivers.registry"}}
+    assert package_upward_imports(sims, DRIVERS_TIERS) == [
+        "drivers.sim.world.dutmodel imports drivers.sim.devices.tmp117"]
 
 
 def test_only_the_station_builder_imports_the_simulators():

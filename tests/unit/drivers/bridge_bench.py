@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 
 from drivers.clock import SimClock
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.i2c_wire import I2CWire
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.tmp117 import TMP117Sim
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.devices.tmp117 import TMP117Sim
+from drivers.sim.transports.i2c_bus import FakeSMBus
+from drivers.sim.transports.i2c_wire import I2CWire
 from drivers.sim.world import DutTruth, World
 
 

@@ -10,8 +10,8 @@ import pytest
 from drivers import busscan
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.cp2112 import CP2112Sim
-from drivers.sim.hidbus import FakeHid
+from drivers.sim.transports.cp2112 import CP2112Sim
+from drivers.sim.transports.hidbus import FakeHid
 from drivers.transports.cp2112 import CP2112Bus
 from tests.unit.drivers.bridge_bench import bench, trimmed
 

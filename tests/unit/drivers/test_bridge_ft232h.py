@@ -11,8 +11,8 @@ import pytest
 from drivers import busscan
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.ft232h import FT232HSim
-from drivers.sim.usbfake import FakeUsbBackend
+from drivers.sim.transports.ft232h import FT232HSim
+from drivers.sim.transports.usbfake import FakeUsbBackend
 from drivers.transports.ft232h import FT232HBus, list_devices, parse_url
 from tests.unit.drivers.bridge_bench import bench
 

@@ -10,8 +10,8 @@ import pytest
 from drivers import busscan
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.hidbus import FakeHid
-from drivers.sim.mcp2221 import MCP2221ASim
+from drivers.sim.transports.hidbus import FakeHid
+from drivers.sim.transports.mcp2221 import MCP2221ASim
 from drivers.tca9548a import MuxedBus
 from drivers.transports.mcp2221 import MCP2221Bus, divider_for
 from tests.unit.drivers.bridge_bench import bench, trimmed
@@ -179,9 +179,9 @@ def test_the_drivers_and_the_switch_work_unchanged_and_the_scan_finds_everything
 
 
 def test_bridges_present_lists_every_kind_by_usb_id_and_serial(rig):
-    from drivers.sim.cp2112 import CP2112Sim
-    from drivers.sim.ft232h import FT232HSim
-    from drivers.sim.usbfake import FakeUsbBackend
+    from drivers.sim.transports.cp2112 import CP2112Sim
+    from drivers.sim.transports.ft232h import FT232HSim
+    from drivers.sim.transports.usbfake import FakeUsbBackend
     from drivers.transports.usb_bridges import bridges_present
 
     b, usb, _ = rig

@@ -11,10 +11,10 @@ import pytest
 
 from drivers import busscan
 from drivers.clock import SimClock
-from drivers.sim.hmc5883l import HMC5883LSim
-from drivers.sim.i2c_bus import FakeSMBus, RegisterChip
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.tmp117 import TMP117Sim
+from drivers.sim.devices.hmc5883l import HMC5883LSim
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.devices.tmp117 import TMP117Sim
+from drivers.sim.transports.i2c_bus import FakeSMBus, RegisterChip
 from drivers.sim.world import DutTruth, World
 
 

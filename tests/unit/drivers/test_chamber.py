@@ -11,8 +11,8 @@ import pytest
 from drivers.chamber import F4_SETPOINT, F4T_SETPOINT, ChamberAlarm
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, LimitError, OptionError, ProtocolError
-from drivers.sim.chamber import ChamberSim
-from drivers.sim.modbus_server import ScriptedPeer
+from drivers.sim.devices.chamber import ChamberSim
+from drivers.sim.devices.modbus_server import ScriptedPeer
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.watlow import WatlowF4, WatlowF4T

@@ -8,9 +8,9 @@ import pytest
 from drivers.clock import SimClock
 from drivers.coils import OUTPUT_ENABLE, SETPOINT_UA, CoilController
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, OptionError, ProtocolError
-from drivers.sim.coils import CoilSim
-from drivers.sim.modbus_server import ScriptedPeer
-from drivers.sim.turntable import TurntableSim
+from drivers.sim.devices.coils import CoilSim
+from drivers.sim.devices.modbus_server import ScriptedPeer
+from drivers.sim.devices.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 

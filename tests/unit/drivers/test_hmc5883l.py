@@ -11,10 +11,10 @@ import pytest
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 from drivers.hmc5883l import HMC5883L, code_to_nt, config_a, decode_temp_c, decode_xzy
-from drivers.sim.hmc5883l import HMC5883LSim
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
+from drivers.sim.devices.hmc5883l import HMC5883LSim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import DutTruth, World
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 # --- literal bytes from the datasheet ---------------------------------------------------------------
 CONNECT = [

@@ -9,9 +9,9 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.errors import DeviceError, DeviceNotFound, DeviceTimeout
-from drivers.sim.i2c_bus import FakeSMBus, RegisterChip
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
+from drivers.sim.transports.i2c_bus import FakeSMBus, RegisterChip
 from drivers.transports.i2c import I2CTransport, open_smbus
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 ADDR = 0x30
 

@@ -13,9 +13,9 @@ from drivers.chamber import F4T_RAMP_RATE, F4T_SETPOINT
 from drivers.clock import SimClock
 from drivers.coils import SETPOINT_UA, CoilController
 from drivers.errors import LimitError, OptionError
-from drivers.sim.chamber import ChamberSim
-from drivers.sim.coils import CoilSim
-from drivers.sim.turntable import TurntableSim
+from drivers.sim.devices.chamber import ChamberSim
+from drivers.sim.devices.coils import CoilSim
+from drivers.sim.devices.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import TARGET_MDEG, Turntable

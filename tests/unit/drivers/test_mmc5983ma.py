@@ -10,10 +10,10 @@ import pytest
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
 from drivers.mmc5983ma import MMC5983MA, code_to_nt, decode_field_codes, decode_temp_c, status_timeout_s
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import DutTruth, World
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 NT_PER_COUNT = 100_000 / 16384  # 18-bit mode: 16384 counts per gauss
 

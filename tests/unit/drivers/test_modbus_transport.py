@@ -10,7 +10,7 @@ from pymodbus.simulator import SimDevice
 
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
-from drivers.sim.modbus_server import ModbusSimServer, ScriptedPeer, register_block
+from drivers.sim.devices.modbus_server import ModbusSimServer, ScriptedPeer, register_block
 from drivers.transports.modbus import (
     ModbusTransport,
     decode_float32,

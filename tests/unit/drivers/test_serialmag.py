@@ -13,7 +13,7 @@ import pytest
 
 from drivers.errors import DeviceTimeout, OptionError, ProtocolError
 from drivers.serialmag import SerialMagnetometer, baud_needed, parse_sample_line
-from drivers.sim.serialmag import format_sample_line
+from drivers.sim.devices.serialmag import format_sample_line
 from tests.unit.drivers.test_serial_transport import ScriptedPort, scripted_transport
 
 # X = 12,345 Y = -1,234 Z = 567 counts: sign byte, 6-byte magnitude, two spaces per axis, CR.

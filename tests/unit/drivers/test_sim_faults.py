@@ -1,4 +1,4 @@
-"""The fault schedule (drivers/sim/faults.py) and the simulators' hooks it drives."""
+"""The fault schedule (drivers/sim/devices/faults.py) and the simulators' hooks it drives."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import pytest
 from drivers.chamber import ChamberAlarm
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, ProtocolError
-from drivers.sim.chamber import ChamberSim
-from drivers.sim.faults import DeviceFaults, Window
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.tmp117 import TMP117Sim
-from drivers.sim.truths import mount_truth
+from drivers.sim.devices.chamber import ChamberSim
+from drivers.sim.devices.faults import DeviceFaults, Window
+from drivers.sim.devices.tmp117 import TMP117Sim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import World
+from drivers.sim.world.truths import mount_truth
 from drivers.tmp117 import TMP117
 from drivers.transports.modbus import ModbusTransport
 from drivers.watlow import WatlowF4T

@@ -10,11 +10,11 @@ import pytest
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, OptionError, ProtocolError
 from drivers.mmc5983ma import MMC5983MA
-from drivers.sim.i2c_bus import FakeSMBus, I2CSwitchSim, RegisterChip
-from drivers.sim.mmc5983ma import MMC5983MASim
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
+from drivers.sim.devices.mmc5983ma import MMC5983MASim
+from drivers.sim.transports.i2c_bus import FakeSMBus, I2CSwitchSim, RegisterChip
 from drivers.sim.world import DutTruth, World
 from drivers.tca9548a import TCA9548A, MuxedBus, disable_all, switch_on
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 # --- literal bytes from hardware-notes 1.5: one control byte, bit n enables channel n, 0x00 at power-up
 SELECT_3 = [("write", None, b"\x08"), ("read", None, b"\x08")]  # write the byte, read it back

@@ -9,11 +9,11 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.errors import DeviceNotFound, DeviceTimeout, OptionError, ProtocolError
-from drivers.sim.i2c_bus import FakeSMBus
-from drivers.sim.smbus_doubles import RecordingSMBus, ScriptedSMBus
-from drivers.sim.tmp117 import TMP117Sim
+from drivers.sim.devices.tmp117 import TMP117Sim
+from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import DutTruth, World
 from drivers.tmp117 import TMP117, config_word, cycle_time_s, decode_temp_c
+from tests.helpers.smbus_doubles import RecordingSMBus, ScriptedSMBus
 
 LSB_C = 0.0078125
 

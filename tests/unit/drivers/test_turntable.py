@@ -6,8 +6,8 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.errors import DeviceFault, DeviceTimeout, LimitError, ProtocolError
-from drivers.sim.modbus_server import ScriptedPeer
-from drivers.sim.turntable import TurntableSim
+from drivers.sim.devices.modbus_server import ScriptedPeer
+from drivers.sim.devices.turntable import TurntableSim
 from drivers.sim.world import World
 from drivers.transports.modbus import ModbusTransport
 from drivers.turntable import TARGET_MDEG, Turntable

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from calib.dataset import Dataset
-from drivers.sim.coilfield import CoilGeometry as SimGeometry
-from drivers.sim.coilfield import LoopErrors, coil_matrix_at
+from drivers.sim.world.coilfield import CoilGeometry as SimGeometry
+from drivers.sim.world.coilfield import LoopErrors, coil_matrix_at
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.config import DeclaredGeometry
 from rig.fieldsources.coils.loops import PER_LOOP, loop_sensitivity, matrix_with_loops
@@ -25,7 +25,8 @@ GEOMETRY = DeclaredGeometry(shape="square", size_m=(0.4, 0.4, 0.4), spacing_m=(0
 
 
 def test_each_loop_off_its_drawing_matches_the_simulators_biot_savart():
-    """The rig's closed forms, loop by loop, against drivers/sim/coilfield.py's numerical integration."""
+    """The rig's closed forms, loop by loop, against drivers/sim/world/coilfield.py's numerical
+    integration."""
     rng = np.random.default_rng(1)
     deviations = np.zeros((3, 2, PER_LOOP))
     deviations[..., :3] = rng.uniform(-0.7, 0.7, (3, 2, 3))

@@ -1,5 +1,5 @@
 """The coil field off the centre: the rig's closed forms against textbook values, against a brute-force
-Biot-Savart sum, and against the simulator's own numerical integration (drivers/sim/coilfield.py)."""
+Biot-Savart sum, and against the simulator's own numerical integration (drivers/sim/world/coilfield.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from drivers.sim.coilfield import CoilGeometry as SimGeometry
-from drivers.sim.coilfield import coil_matrix_at as sim_matrix_at
+from drivers.sim.world.coilfield import CoilGeometry as SimGeometry
+from drivers.sim.world.coilfield import coil_matrix_at as sim_matrix_at
 from rig.fieldsources.coils import geometry as cg
 
 MU0 = 4e-7 * math.pi

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import yaml
 
-from drivers.sim.coilfield import CoilGeometry as SimGeometry
-from drivers.sim.coilfield import LoopErrors, coil_matrix_at
+from drivers.sim.world.coilfield import CoilGeometry as SimGeometry
+from drivers.sim.world.coilfield import LoopErrors, coil_matrix_at
 from rig.config import CONFIGS_DIR
 from rig.fieldsources.coils.config import DeclaredGeometry
 from rig.fieldsources.coils.loopfit import N_LOOP, Place, fit_loops, quantity_names

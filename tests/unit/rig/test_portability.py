@@ -124,7 +124,8 @@ def test_no_bus_or_pty_module_on_the_way_to_a_run():
     code = ("import sys\nimport rig.run.campaign, rig.cli.campaign_cmds, rig.devices.bench\n"
             "import rig.devices.scan\n"
             "import rig.config.station, drivers.registry\ndrivers.registry.specs('magnetometer')\n"
-            "print(' '.join(sorted({'pty', 'tty', 'smbus2', 'drivers.sim.pty'} & set(sys.modules))))")
+            "print(' '.join(sorted({'pty', 'tty', 'smbus2', 'drivers.sim.transports.pty'}"
+            " & set(sys.modules))))")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == ""

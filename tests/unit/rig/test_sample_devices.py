@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from drivers.sim.i2c_bus import switch_writes
+from drivers.sim.transports.i2c_bus import switch_writes
 from rig import config as cfg
 from rig.devices.build import open_rig
 from rig.devices.interleave import read_all

@@ -1,4 +1,4 @@
-"""The simulated chamber as it really is (drivers/sim/chamberair.py), from the station's `sim.chamber`:
+"""The simulated chamber as it really is (drivers/sim/world/chamberair.py), from the station's `sim.chamber`:
 its own rate, its overshoot, and the field its heater and compressor add while they run."""
 
 from __future__ import annotations

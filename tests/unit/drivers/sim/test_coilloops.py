@@ -1,5 +1,5 @@
-"""Each coil loop on its own (drivers/sim/coilfield.py LoopErrors, station `sim.coil_loops`): the loop by
-loop Biot-Savart against closed forms and hardware-notes §9.2, and the world built from the key."""
+"""Each coil loop on its own (drivers/sim/world/coilfield.py LoopErrors, station `sim.coil_loops`): the loop
+by loop Biot-Savart against closed forms and hardware-notes §9.2, and the world built from the key."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.sim.coilfield import CoilGeometry, LoopErrors, drawn_pair_field
+from drivers.sim.world.coilfield import CoilGeometry, LoopErrors, drawn_pair_field
 from rig.config import load_station
 from rig.core.errors import ConfigError
 from tests.unit.drivers.sim.benches import IDEAL, station_data, world_of, write_station

@@ -1,4 +1,4 @@
-"""The coil current source as it really is (drivers/sim/currentsource.py), from `sim.current_source`,
+"""The coil current source as it really is (drivers/sim/world/currentsource.py), from `sim.current_source`,
 seen through the real controller driver: what flows and what the read-back registers report."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.coils import CoilController
-from drivers.sim.coils import CoilSim
+from drivers.sim.devices.coils import CoilSim
 from drivers.transports.modbus import ModbusTransport
 from tests.unit.drivers.sim.benches import world_of
 

@@ -1,4 +1,4 @@
-"""The simulated DUT beyond T24 (drivers/sim/dutmodel.py): each deviation from its station key, the
+"""The simulated DUT beyond T24 (drivers/sim/world/dutmodel.py): each deviation from its station key, the
 inversion of the model, and the slow noise on the offset."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.sim.dutmodel import FLICKER_TIME_CONSTANTS_S, DutDeviations, DutTruth, OffsetNoise
+from drivers.sim.world.dutmodel import FLICKER_TIME_CONSTANTS_S, DutDeviations, DutTruth, OffsetNoise
 from rig.config import load_station
 from rig.core.errors import ConfigError
 from tests.unit.drivers.sim.benches import IDEAL, hold, reading_nt, station_data, world_of, write_station

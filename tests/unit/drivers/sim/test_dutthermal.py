@@ -1,5 +1,5 @@
-"""The DUTs' temperatures stepped as arrays (drivers/sim/dutthermal.py): each DUT follows its own lags and
-play, exactly, whatever the others are."""
+"""The DUTs' temperatures stepped as arrays (drivers/sim/world/dutthermal.py): each DUT follows its own lags
+and play, exactly, whatever the others are."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from drivers.sim.dutthermal import DutTemperatures
+from drivers.sim.world.dutthermal import DutTemperatures
 
 
 def three_duts() -> tuple[DutTemperatures, list[int]]:

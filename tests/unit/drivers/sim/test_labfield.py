@@ -1,4 +1,4 @@
-"""The lab's field beyond a uniform, steady ambient (drivers/sim/labfield.py): its gradient at each
+"""The lab's field beyond a uniform, steady ambient (drivers/sim/world/labfield.py): its gradient at each
 sensor's true position (`sim.ambient_gradient_nt_per_m`) and its Poisson-timed steps (`sim.ambient_steps`)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.sim.labfield import AmbientSteps
+from drivers.sim.world.labfield import AmbientSteps
 from tests.unit.drivers.sim.benches import IDEAL, world_of
 
 GRADIENT = [[40.0, -5.0, 0.0], [3.0, 12.0, 7.0], [0.0, -9.0, -52.0]]  # nT/m, dB_i/dx_j

@@ -2,7 +2,7 @@
 
 - Field in the lab frame: coil matrix x coil currents + ambient field, when the coils are the field source;
   the coil matrix is the true one (3x3, nT/A) at the centre and, with a coil geometry, the true one at
-  each DUT's own position (drivers/sim/coilfield.py). Or the site field rotated into the table frame by
+  each DUT's own position (drivers/sim/world/coilfield.py). Or the site field rotated into the table frame by
   the turntable angles, through the table's true axes (tilts, zero offsets: TableAxes). Either may drift
   slowly and steadily (`ambient_drift_nt_per_s`), as a lab's field does when something nearby moves.
 - Chamber air follows its setpoint at a limited ramp rate; each DUT's element temperature lags the air
@@ -13,7 +13,7 @@
   offset that a SET/RESET pair cancels and that drifts with temperature, and white noise.
 
 Deviations from every one of these models, each off unless stated, live beside the physics they bend:
-the DUT beyond T24 and the slow noise on its offset (drivers/sim/dutmodel.py; a DUT's place may also be
+the DUT beyond T24 and the slow noise on its offset (drivers/sim/world/dutmodel.py; a DUT's place may also be
 warmer than the air, `air_offset_c`), each coil loop on its own (coilfield.py), the current source's
 errors (currentsource.py), the ambient's gradient and steps (labfield.py), and the chamber's real rate,
 overshoot and heater and compressor fields (chamberair.py). This module composes them. Every random
@@ -34,12 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.clock import Clock
-from drivers.sim.chamberair import ChamberAir, ChamberTruth
-from drivers.sim.coilfield import CoilGeometry, LoopErrors, coil_matrix_at
-from drivers.sim.currentsource import CurrentSource, CurrentSourceErrors
-from drivers.sim.dutmodel import DutState, DutTruth
-from drivers.sim.dutthermal import DutTemperatures
-from drivers.sim.labfield import AmbientSteps, LabField
+from drivers.sim.world.chamberair import ChamberAir, ChamberTruth
+from drivers.sim.world.coilfield import CoilGeometry, LoopErrors, coil_matrix_at
+from drivers.sim.world.currentsource import CurrentSource, CurrentSourceErrors
+from drivers.sim.world.dutmodel import DutState, DutTruth
+from drivers.sim.world.dutthermal import DutTemperatures
+from drivers.sim.world.labfield import AmbientSteps, LabField
 from drivers.turntable import rotation_deg
 
 __all__ = ["DutTruth", "TableAxes", "World"]  # DutTruth lives in dutmodel.py; imported from here too
@@ -161,7 +161,7 @@ class World:
         # DUTs and fixed temperature probes
         self.duts: dict[str, DutState] = {}
         self._temps = DutTemperatures()  # every DUT's, advanced as one
-        # the fault schedules of the simulated devices, by device name (drivers/sim/faults.py)
+        # the fault schedules of the simulated devices, by device name (drivers/sim/devices/faults.py)
         self.faults: dict[str, object] = {}
 
     # --- time -------------------------------------------------------------------------------------

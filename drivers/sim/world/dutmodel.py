@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.synthetic import random_t24_params
-from drivers.sim.dutthermal import DutTemperatures
+from drivers.sim.world.dutthermal import DutTemperatures
 
 B0_NT = 50_000.0  # where cubic_ppm_at_50ut is stated
 CUBIC_ITERATIONS = 50  # at most; each gains a factor ~2 c (|B| / B0)^2 (~1e-4): two or three suffice

@@ -1,6 +1,7 @@
 """A pyusb backend with simulated USB devices plugged in: what pyftdi (and so the FT232H transport) talks
-to instead of libusb, one USB request at a time. The devices are the simulators (drivers/sim/ft232h.py):
-each gives its descriptors and answers vendor control requests and bulk transfers as the chip does.
+to instead of libusb, one USB request at a time. The devices are the simulators
+(drivers/sim/transports/ft232h.py): each gives its descriptors and answers vendor control requests and bulk
+transfers as the chip does.
 
     backend = FakeUsbBackend()
     backend.plug(FT232HSim(wire, clock, serial="FT0SIM01"))

@@ -1,6 +1,6 @@
 """Protocol-level CP2112 (USB HID 10C4:EA90, AN495): its numbered HID reports decoded as the chip does
 (hardware-notes 8.2), its transfer status on the simulated clock, and behind it the I2C wire
-(drivers/sim/i2c_wire.py) with the FakeSMBus chips and switches.
+(drivers/sim/transports/i2c_wire.py) with the FakeSMBus chips and switches.
 
     chip = CP2112Sim(I2CWire(bus), clock, serial="0001")
     usb = FakeHid(clock); usb.plug(chip)           # the transport opens it through usb (a `hid` stand-in)
@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 
 from drivers.clock import Clock
-from drivers.sim.i2c_wire import I2CWire, WireNack, WireStuck
+from drivers.sim.transports.i2c_wire import I2CWire, WireNack, WireStuck
 
 VENDOR_ID = 0x10C4
 PRODUCT_ID = 0xEA90

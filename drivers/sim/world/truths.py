@@ -2,7 +2,7 @@
 
 A random truth is drawn from default_rng([seed, position of the DUT in the station]), so changing one DUT
 leaves the others' truths alone; an explicit truth is taken as given (absolute-tau T24 convention, plus
-the deviations beyond it: drivers/sim/dutmodel.py). `world_deviations` turns the station's world-level
+the deviations beyond it: drivers/sim/world/dutmodel.py). `world_deviations` turns the station's world-level
 deviation keys into the World's keywords; every key left out (or zero) leaves the world as it was.
 """
 
@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.sim.chamberair import ChamberTruth
-from drivers.sim.coilfield import LoopErrors
-from drivers.sim.currentsource import CurrentSourceErrors
-from drivers.sim.dutmodel import DutDeviations, DutTruth
+from drivers.sim.world.chamberair import ChamberTruth
+from drivers.sim.world.coilfield import LoopErrors
+from drivers.sim.world.currentsource import CurrentSourceErrors
+from drivers.sim.world.dutmodel import DutDeviations, DutTruth
 
 NOISE_NT = 20.0  # white noise per axis, RMS
 THERMAL_LAG_S = 600.0  # DUT temperature time constant against the chamber air

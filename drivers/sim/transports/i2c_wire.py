@@ -1,7 +1,8 @@
 """The I2C bus as a USB bridge's engine drives it: addressed messages (START or repeated START, address +
 R/W, bytes, STOP) played onto the SAME register-level chips a FakeSMBus holds.
 
-    wire = I2CWire(bus)                        # bus: drivers.sim.i2c_bus.FakeSMBus, its chips and switches
+    wire = I2CWire(bus)                        # bus: drivers.sim.transports.i2c_bus.FakeSMBus, its chips and
+                                               # switches
     wire.transfer(0x30, b"\\x2f", 1)            # write the register pointer, Sr, read one byte -> b"\\x30"
     wire.transfer(0x30, b"\\x09\\x01", 0)        # a register write
     wire.transfer(0x70, b"", 1)                # a plain read (a switch's control byte)
@@ -23,7 +24,7 @@ than asked).
 
 from __future__ import annotations
 
-from drivers.sim.i2c_bus import FakeSMBus
+from drivers.sim.transports.i2c_bus import FakeSMBus
 
 BITS_PER_BYTE = 9  # 8 data bits and the ACK bit
 CONDITION_BITS = 1  # a START, a repeated START or a STOP each take about one clock period

@@ -1,11 +1,11 @@
 """A register-level I2C bus with the smbus2 `SMBus` method names and signatures (its test doubles, a
-recording and a scripted bus: drivers/sim/smbus_doubles.py).
+recording and a scripted bus: tests/helpers/smbus_doubles.py).
 
     bus = FakeSMBus()
     bus.attach(0x30, MMC5983MASim(world, "dut1"))
     bus.nack(0x30, count=2)    # NACK the next 2 transfers to 0x30 (count=None: all, until nack(addr, 0))
     bus.detach(0x30)           # unplug: every transfer raises OSError(121, "Remote I/O error")
-    bus.set_faults(0x30, faults)  # a drivers.sim.faults.DeviceFaults: "nack" or "unplug" draws NACK
+    bus.set_faults(0x30, faults)  # a drivers.sim.devices.faults.DeviceFaults: "nack" or "unplug" draws NACK
     mux = bus.add_switch(0x70) # a TCA9548A; mux.attach(3, 0x30, chip) puts a chip behind channel 3
     bus.write_quick(0x30)      # the SMBus quick command of bus scans: only the ACK (or errno 121) tells
 
@@ -240,12 +240,13 @@ class FakeSMBus:
             self._nacks[address] = count
 
     def set_faults(self, address: int, faults) -> None:
-        """Draw a fault of `faults` (drivers.sim.faults.DeviceFaults) for every transfer to `address`."""
+        """Draw a fault of `faults` (drivers.sim.devices.faults.DeviceFaults) for every transfer to
+        `address`."""
         self._faults[address] = faults
 
     def chip_at(self, address: int):
         """The chip that acknowledges `address` now, NACK faults applied (OSError 121 when none does):
-        how a bridge simulator (drivers/sim/i2c_wire.py) reaches the same chips."""
+        how a bridge simulator (drivers/sim/transports/i2c_wire.py) reaches the same chips."""
         return self._chip(address)
 
     def _chip(self, address: int):

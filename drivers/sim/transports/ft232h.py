@@ -1,7 +1,8 @@
 """Protocol-level FT232H (USB 0403:6014) in MPSSE mode, for pyftdi's I2cController: the vendor requests
 and the bulk byte streams the chip sees, its MPSSE commands decoded down to the SCL/SDA levels they make
 (hardware-notes 8.3), and an I2C target state machine reading those levels bit by bit onto the I2C wire
-(drivers/sim/i2c_wire.py) with the FakeSMBus chips and switches. It plugs into drivers/sim/usbfake.py.
+(drivers/sim/transports/i2c_wire.py) with the FakeSMBus chips and switches. It plugs into
+drivers/sim/transports/usbfake.py.
 
     chip = FT232HSim(I2CWire(bus), clock, serial="FT0SIM01")
     backend = FakeUsbBackend(); backend.plug(chip)      # the transport finds it through pyusb
@@ -42,7 +43,7 @@ from __future__ import annotations
 from usb.core import USBError
 
 from drivers.clock import Clock
-from drivers.sim.i2c_wire import I2CWire, Message, WireNack
+from drivers.sim.transports.i2c_wire import I2CWire, Message, WireNack
 
 VENDOR_ID = 0x0403
 PRODUCT_ID = 0x6014

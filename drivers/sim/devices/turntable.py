@@ -17,7 +17,7 @@ from pymodbus.simulator import SimDevice
 
 from drivers import turntable as regs
 from drivers.registry import SimModbus, SimRequest
-from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
+from drivers.sim.devices.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import encode_string
 

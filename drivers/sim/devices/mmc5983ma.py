@@ -17,7 +17,7 @@ import numpy as np
 
 from drivers import mmc5983ma as mmc
 from drivers.registry import SimI2c, SimRequest
-from drivers.sim.i2c_bus import RegisterChip
+from drivers.sim.transports.i2c_bus import RegisterChip
 from drivers.sim.world import World
 
 POWER_ON_STATUS = mmc.STATUS_OTP_READ_DONE
@@ -45,7 +45,8 @@ class MMC5983MASim(RegisterChip):
         self.world = world
         self.dut = dut
         self.never_done = False
-        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the temperature
+        self.faults = None  # a drivers.sim.devices.faults.DeviceFaults: a stuck window freezes the
+                            # temperature
         self._power_on()
 
     def _power_on(self) -> None:

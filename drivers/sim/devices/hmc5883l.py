@@ -18,7 +18,7 @@ import numpy as np
 
 from drivers import hmc5883l as hmc
 from drivers.registry import SimI2c, SimRequest
-from drivers.sim.i2c_bus import RegisterChip
+from drivers.sim.transports.i2c_bus import RegisterChip
 from drivers.sim.world import World
 
 POWER_ON_CONFIG_A = 0x10  # 15 Hz, 1 average, normal
@@ -49,7 +49,8 @@ class HMC5883LSim(RegisterChip):
         self.dut = dut
         self.variant = variant
         self.never_ready = False
-        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the temperature
+        self.faults = None  # a drivers.sim.devices.faults.DeviceFaults: a stuck window freezes the
+                            # temperature
         self.registers[hmc.REG_CONFIG_A] = POWER_ON_CONFIG_A
         self.registers[hmc.REG_CONFIG_B] = POWER_ON_CONFIG_B
         self.registers[hmc.REG_MODE] = POWER_ON_MODE

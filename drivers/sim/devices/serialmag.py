@@ -48,7 +48,8 @@ Fault hooks (thread-safe, each counts down per command or per line):
                               "noise" puts junk bytes before the line, "truncate" sends the first half
                               without its CR (the rest of the line is lost)
     wrong_entry_next(n)       answer the next n commands with "Re-enter"
-    faults                    a drivers.sim.faults.DeviceFaults drawn once per command addressed to this
+    faults                    a drivers.sim.devices.faults.DeviceFaults drawn once per command addressed to
+    this
                               device that has a reply: "no_reply" (the command acts, its reply is
                               lost), "unplug" (nothing
                               acts, nothing answers), "garbled" (a sample line gets a digit turned into a
@@ -73,7 +74,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from drivers.registry import SimRequest, SimSerial
-from drivers.sim.pty import PtyLink
+from drivers.sim.transports.pty import PtyLink
 from drivers.sim.world import World
 
 COUNTS_PER_GAUSS = 15_000

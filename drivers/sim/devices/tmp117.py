@@ -9,7 +9,7 @@ power-on state.
 
 Fault hooks: `stuck_c = value` (every result reads that temperature), `never_ready = True`
 (Data_Ready never sets; the driver must time out), `faults` (a stuck window of
-drivers.sim.faults.DeviceFaults: conversions go on, the result stays what it was).
+drivers.sim.devices.faults.DeviceFaults: conversions go on, the result stays what it was).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class TMP117Sim:
         self.offset_c = offset_c
         self.stuck_c: float | None = None
         self.never_ready = False
-        self.faults = None  # a drivers.sim.faults.DeviceFaults: a stuck window freezes the result
+        self.faults = None  # a drivers.sim.devices.faults.DeviceFaults: a stuck window freezes the result
         self.pointer = tmp.REG_TEMP_RESULT
         self._power_on()
 

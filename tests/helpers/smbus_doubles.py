@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.sim.i2c_bus import FakeSMBus, I2CChip
+from drivers.sim.transports.i2c_bus import FakeSMBus, I2CChip
 
 
 @dataclass(frozen=True)

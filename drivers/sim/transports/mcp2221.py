@@ -1,6 +1,6 @@
 """Protocol-level MCP2221A (USB HID 04D8:00DD): its 64-byte HID commands decoded as the chip does
 (hardware-notes 8.1, DS20005292/DS20005565), its I2C engine's state machine on the simulated clock, and
-behind it the I2C wire (drivers/sim/i2c_wire.py) with the FakeSMBus chips and switches.
+behind it the I2C wire (drivers/sim/transports/i2c_wire.py) with the FakeSMBus chips and switches.
 
     chip = MCP2221ASim(I2CWire(bus), clock, serial="0001234567")
     usb = FakeHid(clock); usb.plug(chip)           # the transport opens it through usb (a `hid` stand-in)
@@ -32,7 +32,7 @@ Fault hooks: the wire's `sda_stuck_low` and `short_read`, FakeSMBus NACKs, `Fake
 from __future__ import annotations
 
 from drivers.clock import Clock
-from drivers.sim.i2c_wire import I2CWire, Message, WireNack, WireStuck
+from drivers.sim.transports.i2c_wire import I2CWire, Message, WireNack, WireStuck
 
 VENDOR_ID = 0x04D8
 PRODUCT_ID = 0x00DD

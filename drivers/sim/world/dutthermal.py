@@ -3,7 +3,7 @@
 Each DUT's element follows the air at its place in the chamber (the air plus its offset there) through a
 first-order lag; its temperature sensors follow the element through a lag of their own (none: they read
 the element itself); the thermal hysteresis of its offset is a play of width band_c on the element
-temperature (drivers/sim/dutmodel.py), whose state p in [-1, 1] moves by 2 / band_c per degC the element
+temperature (drivers/sim/world/dutmodel.py), whose state p in [-1, 1] moves by 2 / band_c per degC the element
 travels. Within a step of constant air each lag is exact.
 
 The world advances every DUT at every reading of any one of them (the time has moved for all), so the

@@ -10,8 +10,8 @@ Device logic lives in each SimDevice's `action` hook; this harness adds the faul
 shares: `silence(n)` (the next n replies are lost), `fail_next(n, code)` (the next n requests get a Modbus
 exception reply), `unplug()` / `replug()` (the server goes away and comes back on the same port), and
 `get_values` / `set_values` for tests that look at or poke the registers from outside the protocol path.
-`faults` (a drivers.sim.faults.DeviceFaults) draws a fault for every request: "no_reply" loses the reply
-(the request takes effect), "unplug" loses it without effect, "exception" answers exception 6 (server
+`faults` (a drivers.sim.devices.faults.DeviceFaults) draws a fault for every request: "no_reply" loses the
+reply (the request takes effect), "unplug" loses it without effect, "exception" answers exception 6 (server
 device busy: a transient refusal), "garbled" corrupts one byte of the reply frame (with RTU framing its
 CRC no longer matches; with TCP framing it is the MBAP length, so the client waits for bytes that never come).
 
@@ -232,7 +232,7 @@ class SimulatedModbusDevice:
         self.unit = unit
         self.framing = framing
         self.server: ModbusSimServer | None = None
-        self.faults = None  # a drivers.sim.faults.DeviceFaults, set before start()
+        self.faults = None  # a drivers.sim.devices.faults.DeviceFaults, set before start()
 
     def sim_device(self) -> SimDevice:
         raise NotImplementedError

@@ -26,7 +26,7 @@ from pymodbus.simulator import SimData, SimDevice
 from drivers import chamber as regs
 from drivers.chamber import ChamberAlarm
 from drivers.registry import SimModbus, SimRequest
-from drivers.sim.modbus_server import SimulatedModbusDevice, register_block, value_after_write
+from drivers.sim.devices.modbus_server import SimulatedModbusDevice, register_block, value_after_write
 from drivers.sim.world import World
 from drivers.transports.modbus import decode_float32, decode_int16, encode_float32, encode_int16
 
