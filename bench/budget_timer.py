@@ -20,7 +20,7 @@ MODELS = ("t24", "p12", "scalar")
 def budgets(args) -> float:
     session, duts = args
     import calib
-    from rig.reference.budget import RunInputs
+    from rig.budget.run_inputs import RunInputs
     from rig.session.reader import SessionReader
 
     with SessionReader(session) as reader:

@@ -19,8 +19,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from rig.config.loading import load_campaign  # noqa: E402
 from rig.engine.executor import Engine  # noqa: E402
-from rig.reference.loading import load_campaign  # noqa: E402
 from rig.run.campaign import run_campaign  # noqa: E402
 from rig.session.writer import Session  # noqa: E402
 from tests.system.campaign_helpers import SIM_STATION  # noqa: E402

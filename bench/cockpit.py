@@ -31,7 +31,7 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
-from rig.reference.loading import load_campaign  # noqa: E402
+from rig.config.loading import load_campaign  # noqa: E402
 from rig.run.campaign import run_campaign  # noqa: E402
 from tests.system import browser  # noqa: E402
 

@@ -37,8 +37,8 @@ import yaml
 
 from calib.calibration import Calibration
 from calib.design.optimal import information, std_errors
+from rig.config.loading import load_campaign
 from rig.devices.bench import dut_truths  # the truth the held-out errors are judged against, nothing else
-from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import check_campaign, compile_plan
 from rig.schedules.design import design_inputs, design_plan, designed_plan_text

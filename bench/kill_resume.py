@@ -18,7 +18,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rig.reference.loading import load_campaign  # noqa: E402
+from rig.config.loading import load_campaign  # noqa: E402
 from rig.schedules.compile import compile_plan  # noqa: E402
 from tests.system.campaign_helpers import (  # noqa: E402
     DEMO_PLAN,

@@ -21,7 +21,7 @@ sys.path.insert(0, str(REPO))
 
 import yaml  # noqa: E402
 
-from rig.reference.loading import load_campaign  # noqa: E402
+from rig.config.loading import load_campaign  # noqa: E402
 from rig.run.campaign import run_campaign  # noqa: E402
 from tests import pg_server  # noqa: E402
 from tests.system import browser  # noqa: E402

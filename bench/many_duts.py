@@ -38,9 +38,9 @@ import yaml  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from rig import config as cfg  # noqa: E402
+from rig.config.loading import load_campaign  # noqa: E402
 from rig.devices.build import open_rig  # noqa: E402
 from rig.devices.interleave import read_all  # noqa: E402
-from rig.reference.loading import load_campaign  # noqa: E402
 from rig.schedules.compile import check_campaign  # noqa: E402
 
 STATION = REPO / "configs" / "stations" / "sim-64.yaml"

@@ -48,12 +48,12 @@ from calib.io import calfile
 from calib.uncertainty.montecarlo import raw_for
 from drivers.sim.world.coilfield import CoilGeometry, coil_matrix_at
 from drivers.sim.world.truths import world_deviations
+from rig.budget import run_inputs as budget
+from rig.commission.places import commission_place
+from rig.commission.procedure import commission
 from rig.config import load_station
+from rig.config.loading import load_campaign
 from rig.devices.bench import dut_truths, true_position_m, world_field
-from rig.reference import budget
-from rig.reference.loading import load_campaign
-from rig.reference.places import commission_place
-from rig.reference.procedure import commission
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader
 

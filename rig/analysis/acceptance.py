@@ -8,7 +8,7 @@ Criteria (each only when the plan gives it; names as they appear in `failed`):
     heldout_rms        RMS error on held-out points (k-fold over whole points, rig/analysis/heldout.py):
                        vector error for vector models, |B| error for scalar ones
     fit_rms            RMS residual of the full fit
-    uncertainty        the calibration's expanded vector uncertainty (its budget, rig/reference/budget.py); a
+    uncertainty        the calibration's expanded vector uncertainty (its budget, rig/budget/run_inputs.py); a
                        calibration without a budget fails it
     std_error.<name>   largest standard error of parameter <name>
     bounds.<name>      every element of parameter <name> within [low, high]

@@ -53,7 +53,7 @@ def main(argv: list[str]) -> int:
     # ready by the run's end. The session is opened at the first DUT, once the run has recorded it all.
     from calib.io import calfile  # noqa: F401
     from rig.analysis import sessionfit, tempchoice  # noqa: F401
-    from rig.reference import budget, chain_record  # noqa: F401
+    from rig.reference import chain_record  # noqa: F401
 
     out = sys.stdout.buffer
     fits: SessionFits | None = None

@@ -1,5 +1,5 @@
 """After a completed run: fit every model of the plan for every DUT from the session's own data, state
-each calibration's uncertainty (rig/reference/budget.py), write the calibration files beside the session,
+each calibration's uncertainty (rig/budget/run_inputs.py), write the calibration files beside the session,
 and judge each DUT against the plan's acceptance limits."""
 
 from __future__ import annotations

@@ -33,11 +33,11 @@ class Prepared:
 
 @dataclass
 class SessionFitter:
-    inputs: Any  # rig.reference.budget.RunInputs, or None when the recorded plan or station cannot be read
+    inputs: Any  # rig.budget.run_inputs.RunInputs, or None when the recorded plan or station cannot be read
 
     @classmethod
     def of(cls, reader) -> SessionFitter:
-        from rig.reference.budget import RunInputs
+        from rig.budget.run_inputs import RunInputs
 
         try:
             return cls(RunInputs.of_session(reader))
@@ -57,8 +57,8 @@ class SessionFitter:
         """The references made with the run's best ambient (rig/reference/ambient.py) where the session
         allows, on a moving schedule the element's temperature (rig/analysis/lagfit.py), and the readings
         taken to the DUT's mean thermal state where T24's checks find a thermal hysteresis
-        (rig/reference/hysteresis.py)."""
-        from rig.reference.hysteresis import corrected
+        (rig/budget/hysteresis.py)."""
+        from rig.budget.hysteresis import corrected
 
         ambient = None
         if self.inputs is not None:
@@ -73,8 +73,8 @@ class SessionFitter:
 
     def thermal_direction(self, ds):
         """+1 heating, -1 cooling, 0 unknown for every sample: from the run's temperature log where the
-        session has one (rig/reference/modelerror.py); None without sample times."""
-        from rig.reference.modelerror import thermal_direction
+        session has one (rig/budget/modelerror.py); None without sample times."""
+        from rig.budget.modelerror import thermal_direction
 
         if self.inputs is not None:
             return self.inputs.thermal_direction(ds.source.get("dut", ""), ds)
@@ -98,7 +98,7 @@ class SessionFitter:
         """(calibration, its calib Budget or None): `calibrate`, and the budget itself for what the DUTs
         share (rig/analysis/crosscov.py)."""
         import calib
-        from rig.reference.modelerror import record_model_checks
+        from rig.budget.modelerror import record_model_checks
 
         ds = prepared.ds
         cal = calib.fit(ds, model, robust=self.robust(robust), software_version=software_version,
@@ -127,7 +127,7 @@ def state_uncertainty(inputs, dut: str, ds, cal):
     budget that cannot be made is a warning in its stats, never a lost calibration. Returns the calib
     Budget (None without one)."""
     from calib.uncertainty.montecarlo import statistical_only
-    from rig.reference.budget import uncertainty_section
+    from rig.budget.run_inputs import uncertainty_section
 
     try:
         if inputs is None:

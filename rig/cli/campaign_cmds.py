@@ -115,10 +115,10 @@ def register(group: click.Group) -> None:
                   "(default 5; 0: one line per point).")
     def run(plan, station, session_path, out_dir, resume_path, no_live, progress_every_s):
         """Run a calibration campaign (PLAN.yaml), or resume one (--resume SESSION)."""
+        from rig.config.loading import load_campaign
         from rig.core.paths import session_file
         from rig.engine.commands import COMPLETED
         from rig.engine.executor import prompt_from_tty
-        from rig.reference.loading import load_campaign
         from rig.run.campaign import run_campaign
         from rig.run.display import make_display
         from rig.schedules.compile import located_errors

@@ -38,15 +38,15 @@ def register(group: click.Group) -> None:
         """Measure the field source (coil matrix and ambient, or the turntable's axes) with the station's
         reference magnetometer and write the commissioning file a station names in
         `field_source: {commissioning: FILE}`; with --thermal also the chamber and each DUT position."""
+        from rig.commission.procedure import commission
         from rig.config import load_station
-        from rig.reference.commissioning_file import read
-        from rig.reference.procedure import commission
+        from rig.config.commissioning_file import read
 
         set_terminate_handler(_terminate)  # every exit leaves the coils safe (commission's finally)
         out_dir.mkdir(parents=True, exist_ok=True)
         if position is not None:
+            from rig.commission.places import commission_place, parse_position
             from rig.core.errors import ConfigError
-            from rig.reference.places import commission_place, parse_position
 
             if thermal:
                 raise ConfigError("rig commission: --thermal is measured with the reference at its own place "

@@ -29,7 +29,7 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     """Design the plan that reaches PLAN's targets (stop_when, or acceptance.max_std_error) for every DUT
     of the station in the least chamber time, and write it as a plan file."""
     from calib.io.atomic import atomic_write
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import check_campaign, located_errors
     from rig.schedules.design import design_inputs, design_plan, designed_plan_text, schedule_lines
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import click
 
 from calib.io.atomic import atomic_write
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
-from rig.reference.loading import load_campaign
 from rig.schedules.compile import check_campaign
 from rig.session.reader import SessionReader
 

@@ -90,7 +90,7 @@ def resolve_station_path(plan: Plan, plan_path: str | Path, station_path: str | 
 
 def read_campaign(plan_path: str | Path, station_path: str | Path | None = None) -> Campaign:
     """The plan and its station as their files state them. A run, a check or a design uses
-    rig.reference.loading.load_campaign, which also checks and applies the station's commissioning file."""
+    rig.config.loading.load_campaign, which also checks and applies the station's commissioning file."""
     plan_text = read_text(plan_path)
     plan = load_model(Plan, plan_path, plan_text)
     resolved = resolve_station_path(plan, plan_path, station_path)

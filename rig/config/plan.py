@@ -43,7 +43,7 @@ class Acceptance(Strict):
     max_rms_nt: NT | None = Field(None, description="RMS residual of the full fit")
     max_expanded_uncertainty_nt: NT | None = Field(
         None, description="the calibration's expanded (95 %) vector uncertainty over the plan's fields and "
-        "temperatures (its uncertainty budget, rig/reference/budget.py)")
+        "temperatures (its uncertainty budget, rig/budget/run_inputs.py)")
     max_std_error: dict[str, bounded(gt=0)] = Field({}, description="largest standard error per parameter")
     bounds: dict[str, tuple[bounded(), bounded()]] = Field({}, description="[low, high] of every element")
     max_lag_s: bounded(gt=0, hi=DAY_S) | None = Field(None, description="thermal lag (ramp data only)")

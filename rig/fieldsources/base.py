@@ -63,11 +63,11 @@ class FieldSourceConfig(DeviceConfig):
         None, description="`rig commission`'s file (relative to the station file): what it measured")
     max_age_days: bounded(gt=0, hi=100 * 365.0) = Field(
         180.0, description="`rig run` refuses a commissioning file older than this")
-    # rig.reference.commissioning_file.Commissioning, once loaded (rig/reference/loading.py)
+    # rig.config.commissioning_file.Commissioning, once loaded (rig/config/loading.py)
     _commissioned: Any = PrivateAttr(None)
 
     def with_commissioning(self, commissioned) -> FieldSourceConfig:
-        """A copy that uses what `commissioned` (rig.reference.commissioning_file.Commissioning) measured."""
+        """A copy that uses what `commissioned` (rig.config.commissioning_file.Commissioning) measured."""
         copy = self.model_copy()
         copy._commissioned = commissioned
         return copy
@@ -210,7 +210,7 @@ class FieldSourceConfig(DeviceConfig):
 
     def budget_chain(self, run, dut: str, ds):
         """The budget's sources of the reference field for one DUT's data: an object whose
-        `sources(notes)` lists calib.uncertainty.propagation InputSources (rig/reference/budget.py RunInputs
+        `sources(notes)` lists calib.uncertainty.propagation InputSources (rig/budget/run_inputs.py RunInputs
         is
         `run`)."""
         raise NotImplementedError

@@ -1,5 +1,5 @@
 """What every field source's commissioning shares: a reading of the reference magnetometer at one
-setting of the field source, and the figures taken from repeated settings (rig/reference/procedure.py
+setting of the field source, and the figures taken from repeated settings (rig/commission/procedure.py
 drives the settings a field source designs; its kind fits them)."""
 
 from __future__ import annotations

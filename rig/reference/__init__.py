@@ -1,3 +1,3 @@
-"""The reference chain: the commissioning procedure and its sealed file, the site field and the reference
-magnetometer, what a session records of the chain, its part of `rig check`, the run's ambient, and the
-uncertainty budget's inputs; loading a plan with its station's commissioning (loading.py)."""
+"""The reference chain as a run uses it: the site field and the reference magnetometer, the run's ambient,
+what a session records of the chain, and its part of `rig check`. The chain is established by `rig commission`
+(rig/commission/) and sealed in the commissioning file (rig/config/commissioning_file.py)."""

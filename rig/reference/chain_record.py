@@ -3,17 +3,17 @@
     snapshot = record(station)           # at the start of a run: session.record_snapshot(SNAPSHOT, ...)
     station = restore(station, snapshot)  # a resume: the same commissioning, whatever the files say now
 
-The record holds the commissioning file's text (sealed: rig/reference/commissioning_file.py), the reference
+The record holds the commissioning file's text (sealed: rig/config/commissioning_file.py), the reference
 magnetometers' calibrations, the coil matrix at the centre, every DUT's position and the coil matrix
 where it sits. Each point also stores the reference it was
 taken with (the ambient or the table's parameters in use; rig/fieldsources/fieldmaths.py `record`), so the
 reference of every sample can be recomputed under other assumptions (the uncertainty budget,
-rig/reference/budget.py).
+rig/budget/run_inputs.py).
 """
 
 from __future__ import annotations
 
-from rig.reference import commissioning_file
+from rig.config import commissioning_file
 
 SNAPSHOT = "reference chain"
 

@@ -16,7 +16,7 @@ vector until a later measurement differs from it by more than its noise (SIGNIFI
 the later one is then used from that temperature step on. At each temperature step the field is measured
 again, the change recorded, and the run held (Reason.SITE_FIELD_DRIFT) when it moved more than the field
 source's drift limit; once more after the last point, so that the drift over the whole run is on record
-(the uncertainty budget reads these measurements, rig/reference/budget.py).
+(the uncertainty budget reads these measurements, rig/budget/run_inputs.py).
 """
 
 from __future__ import annotations

@@ -103,7 +103,7 @@ def uncertainty_blocks(r) -> list:
     rows = budget_rows(r.uncertainty)
     if not rows:
         return ["No uncertainty budget: the calibration states none (calibrations from a campaign carry "
-                "one; see rig/reference/budget.py)."]
+                "one; see rig/budget/run_inputs.py)."]
     u = r.uncertainty
     k = number(u.get("coverage_factor"))
     table = Table(["input", "standard uncertainty of the field (nT)", "how it was drawn"],

@@ -28,9 +28,9 @@ import numpy as np
 from calib.io import calfile
 from calib.io.digest import sha256_text
 from calib.stats.directions import reach_deg, taken_directions
+from rig.budget.modelerror import CORRECTED, CORRECTED_U
 from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file, inside
-from rig.reference.modelerror import CORRECTED, CORRECTED_U
 from rig.report.html import ItemList, Section, Table, render_html
 
 ITEMS = ("Identification", "Calibration laboratory", "Item calibrated", "Method and plan", "Dates",
@@ -205,7 +205,7 @@ def _results(g) -> list[Section]:
 
 
 def _measurand(g) -> list[str]:
-    """What the parameters stand for (the measurand, rig/reference/modelerror.py), and what a point of use
+    """What the parameters stand for (the measurand, rig/budget/modelerror.py), and what a point of use
     adds to their uncertainty: said once, with each model's figures."""
     ds = g["ds"]
     said = [f"Measurand: the parameters of each model are those that describe the DUT best over the "

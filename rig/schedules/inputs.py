@@ -12,7 +12,7 @@ station, or what the station states for real. The simulated world's own truth is
 Sources, the first that says wins:
 - each DUT's noise and lag (and where it settles relative to the air): `--from SESSION`
   (rig/schedules/measured.py); a designed plan's `assumed:` (what it was designed with); the station's
-  thermal commissioning (`rig commission --thermal`, rig/reference/thermal.py); the station's
+  thermal commissioning (`rig commission --thermal`, rig/commission/thermal.py); the station's
   `duts[].expect: {noise_nt, thermal_lag_s}` (stated by the user: one plain reading's noise, so a
   SET/RESET pair divides it by sqrt 2). Without any, `rig design` refuses in one line naming the three.
 - the chamber's pace, overshoot and starting air: `--from SESSION`, the thermal commissioning; else the
@@ -111,7 +111,7 @@ def _dut_text(d: DutInput) -> str:
 
 # --- the sources ------------------------------------------------------------------------------------------
 def thermal_of(station: Station):
-    """The station's thermal commissioning (rig.reference.commissioning_file.ThermalRecord) or None."""
+    """The station's thermal commissioning (rig.config.commissioning_file.ThermalRecord) or None."""
     commissioned = getattr(station.field_source, "commissioned", None)
     return None if commissioned is None else commissioned.thermal
 

@@ -11,8 +11,7 @@ import numpy as np
 import yaml
 
 from calib.io.digest import sha256_file
-from rig.config import CONFIGS_DIR
-from rig.reference import commissioning_file
+from rig.config import CONFIGS_DIR, commissioning_file
 
 STATION = CONFIGS_DIR / "stations" / "sim-commissioned.yaml"
 REFERENCE_CAL = CONFIGS_DIR / "stations" / "sim-reference-cal.yaml"

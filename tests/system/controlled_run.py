@@ -18,7 +18,7 @@ import os
 import signal
 import sys
 
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.session import rows, writer
 

@@ -16,8 +16,8 @@ import pytest
 
 from drivers.clock import SimClock
 from rig.cli import main
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError, MagrigError
-from rig.reference.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.session.events import Kind, Reason
 from rig.session.inbox import request_path

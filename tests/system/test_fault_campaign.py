@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan
 from rig.session.events import HOLD_REASONS, Reason

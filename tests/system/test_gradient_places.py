@@ -11,12 +11,12 @@ import pytest
 import yaml
 
 from calib.io import calfile
+from rig.commission.places import commission_place
+from rig.commission.procedure import commission
+from rig.config import commissioning_file
+from rig.config.loading import load_campaign
 from rig.fieldsources.coils.gradientfit import element_std_errors
 from rig.fieldsources.fieldmaths import reference_for
-from rig.reference import commissioning_file
-from rig.reference.loading import load_campaign
-from rig.reference.places import commission_place
-from rig.reference.procedure import commission
 from rig.run.campaign import run_campaign
 from tests.helpers.reference_station import write_station
 from tests.helpers.small_plan import PLAN

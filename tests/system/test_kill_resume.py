@@ -9,7 +9,7 @@ import signal
 
 import pytest
 
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import (
     SIM_STATION,

@@ -21,8 +21,8 @@ from rig.analysis.acceptance import judge_session
 from rig.analysis.judged import judged_cell, judged_fits
 from rig.cli import main
 from rig.config import load_plan
+from rig.config.loading import load_campaign
 from rig.core.paths import calibration_file
-from rig.reference.loading import load_campaign
 from rig.report.certificate import certificate_html
 from rig.run.campaign import run_campaign
 from rig.run.summary import calibration_rows

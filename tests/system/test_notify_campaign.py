@@ -11,7 +11,7 @@ from collections import Counter
 import pytest
 import yaml
 
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.session import inbox
 from rig.session.reader import SessionReader

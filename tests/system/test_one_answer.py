@@ -22,7 +22,7 @@ import yaml
 
 import calib
 from rig.cli import main
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.report.sessions import session_cells
 from rig.run.campaign import run_campaign
 from rig.run.summary import calibration_notes, calibration_rows

@@ -11,7 +11,7 @@ from calib.io import calfile
 from calib.thermal.lag import estimate_lag
 from drivers.clock import SimClock
 from drivers.sim.world import DutTruth, World
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import (

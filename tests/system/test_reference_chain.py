@@ -10,11 +10,12 @@ import yaml
 
 from calib.io import calfile
 from drivers.sim.world import TableAxes
+from rig.commission.procedure import commission
+from rig.config import commissioning_file
+from rig.config.loading import load_campaign
 from rig.core.errors import DeviceFault
 from rig.fieldsources.fieldmaths import TableReference
-from rig.reference import chain_record, commissioning_file
-from rig.reference.loading import load_campaign
-from rig.reference.procedure import commission
+from rig.reference import chain_record
 from rig.run.campaign import load_from_session, run_campaign
 from rig.session.reader import SessionReader
 from tests.helpers.reference_station import write_station

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
+from rig.commission.places import commission_place
+from rig.commission.procedure import commission
+from rig.config import commissioning_file
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
 from rig.fieldsources.coils.loops import matrix_with_loops
-from rig.reference import chain_record, commissioning_file
-from rig.reference.loading import load_campaign
-from rig.reference.places import commission_place
-from rig.reference.procedure import commission
+from rig.reference import chain_record
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader
 from tests.helpers.reference_station import write_station

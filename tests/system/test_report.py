@@ -104,7 +104,7 @@ def test_sessions_lists_it(session, capsys):
 def test_report_of_a_simulated_campaign(tmp_path, capsys):
     """The demo plan run by the campaign engine on the simulated station, then reported."""
     from drivers.clock import SimClock
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.run.campaign import run_campaign
 
     session = tmp_path / "demo.session"

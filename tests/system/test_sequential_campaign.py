@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from calib.io import calfile
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan
 from tests.system.campaign_helpers import SIM_STATION, killed_at, query, run_rig, session_counts

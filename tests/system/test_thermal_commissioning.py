@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rig.config import CONFIGS_DIR, load_station
+from rig.commission.procedure import commission
+from rig.config import CONFIGS_DIR, commissioning_file, load_station
 from rig.core.errors import ConfigError
-from rig.reference import commissioning_file
-from rig.reference.procedure import commission
 
 pytestmark = pytest.mark.system
 

@@ -16,11 +16,11 @@ import yaml
 import calib
 from calib.commissioning.tablefit import table_field_nt
 from calib.io import calfile
+from rig.budget.run_inputs import RunInputs
+from rig.commission.procedure import commission
+from rig.config.loading import load_campaign
 from rig.core.paths import calibration_file
 from rig.fieldsources.turntable.budget import _with_home, table_rows
-from rig.reference.budget import RunInputs
-from rig.reference.loading import load_campaign
-from rig.reference.procedure import commission
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader
 from tests.helpers.once import made_once

@@ -22,12 +22,12 @@ from calib.uncertainty.budgeting import cross_covariance_of
 from calib.uncertainty.fielderror import expanded_at, expanded_norm_at
 from rig.analysis.crosscov import cross_covariance, cross_covariance_path
 from rig.analysis.sessionfit import SessionFitter
+from rig.budget.run_inputs import RunInputs
+from rig.commission.procedure import commission
 from rig.config import load_station
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
 from rig.core.paths import calibration_file
-from rig.reference.budget import RunInputs
-from rig.reference.loading import load_campaign
-from rig.reference.procedure import commission
 from rig.reference.sitefield import load_reference_calibrations
 from rig.run.campaign import run_campaign
 from rig.session.events import Kind

@@ -19,8 +19,8 @@ from rig.fieldsources.base import FieldSourceConfig
 REPO = Path(__file__).resolve().parents[2]
 # rig's folders from the bottom up; a folder imports only from its own and from lower tiers (folders on one
 # tier know nothing of each other). rig/__init__.py (the version) sits below all, rig/__main__.py on top.
-RIG_TIERS = ("core", "session fieldsources", "config", "devices engine", "reference", "analysis",
-             "schedules", "run", "report fleet", "web", "cli")
+RIG_TIERS = ("core", "session fieldsources", "config", "devices engine", "reference", "budget commission",
+             "analysis", "schedules", "run", "report fleet", "web", "cli")
 # calib's modules and folders from the bottom up, as rig's: a module imports only from its own folder and
 # from lower tiers. calib/__init__.py (the package's face: fit, Calibration, Dataset) sits on top.
 CALIB_TIERS = ("errors compiled dataset", "stats", "equations", "calibration",

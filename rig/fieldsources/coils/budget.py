@@ -1,12 +1,12 @@
-"""The input quantities of a coil station's reference field in a calibration's budget (rig/reference/budget.py
-asks the station's field source for them), for one DUT: the field at each of its samples is B = M(r) I +
-ambient, from the sample's currents I, and every source below moves it linearly
+"""The input quantities of a coil station's reference field in a calibration's budget
+(rig/budget/run_inputs.py asks the station's field source for them), for one DUT: the field at each of its
+samples is B = M(r) I + ambient, from the sample's currents I, and every source below moves it linearly
 (calib.uncertainty.propagation):
 
 - coil matrix: the centre matrix's commissioning covariance (else the declared `constants_uncertainty_ppm`
   of each element's column); shared by every DUT of the campaign;
 - reference magnetometer (and its temperature): what it measured (the commissioned matrix, the ambient)
-  carries its calibration's error (rig/reference/budget.py RunInputs.reference_sources);
+  carries its calibration's error (rig/budget/run_inputs.py RunInputs.reference_sources);
 - ambient: the run's best estimate from all its measurements and its covariance (rig/reference/ambient.py);
 - ambient gradient: the lab field between the reference magnetometer and the DUT: measured by the
   commissioning's places and other reference magnetometers (carried into the references; the line its

@@ -1,4 +1,4 @@
-"""What `rig commission` measures of coils, and how (rig/reference/procedure.py drives it).
+"""What `rig commission` measures of coils, and how (rig/commission/procedure.py drives it).
 
 With the reference at the centre (or anywhere, when the coils' geometry carries its readings to the
 centre), the coils are driven through a designed set of currents, repeated `repeats` times:
@@ -122,7 +122,7 @@ def with_loops(source, coils: dict, reference_tolerance_mm: float) -> dict:
 
 
 def with_other_references(source, coils: dict, others: list[dict], reference_position_mm) -> dict:
-    """The `coils:` section with the other reference magnetometers' ambients (rig/reference/otherrefs.py)
+    """The `coils:` section with the other reference magnetometers' ambients (rig/commission/otherrefs.py)
     and the gradient they show."""
     return with_gradient(source, {**coils, "other_references": others}, reference_position_mm)
 

@@ -6,7 +6,7 @@ the campaign and again at each temperature step (rig/reference/sitefield.py). Un
 for any ambient up to `ambient_max_nt`; `rig run` checks the plan's currents again with the measured ambient.
 
 The coil matrix C at the centre is the declared `coil_constants_nt_per_a`, or the one `rig commission`
-measured (`commissioning: FILE`, rig/reference/commissioning_file.py), which replaces it. With a `geometry`,
+measured (`commissioning: FILE`, rig/config/commissioning_file.py), which replaces it. With a `geometry`,
 the field at each DUT's `position_mm` is the coil field there (rig/fieldsources/coils/geometry.py), scaled and
 turned to match C at the centre; without one the field is taken as uniform.
 """

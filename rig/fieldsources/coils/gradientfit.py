@@ -1,6 +1,6 @@
 """The lab field's gradient over the coil set, from the ambient the reference magnetometer measured at the
-centre and at each further place (`rig commission --position`, rig/reference/places.py), and the station's
-other reference magnetometers at theirs (rig/reference/otherrefs.py).
+centre and at each further place (`rig commission --position`, rig/commission/places.py), and the station's
+other reference magnetometers at theirs (rig/commission/otherrefs.py).
 
 Every ambient is a(r) = a0 + G r. In the coil set the lab field has no sources (no currents, no magnetised
 material), so G is symmetric and traceless: five numbers g = (Gxx, Gyy, Gxy, Gxz, Gyz), Gzz = -Gxx - Gyy.

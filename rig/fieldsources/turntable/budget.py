@@ -1,5 +1,5 @@
 """The input quantities of a turntable station's reference field in a calibration's budget
-(rig/reference/budget.py asks the station's field source for them): the table's axes (commissioned), the
+(rig/budget/run_inputs.py asks the station's field source for them): the table's axes (commissioned), the
 site field measured at home over the run and the reference magnetometer that measured it, and the lab
 field's gradient between the reference's place and the DUT's as the table turns. Each moves the field at
 every sample through its sensitivity (N,3,Q), taken by central differences of

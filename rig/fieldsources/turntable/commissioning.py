@@ -1,4 +1,4 @@
-"""What `rig commission` measures of a turntable, and how (rig/reference/procedure.py drives it): the
+"""What `rig commission` measures of a turntable, and how (rig/commission/procedure.py drives it): the
 reference on the table is read at every azimuth (45 deg apart) x elevation (-90..90, 45 apart) within the
 table's limits, home first and last, and the table's axes are fitted (calib/commissioning/tablefit.py)."""
 

@@ -200,7 +200,7 @@ def test_refit_reads_a_real_session_file(tmp_path, capsys):
     from pathlib import Path
 
     from drivers.clock import SimClock
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
     from rig.session.rows import SampleRow
     from rig.session.writer import Session

@@ -8,8 +8,8 @@ import pytest
 
 from drivers.errors import DeviceFault, DeviceTimeout
 from rig.config import CONFIGS_DIR
+from rig.config.loading import load_campaign
 from rig.devices.build import open_rig
-from rig.reference.loading import load_campaign
 
 LAB = CONFIGS_DIR / "stations" / "sim-lab.yaml"
 DEMO = CONFIGS_DIR / "plans" / "demo.yaml"

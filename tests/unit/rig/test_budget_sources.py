@@ -13,12 +13,12 @@ import pytest
 from calib.dataset import Dataset
 from drivers.sim.world.coilfield import CoilGeometry as SimGeometry
 from drivers.sim.world.coilfield import LoopErrors, coil_matrix_at
+from rig.budget.misfit import misfit_source, within_point_noise
+from rig.budget.modelerror import thermal_direction
+from rig.budget.wander import WANDER_FACTOR, wander_source
 from rig.fieldsources.coils import commissioned
 from rig.fieldsources.coils.config import DeclaredGeometry
 from rig.fieldsources.coils.loops import PER_LOOP, loop_sensitivity, matrix_with_loops
-from rig.reference.misfit import misfit_source, within_point_noise
-from rig.reference.modelerror import thermal_direction
-from rig.reference.wander import WANDER_FACTOR, wander_source
 
 CENTRE = np.array([[50480.0, 264.0, 0.0], [0.0, 49510.0, -263.0], [0.0, 0.0, 50310.0]])
 GEOMETRY = DeclaredGeometry(shape="square", size_m=(0.4, 0.4, 0.4), spacing_m=(0.2178, 0.2178, 0.2178))
@@ -186,7 +186,7 @@ def test_the_offset_wander_between_points_sets_each_steps_offset():
 def test_an_error_shared_by_a_points_samples_weighs_as_n_times_its_variance():
     """Five samples a point sharing an error of 20 nT weigh in a fit like a white noise of variance
     30^2 + 5 x 20^2: the statistics take that; without a shared error they take the residual's RMS."""
-    from rig.reference.modelerror import _clustered_noise
+    from rig.budget.modelerror import _clustered_noise
 
     rng = np.random.default_rng(6)
     ds, resid = _stepped(rng, noise=30.0, wander=0.0, excess=20.0, step_nt=0.0)
@@ -222,7 +222,7 @@ def _table_like(rng, rotation_deg: float, noise: float = 30.0):
 def test_a_directional_misfit_over_unbalanced_directions_is_taken_at_every_direction():
     """A rotation a model cannot follow, seen over a table's directions: the misfit states its size over
     the whole sphere (exactly |c|^2 / 3 per axis for a rotation), not its smaller size over the data."""
-    from rig.reference.misfit import directional_part
+    from rig.budget.misfit import directional_part
 
     rng = np.random.default_rng(11)
     ref, resid, labels = _table_like(rng, rotation_deg=1.0)
@@ -249,7 +249,7 @@ def test_another_models_parameters_carry_the_thermal_hysteresis_t24_finds(model)
     hysteresis, neither."""
     import calib
     from calib import synthetic
-    from rig.reference.modelerror import model_sources
+    from rig.budget.modelerror import model_sources
 
     rng = np.random.default_rng(21)
     steps = [-20.0, 0.0, 25.0, 60.0, 10.0]  # heating to 60, then cooling to 10
@@ -285,7 +285,7 @@ def test_p12s_statistics_and_wander_come_from_the_noise_not_from_what_p12_cannot
     import calib
     from calib import synthetic
     from calib.uncertainty.linearise import linearised
-    from rig.reference.modelerror import model_sources
+    from rig.budget.modelerror import model_sources
 
     rng = np.random.default_rng(31)
     noise_nt, samples = 20.0, 5
@@ -321,7 +321,7 @@ def test_the_shared_error_is_read_from_a_fits_residual_with_the_parameters_share
     """The point means of a fit's residual have lost the share of their scatter its parameters took (K
     points, p parameters: K - p of K): the shared error is read with it put back. Here 15 parameters over
     30 points would halve it."""
-    from rig.reference.modelerror import _clustered_noise
+    from rig.budget.modelerror import _clustered_noise
 
     rng = np.random.default_rng(12)
     points, samples, params, shared, white = 30, 5, 15, 20.0, 10.0

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rig.config import load_station
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError, LimitError
-from rig.reference.loading import load_campaign
 from rig.schedules.compile import check_campaign
 from tests.helpers.reference_station import commissioned_station, commissioning_data, write_station
 from tests.helpers.small_plan import PLAN
@@ -183,7 +183,7 @@ def test_commissioning_data_helper_round_trips(tmp_path):
 
 
 def test_commissioning_needs_a_reference_magnetometer(tmp_path):
-    from rig.reference.procedure import commission
+    from rig.commission.procedure import commission
 
     def no_reference(data):
         data["field_source"]["ambient_nt"] = [16200, -350, 43100]
@@ -199,7 +199,7 @@ def test_commissioning_needs_a_reference_magnetometer(tmp_path):
 
 
 def test_an_off_centre_reference_needs_the_geometry(tmp_path):
-    from rig.reference.procedure import commission
+    from rig.commission.procedure import commission
 
     def off_centre(data):
         data["reference_magnetometers"][0]["position_mm"] = [20, 0, 0]
@@ -212,7 +212,7 @@ def test_an_off_centre_reference_needs_the_geometry(tmp_path):
 
 def test_a_file_without_a_thermal_section_still_loads_and_plans_nothing_from_it(tmp_path):
     from rig.config import CONFIGS_DIR
-    from rig.reference.commissioning_file import read
+    from rig.config.commissioning_file import read
     from rig.schedules.inputs import planning_inputs
 
     old = read(CONFIGS_DIR / "stations" / "sim-commissioned.commissioning.yaml")  # written before --thermal

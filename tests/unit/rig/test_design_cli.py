@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from rig.cli import main
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.schedules.compile import check_campaign, compile_plan
 from tests.helpers.statistics import sigma_bounds
 

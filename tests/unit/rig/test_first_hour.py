@@ -66,7 +66,7 @@ def test_a_run_says_first_which_station_it_is_and_why_its_uncertainties_will_be_
     assert lines[1].startswith("note: the coils are not commissioned: each coil constant is taken as "
                                "uncertain by its declared 10000 ppm (1 %)") and "`rig commission`" in lines[1]
     commissioned = CONFIGS / "stations" / "sim-commissioned.yaml"
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
 
     campaign = load_campaign(CONFIGS / "plans" / "demo.yaml", commissioned)
     assert len(header_lines(campaign.station, commissioned)) == 1  # commissioned: nothing to excuse

@@ -193,7 +193,7 @@ def test_run_writes_nothing_outside_out(name, tmp_path, capsys):
 
 def test_resume_of_a_session_with_a_hostile_dut_name_is_one_line(tmp_path, capsys):
     """A session recorded before the names rule: its station is reread through the same checks."""
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
     from rig.session.writer import Session
 

@@ -1,4 +1,4 @@
-"""The DUT's thermal hysteresis corrected in its readings before the fits (rig/reference/hysteresis.py)."""
+"""The DUT's thermal hysteresis corrected in its readings before the fits (rig/budget/hysteresis.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 import calib
 from calib import synthetic
 from calib.uncertainty.linearise import linearised
-from rig.reference.hysteresis import corrected
-from rig.reference.modelerror import CORRECTED, model_sources
+from rig.budget.hysteresis import corrected
+from rig.budget.modelerror import CORRECTED, model_sources
 
 STEPS = [-20.0, 0.0, 25.0, 60.0, 10.0]  # cooled to -20, heated to 60, then cooled to 10
 DIRECTIONS = {-20.0: -1.0, 0.0: 1.0, 25.0: 1.0, 60.0: 1.0, 10.0: -1.0}
@@ -72,7 +72,7 @@ def test_the_budget_takes_the_correction_along_as_the_whole_procedure_moves():
     from calib.uncertainty.correction import Corrected
     from calib.uncertainty.propagation import InputSource
     from calib.uncertainty.rowgroups import RowGroups
-    from rig.reference.modelerror import TermsFit
+    from rig.budget.modelerror import TermsFit
 
     rng = np.random.default_rng(43)
     clean, _, direction = _hysteretic(rng, np.array([150.0, -100.0, 80.0]))

@@ -21,8 +21,8 @@ from calib.synthetic import coil_directions, random_t24_params, t24_dataset
 from rig.analysis.acceptance import Verdict, model_check_findings
 from rig.analysis.judged import judged_for_dut
 from rig.analysis.tempchoice import record_temperature_model, share_choice, wants_t36
+from rig.budget.modelerror import record_model_checks
 from rig.config import Plan
-from rig.reference.modelerror import record_model_checks
 from rig.schedules.sequential_checks import AddedChecks, decide_with_checks
 
 TEMPS_C = (-30.0, -5.0, 20.0, 45.0, 70.0)

@@ -11,9 +11,9 @@ import pytest
 import yaml
 
 from rig.config import CONFIGS_DIR, Plan
+from rig.config.commissioning_file import ThermalDut, ThermalRecord
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
-from rig.reference.commissioning_file import ThermalDut, ThermalRecord
-from rig.reference.loading import load_campaign
 from rig.schedules.compile import check_plan
 from rig.schedules.inputs import planning_inputs, require_duts
 from tests.unit.rig.test_plan import coil_station, make_plan

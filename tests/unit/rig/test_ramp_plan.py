@@ -6,9 +6,9 @@ import pytest
 import yaml
 
 from rig.config import Plan
+from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError, LimitError
 from rig.core.yamlload import load_model
-from rig.reference.loading import load_campaign
 from rig.schedules.compile import check_campaign, check_plan, compile_plan
 from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION
 from tests.unit.rig.test_plan import coil_station, make_plan

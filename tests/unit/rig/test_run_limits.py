@@ -11,7 +11,7 @@ import pytest
 
 import rig.run.campaign
 from rig.cli import main
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.session.reader import SessionReader
 from rig.session.writer import Session
 from tests.helpers.small_plan import PLAN

@@ -37,7 +37,7 @@ DEMO = REPO / "configs" / "plans" / "demo.yaml"
 # the file keeps a write-ahead log that was never checkpointed into it, and the log's index (-shm).
 KILLED_WRITER = textwrap.dedent("""
     import os, sys
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
     from rig.session.rows import SampleRow
     from rig.session.writer import Session

@@ -96,7 +96,7 @@ def test_a_dead_holder_is_reported_and_a_live_one_named(tmp_path):
 
 CREATOR = textwrap.dedent("""
     import sys, time
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
     from rig.session.writer import Session
     campaign = load_campaign(sys.argv[2])
@@ -127,7 +127,7 @@ def test_kill_9_during_creation_leaves_no_session_and_the_name_can_be_used_again
     leftovers = [p.name for p in tmp_path.iterdir()]
     assert leftovers and all(name.startswith(".run.session.") for name in leftovers)
 
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
 
     campaign = load_campaign(DEMO)

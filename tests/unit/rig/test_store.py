@@ -17,8 +17,8 @@ import pytest
 from calib.dataset import Dataset
 from drivers.base import FieldSample
 from drivers.clock import SimClock
+from rig.config.loading import load_campaign
 from rig.core.errors import SessionError
-from rig.reference.loading import load_campaign
 from rig.schedules.compile import compile_plan
 from rig.session.events import Kind, Reason
 from rig.session.reader import SessionReader, read_dataset
@@ -117,7 +117,7 @@ def test_a_failure_inside_the_point_leaves_nothing(tmp_path, campaign, points):
 
 WRITER = textwrap.dedent("""
     import sys, time
-    from rig.reference.loading import load_campaign
+    from rig.config.loading import load_campaign
     from rig.schedules.compile import compile_plan
     from rig.session.rows import SampleRow
     from rig.session.writer import Session

@@ -11,7 +11,7 @@ import pytest
 from calib.io import calfile, csvio
 from drivers.sim.world import DutTruth
 from rig.cli import main
-from rig.reference.loading import load_campaign
+from rig.config.loading import load_campaign
 from rig.schedules.compile import compile_plan
 from rig.session.reader import read_dataset
 from rig.session.rows import SampleRow

@@ -3,7 +3,7 @@
 An AMR's offset stands +d apart after a heating and -d after a cooling. A plan's history is seldom
 balanced (the demo heats through three of its four steps), so every model's offset and its temperature
 coefficient absorb the imbalance: a systematic error of known size, which GUM asks to correct rather than
-to budget. T24's model checks find the hysteresis (rig/reference/modelerror.py, p < P_TERM) and estimate
+to budget. T24's model checks find the hysteresis (rig/budget/modelerror.py, p < P_TERM) and estimate
 d together with the other terms they find; the readings are then taken to the DUT's mean thermal state,
 h + d_n S^-1 d (d_n the thermal direction of each sample, S the DUT's scale at the data's middle
 temperature), and every model is fitted to them. What the budget keeps is the correction's own
@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from rig.reference.modelerror import CORRECTED, CORRECTED_U, TermsFit, record_model_checks
+from rig.budget.modelerror import CORRECTED, CORRECTED_U, TermsFit, record_model_checks
 
 
 def corrected(ds, direction) -> tuple[object, list[dict] | None]:

@@ -1,6 +1,6 @@
 """The ambient at the station's other reference magnetometers, read during `rig commission` beside the one
 that commissions the coils: each one sitting elsewhere shows the lab field's gradient between the two
-(rig/fieldsources/coils/gradientfit.py), as a move of the one reference does (rig/reference/places.py).
+(rig/fieldsources/coils/gradientfit.py), as a move of the one reference does (rig/commission/places.py).
 
 With the coils at 0 A, settled, both are read together, so the lab field's drift cancels in their
 difference, and it is the difference that is recorded and fitted (G times the offset between the two):
@@ -18,10 +18,10 @@ import logging
 
 import numpy as np
 
+from calib.uncertainty.fielderror import parameter_covariance
 from calib.uncertainty.propagation import reference_source
 from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import DeviceError
-from rig.reference.budget import reference_covariance
 from rig.reference.sitefield import COMMISSION_SETTLE_S, ReferenceReader, readback_mean, settle_at
 
 log = logging.getLogger("magrig.commission")
@@ -42,7 +42,7 @@ def _calibration_covariance(ref, calibration, measured_nt, temp_c) -> np.ndarray
     """(3, 3): what the reference's calibration error does to the field it reported (its `uncertainty:`
     is there: rig/reference/sitefield.py refuses a reference calibration without one)."""
     source = reference_source(ref.name, np.asarray(measured_nt, float)[None], calibration,
-                              reference_covariance(calibration), temp_c)
+                              parameter_covariance(calibration)[0], temp_c)
     a = source.ref_nt[0]
     return a @ np.asarray(source.covariance, float) @ a.T
 

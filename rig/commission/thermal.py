@@ -1,5 +1,5 @@
 """`rig commission --thermal`: what a plan needs to know of a station, measured on it (the commissioning
-file's `thermal:` section, rig/reference/commissioning_file.py).
+file's `thermal:` section, rig/config/commissioning_file.py).
 
     section = measure_thermal(rig, step_c=THERMAL_STEP_C)     # inside the procedure's try/finally
 

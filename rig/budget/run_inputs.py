@@ -19,7 +19,7 @@ origin:
 - temperature: the temperature source's accuracy (+-temp_accuracy_c, else its datasheet's) and the
   DUT-to-probe gradient (+-temp_gradient_c_per_c per degC away from 25 degC), rectangular; thermal lag:
   on a ramp, the uncertainty of the lag the fit corrected for times how fast the temperature moved;
-- model: the model checks' terms and the misfit beyond the DUT's noise (rig/reference/modelerror.py).
+- model: the model checks' terms and the misfit beyond the DUT's noise (rig/budget/modelerror.py).
 The grid the calibrated field is judged on: the run's field targets at its temperatures.
 """
 
@@ -36,12 +36,12 @@ import numpy as np
 
 from calib.calibration import Calibration, standard_uncertainty
 from calib.uncertainty.budgeting import budget as calib_budget
-from calib.uncertainty.fielderror import expanded_norm_at
-from calib.uncertainty.linearise import ParamLayout
+from calib.uncertainty.fielderror import expanded_norm_at, parameter_covariance
 from calib.uncertainty.montecarlo import Budget
 from calib.uncertainty.propagation import InputSource, affine_map, reference_source, temperature_source
+from rig.budget import modelerror
 from rig.core.errors import DataError
-from rig.reference import chain_record, modelerror
+from rig.reference import chain_record
 from rig.reference.ambient import AmbientModel
 from rig.session.events import Reason
 
@@ -179,7 +179,8 @@ class RunInputs:
             raise DataError(f"reference magnetometer {self.reference_name}: its calibration states no "
                             "uncertainty (no `uncertainty:` section): a reference without one is refused")
         temp = self.reference_temp_c()
-        out = [reference_source("reference magnetometer", measured_nt, cal, reference_covariance(cal), temp,
+        covariance, _ = parameter_covariance(cal)
+        out = [reference_source("reference magnetometer", measured_nt, cal, covariance, temp,
                                 shared="reference magnetometer",
                                 origin=f"{self.reference_name}: its calibration's covariance")]
         if self.reference_temp_accuracy_c > 0 and temp is not None and cal.temp_ref_c is not None:
@@ -213,7 +214,7 @@ class RunInputs:
     # --- the ambient, the thermal history ---------------------------------------------------------------
     def thermal_direction(self, dut: str, ds) -> np.ndarray:
         """+1 heating, -1 cooling, 0 unknown for every sample, from the run's temperature log and the
-        samples themselves (rig/reference/modelerror.py)."""
+        samples themselves (rig/budget/modelerror.py)."""
         history = [(r["t"], r["duts"][dut]) for r in self.temperature_log
                    if r["duts"].get(dut) is not None]
         return modelerror.thermal_direction(ds.columns["t"], ds.temp_c, history)
@@ -245,16 +246,6 @@ class RunInputs:
         if by is not None:
             change = np.einsum("nij,nj->ni", by, change)
         return dataclasses.replace(ds, ref_nt=ds.ref_nt + change), self.ambient.as_dict()
-
-
-def reference_covariance(cal: Calibration) -> np.ndarray:
-    """A reference calibration's parameter covariance: its budget's, else diag((expanded / k)^2)."""
-    layout = ParamLayout.of(cal.params)
-    stated = cal.uncertainty.get("covariance") or {}
-    if stated.get("parameters") == layout.labels():
-        return np.asarray(stated["matrix"], float)
-    u = layout.flatten({n: standard_uncertainty(cal.uncertainty, n) for n in cal.params})
-    return np.diag(u**2)
 
 
 def uncertainty_section(b: Budget, cal: Calibration) -> dict:

@@ -10,8 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from rig.config import Campaign, read_campaign
-from rig.reference import commissioning_file
+from rig.config import Campaign, commissioning_file, read_campaign
 
 
 def load_campaign(plan_path: str | Path, station_path: str | Path | None = None) -> Campaign:

@@ -32,11 +32,11 @@ import numpy as np
 import yaml
 
 from calib.io.digest import sha256_file
+from rig.commission.procedure import commissioning_inputs, drive, setting_records
+from rig.config import commissioning_file
 from rig.config.station import SAME_PLACE_MM
 from rig.core.errors import ConfigError
 from rig.devices.build import open_rig
-from rig.reference import commissioning_file
-from rig.reference.procedure import commissioning_inputs, drive, setting_records
 from rig.reference.sitefield import ReferenceReader
 
 

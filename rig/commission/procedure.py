@@ -1,12 +1,12 @@
 """`rig commission STATION.yaml --out DIR`: measure the field source against the station's reference
-magnetometer, and write `DIR/<station>.commissioning.yaml` (rig/reference/commissioning_file.py).
+magnetometer, and write `DIR/<station>.commissioning.yaml` (rig/config/commissioning_file.py).
 
 The field source's kind designs the settings and fits what they show (coils: the 3x3 matrix and the
 ambient with their covariance, linearity, hysteresis and drift, rig/fieldsources/coils/commissioning.py;
 a turntable: its axes, rig/fieldsources/turntable/commissioning.py); this procedure drives the settings,
 reads the reference at each and writes the sealed file.
 
-With `thermal=True` it then measures what planning needs (rig/reference/thermal.py: the pace of a point,
+With `thermal=True` it then measures what planning needs (rig/commission/thermal.py: the pace of a point,
 each DUT's noise, a step of the chamber's set point with the air and each DUT followed) into the file's
 `thermal:` section.
 
@@ -24,14 +24,13 @@ from pathlib import Path
 
 from calib.io.digest import sha256_file
 from rig import __version__
-from rig.config import Station
+from rig.commission.otherrefs import other_ambients
+from rig.config import Station, commissioning_file
 from rig.core.errors import ConfigError, DeviceError
 from rig.core.paths import inside
 from rig.core.yamlload import load_model, locate_in_text, read_text
 from rig.devices.build import open_rig
 from rig.fieldsources.commissioning import Reading, floats
-from rig.reference import commissioning_file
-from rig.reference.otherrefs import other_ambients
 from rig.reference.sitefield import (
     COMMISSION_SETTLE_S,
     ReferenceReader,
@@ -51,7 +50,7 @@ def commission(station_path: str | Path, out_dir: str | Path, *, repeats: int = 
     source = station.field_source
     design = source.commissioning_design(current_a, repeats)
     if thermal:
-        from rig.reference.thermal import THERMAL_STEP_C, measure_thermal
+        from rig.commission.thermal import THERMAL_STEP_C, measure_thermal
 
         step_c = THERMAL_STEP_C if thermal_step_c is None else thermal_step_c
     thermal_section = None

@@ -9,7 +9,7 @@ The file (YAML, `<station>.commissioning.yaml`) states the station, the date, th
 table's axes) with their covariance, the residuals, linearity, hysteresis and drift, and every setting
 it was measured at; with `rig commission --thermal` also what planning needs (`thermal:`, optional, so an
 older file still loads): the chamber's real rate and overshoot, each DUT position's lag, offset and noise,
-and the pace of a point on the station's transports (rig/reference/thermal.py). `content_sha256` seals
+and the pace of a point on the station's transports (rig/commission/thermal.py). `content_sha256` seals
 all of it: a file edited after it was written is refused, as are one of another station, one older than
 the field source's `max_age_days`, one whose reference calibration has changed since, a singular matrix
 and a covariance that is not positive definite. Each refusal is one line naming the file, key and line.
@@ -91,7 +91,7 @@ class LoopsRecord(Strict):
 
 
 class OtherReferenceRecord(Strict):
-    """Another reference read at 0 A beside the commissioning's own (rig/reference/otherrefs.py): its
+    """Another reference read at 0 A beside the commissioning's own (rig/commission/otherrefs.py): its
     reading less that one's, with the covariance of both readings and both calibrations."""
 
     name: str
@@ -160,7 +160,7 @@ class ThermalDut(Strict):
 
 
 class ThermalRecord(Strict):
-    """What `rig commission --thermal` measured for planning (rig/reference/thermal.py)."""
+    """What `rig commission --thermal` measured for planning (rig/commission/thermal.py)."""
 
     start_air_c: FiniteFloat
     step_c: tuple[FiniteFloat, FiniteFloat] = Field(description="the set point before and after the step")

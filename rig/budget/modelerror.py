@@ -20,15 +20,15 @@ history besides:
   thermal state: +-c, a field error of its own ("thermal hysteresis state"). Another model's parameters
   (P12, the scalar fit, T36) absorb the hysteresis alike: their budgets take it as T24's checks find it
   in the same data; what else they cannot follow is in their own residual (the misfit).
-- The misfit (rig/reference/misfit.py): the fit's residual (after those terms) beyond what the DUT's own
+- The misfit (rig/budget/misfit.py): the fit's residual (after those terms) beyond what the DUT's own
   noise explains, a field error at every grid point that no parameter carries. A stated uncertainty
   below the measured scatter is then impossible.
-- The readings' noise and the offset's wander (rig/reference/wander.py) come from the residual of the
+- The readings' noise and the offset's wander (rig/budget/wander.py) come from the residual of the
   model that follows the data best: this one's, or T24's with its checks' terms (P12's own holds what it
   cannot follow, which its misfit already states).
 
 A hysteresis the checks find is corrected in the readings before any model is fitted
-(rig/reference/hysteresis.py): it no longer biases the parameters. A linear fit's budget (T24, T36, P12)
+(rig/budget/hysteresis.py): it no longer biases the parameters. A linear fit's budget (T24, T36, P12)
 then takes the correction's uncertainty along in its linearisation (`TermsFit.data_correction`,
 calib/uncertainty/correction.py) and the terms' line leaves the hysteresis out; the scalar fit's keeps it, its
 estimate fitted again on the corrected readings (about zero) with its u. The thermal state at a point of
@@ -43,13 +43,13 @@ from calib.checks.model_checks import FIELD_SCALE_NT, model_checks
 from calib.equations import t24_regressors
 from calib.uncertainty.correction import DataCorrection
 from calib.uncertainty.propagation import InputSource
-from rig.reference.misfit import everywhere, misfit_source, within_point_noise
-from rig.reference.wander import wander_source
+from rig.budget.misfit import everywhere, misfit_source, within_point_noise
+from rig.budget.wander import wander_source
 
 P_TERM = 1e-2  # a check whose p is below this puts its term in the budget
 SIGNIFICANT = 3.0  # standard errors: a point-level error counts
 THERMAL_PLAY_C = 1.0  # a temperature change beyond this reverses the thermal direction
-# where the readings were corrected for the DUT's thermal hysteresis (rig/reference/hysteresis.py): the
+# where the readings were corrected for the DUT's thermal hysteresis (rig/budget/hysteresis.py): the
 # dataset's source holds d per axis (nT, in the field) and its u
 CORRECTED, CORRECTED_U = "hysteresis_corrected_nt", "hysteresis_corrected_u_nt"
 CARRIED = ("t24", "t36", "p12")  # models whose budgets take a hysteresis correction along (linear fits)
@@ -258,7 +258,7 @@ class TermsFit:
     def __init__(self, ds, cal, direction, w):
         self.checks = _checks(cal, ds, direction)
         self.found = _found(self.checks)
-        # readings corrected for the hysteresis before the fit (rig/reference/hysteresis.py): the term is
+        # readings corrected for the hysteresis before the fit (rig/budget/hysteresis.py): the term is
         # fitted again, about zero, for the correction's uncertainty
         self.correction = None if CORRECTED not in ds.source else np.asarray(ds.source[CORRECTED], float)
         if self.correction is not None and direction is not None and "hysteresis" not in self.found:
@@ -359,7 +359,7 @@ class TermsFit:
 
 
     def data_correction(self, direction, noise) -> DataCorrection | None:
-        """The hysteresis correction the readings were given (rig/reference/hysteresis.py), as the
+        """The hysteresis correction the readings were given (rig/budget/hysteresis.py), as the
         budget's linearisation takes it along (calib/uncertainty/correction.py): its estimate's map from the
         references (this joint fit's, on the corrected readings: the same map), its variance from the
         readings' noise (the fit's statistics' own, `noise` (3,), else this fit's white residual)."""

@@ -1,5 +1,5 @@
 """The misfit: a fit's residual beyond what the DUT's own noise explains, as a line of its budget
-(rig/reference/modelerror.py says where it stands among the others).
+(rig/budget/modelerror.py says where it stands among the others).
 
     noise, dof = within_point_noise(resid, points)      # the scatter within points
     source = misfit_source(resid, w, dof, points, notes, ref)
