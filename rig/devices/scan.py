@@ -34,6 +34,9 @@ from rig.core.ports import check_port, port_key
 from rig.devices.links import open_bridge
 
 SERIAL_TIMEOUT_S = 0.05  # an HMR2300 answers in about 2 ms; a USB adapter adds a few
+# a simulated firmware answers from a thread of this process: on a busy machine it can take far longer than
+# the device it plays, and a scan must not call it missing for that
+SIMULATED_SERIAL_TIMEOUT_S = 0.5
 
 
 @dataclass
@@ -52,6 +55,7 @@ class PortReport:
     found: list[busscan.SerialFound] = field(default_factory=list)
     error: str | None = None
     expected: dict[int, str] = field(default_factory=dict)  # device id -> device name
+    simulated: bool = False
 
 
 @dataclass
@@ -192,7 +196,8 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
                 link = bench.link(dev)
                 label = f"serial line {t.line} (simulated)" if getattr(t, "line", None) else \
                     f"serial port of {dev.name} (simulated)"
-                entry = ports.setdefault(link.port, PortReport(label, link.port, link.baudrate))
+                entry = ports.setdefault(link.port, PortReport(label, link.port, link.baudrate,
+                                                               simulated=True))
                 entry.expected[getattr(dev.device_options, "device_id", 0)] = dev.name
             elif "serial" in kinds:
                 entry = ports.setdefault(port_key(t.port), PortReport("serial port", t.port, t.baudrate))
@@ -288,6 +293,8 @@ def _adapter_name(number: int) -> str:
 
 
 def _scan_port(entry: PortReport, device_ids, timeout_s: float) -> PortReport:
+    if entry.simulated:
+        timeout_s = max(timeout_s, SIMULATED_SERIAL_TIMEOUT_S)
     line = SerialLine(entry.port, baudrate=entry.baudrate)
     try:
         entry.found = busscan.scan_serial(line, device_ids=device_ids, timeout_s=timeout_s)
