@@ -64,11 +64,7 @@ def _reference_parts(sources, ds, points: list[np.ndarray]) -> tuple[np.ndarray,
 
 def as_found(record) -> tuple[list[AsFound], list[str]]:
     """Every calibration point's as-found error with its U; notes from the reference chain's sources."""
-    from rig.budget.run_inputs import RunInputs
-    from rig.session.reader import SessionReader
-
-    with SessionReader(record.session) as reader:
-        run = RunInputs.of_session(reader)
+    run = record.run
     ds, _ = run.refined(record.ds)
     notes: list[str] = []
     sources = run.station.field_source.budget_chain(run, record.dut, ds).sources(notes)

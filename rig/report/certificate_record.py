@@ -30,6 +30,8 @@ from calib.io.digest import sha256_bytes
 from rig.config.lab import LAB_ITEMS
 from rig.core.errors import DataError, SessionError
 from rig.core.paths import calibration_file
+from rig.reference.chain_record import SNAPSHOT
+from rig.session.events import Kind, Reason
 
 CERTIFIED_MODELS = ("t24", "t36", "p12", "scalar")  # the plan's models, and a T36 the post-run fits added
 
@@ -86,30 +88,27 @@ def session_record(session: str | Path) -> dict:
     """What every certificate of a session states alike, read once for all its DUTs: the session's
     information, reference chain, sha256, points, verdicts and events, and its recorded plan and station
     parsed."""
-    from rig.reference import chain_record
+    from rig.budget.run_inputs import RunInputs
     from rig.session.reader import SessionReader
 
     session = Path(session)
     with SessionReader(session) as reader:
-        info, chain = reader.info(), reader.snapshot(chain_record.SNAPSHOT) or {}
+        info = reader.info()
+        run = RunInputs.of_session(reader)  # the recorded plan and station, the chain's inputs
+        chain = reader.snapshot(SNAPSHOT) or {}
         all_points = reader.points()
         points = [p for p in all_points if p["state"] == "done"]
         record = {"duts": reader.duts(), "sha256": reader.sha256, "acceptance": reader.acceptance(),
                   "setpoints_c": sorted({round(p["setpoint_c"], 2) for p in points}),
                   "targets": len({p["target_json"] for p in points}), "points": len(points),
                   "points_planned": len(all_points), "events": reader.events(),
-                  "failed_points": [p["id"] for p in all_points if p["state"] == "failed"]}
-    plan, station = chain_record.recorded_plan_and_station(session, info, chain)
-    com = chain.get("commissioning")
-    return record | {"session": session, "info": info, "chain": chain, "plan": plan, "station": station,
-                     "commissioning_record": None if com is None else _commissioning_record(com)}
-
-
-def _commissioning_record(com: dict) -> dict | None:
-    try:
-        return yaml.safe_load(com.get("text") or "")
-    except yaml.YAMLError:
-        return None
+                  "failed_points": [p["id"] for p in all_points if p["state"] == "failed"], "run": run}
+    com = run.station.field_source.commissioned  # as the run used it (its sealed record)
+    commissioning = None if com is None else {
+        "created_utc": com.record.created_utc,
+        "reference_magnetometer": com.record.reference_magnetometer.model_dump()}
+    return record | {"session": session, "info": info, "chain": chain, "plan": run.plan,
+                     "station": run.station, "commissioning_record": commissioning}
 
 
 @dataclass
@@ -131,6 +130,7 @@ class Record:
     chain = property(lambda self: self.recorded["chain"])  # the reference chain as the run recorded it
     commissioning_record = property(lambda self: self.recorded["commissioning_record"])
     events = property(lambda self: self.recorded["events"])
+    run = property(lambda self: self.recorded["run"])  # rig/budget/run_inputs.py RunInputs
     session_sha256 = property(lambda self: self.recorded["sha256"])
 
     @property
@@ -199,9 +199,11 @@ def gather(session: str | Path, dut: str, recorded: dict | None = None) -> Recor
 
 
 # The events that depart from the procedure as planned (ISO/IEC 17025:2017 7.8.2.1 n): holds and
-# retakes, faults, pauses and resumes, the rig's warnings and errors, fits that failed, a stale lock.
-DEVIATION_KINDS = ("hold", "fault", "request", "pause", "resume", "warning", "error", "fit_failed",
-                   "stale_lock")
+# retakes, faults, pauses and resumes, the rig's warnings and errors, fits that failed, a stale lock; and
+# a resumed run, a device that would not go safe.
+DEVIATION_KINDS = (Kind.HOLD, Kind.FAULT, Kind.REQUEST, Kind.PAUSE, Kind.RESUME, Kind.WARNING, Kind.ERROR,
+                   Kind.FIT_FAILED, Kind.STALE_LOCK)
+DEVIATION_REASONS = (Reason.RESUMED, Reason.SAFE_STATE_FAILED)
 
 
 def deviations(record: Record) -> list[list[str]]:
@@ -209,9 +211,7 @@ def deviations(record: Record) -> list[list[str]]:
     device; the run's end when it did not complete, points that failed and samples left out."""
     groups: dict[tuple, list] = {}
     for event in record.events:
-        resumed = event.kind == "start" and event.code.value == "resumed"
-        unsafe = event.kind == "safe_state" and event.code.value == "safe_state_failed"
-        if event.kind in DEVIATION_KINDS or resumed or unsafe:
+        if event.kind in DEVIATION_KINDS or event.code in DEVIATION_REASONS:
             what = f"{event.kind}: {event.code.label}" + (f" ({event.device})" if event.device else "")
             groups.setdefault((what,), []).append(event)
     rows = []

@@ -29,8 +29,12 @@ from rig.report.dcc_xml import LANG, SCHEMA_VERSION, contact, el, rich, statemen
 NOT_STATED = "not stated"
 
 
-def _date(t: float | None) -> str:
-    return dt.datetime.fromtimestamp(t or 0.0, dt.UTC).date().isoformat()
+def _run_dates(info: dict) -> tuple[str, str]:
+    """(first, last day of the run), UTC: by the wall clock where the session has it, else its run clock."""
+    clock = "wall_" if info.get("wall_started") is not None else ""
+    start = info.get(f"{clock}started") or 0.0
+    end = info.get(f"{clock}ended") or start
+    return tuple(dt.datetime.fromtimestamp(t, dt.UTC).date().isoformat() for t in (start, end))
 
 
 def dcc_document(c) -> ET.ElementTree:
@@ -83,8 +87,9 @@ def _core_data(admin: ET.Element, c) -> None:
         text(identification, "dcc:name", name)
     if plan.received is not None:
         el(core, "dcc:receiptDate", plan.received.isoformat())
-    el(core, "dcc:beginPerformanceDate", _date(info.get("wall_started")))
-    el(core, "dcc:endPerformanceDate", _date(info.get("wall_ended") or info.get("wall_started")))
+    begin, end = _run_dates(info)
+    el(core, "dcc:beginPerformanceDate", begin)
+    el(core, "dcc:endPerformanceDate", end)
     el(core, "dcc:performanceLocation", lab.performed_at if lab is not None else "laboratory")
 
 

@@ -66,6 +66,13 @@ def test_a_calibration_without_uncertainty_missing_inputs_or_chain_is_refused(tm
     assert [name for _, name in links] == [f"{session.stem}.serial0.certificate.html"]  # the report goes on
     assert refused == [line.removeprefix("error: ")]
 
+    session = runs.copy_run(folder, tmp_path / "d")  # a U that is not a number: calib refuses the file
+    cal = session.with_name(session.stem + ".mmc0.p12.yaml")
+    broken = yaml.safe_load(cal.read_text())
+    broken["uncertainty"]["expanded"]["b_nt"][1] = float("nan")
+    cal.write_text(yaml.safe_dump(broken, sort_keys=False))
+    assert f"{cal.name}: key 'uncertainty.expanded.b_nt' must have" in _refused(session, tmp_path / "d")
+
     session = runs.copy_run(folder, tmp_path / "c")  # a CSV refit written over the run's calibration
     csv = tmp_path / "mmc0.csv"
     assert run_rig("export", str(session), "--csv", "--dut", "mmc0", "-o", str(csv)).returncode == 0
