@@ -235,3 +235,32 @@ def test_the_certificate_renders_in_the_headless_browser(tmp_path_factory):
 
     assert all(item in shown for item in ITEMS)
     assert "NOT VALID: SIMULATED STATION" in banner and "NOT TRACEABLE" not in banner
+
+
+def test_the_measurand_keys_a_file_states_are_quoted(tmp_path_factory, tmp_path):
+    """A calibration file with the measurand's own keys (issue 46's `reading`, `tau_source`, `frame`,
+    `indexing`, `reference_chain`): the certificate quotes them, and a chain the file calls not traceable
+    is NOT TRACEABLE whatever the session says."""
+    session = runs.copy_run(runs.commissioned(tmp_path_factory), tmp_path / "run")
+    cal = session.with_name(session.stem + ".dut1.t24.yaml")
+    data = yaml.safe_load(cal.read_text())
+    data |= {"reading": {"device": {"name": "dut1", "model": "MMC5983MA", "serial": "MMC-24-0001"},
+                         "mode": "set_reset_pair", "mode_text": "H = (H_SET - H_RESET) / 2",
+                         "raw_unit": "nT", "samples_averaged": 1},
+             "tau_source": {"device": {"name": "tmp1", "type": "tmp117"}, "place": "beside dut1",
+                            "unit": "degC"},
+             "frame": {"B": {"name": "station", "text": "the coil axes as mounted"},
+                       "h": {"name": "sensor", "text": "the DUT's axes"}},
+             "indexing": {"matrices": "M[row][column], zero-based"},
+             "reference_chain": {"traceable": False, "text": "a test of the file's word"}}
+    cal.write_text(yaml.safe_dump(data, sort_keys=False))
+    c = certificate_of(session, "dut1")
+    assert not c.chain.traceable and "reference_chain: a test of the file's word" in c.chain.why_not
+    from rig.report.certificate import certificate_html
+
+    text = re.sub(r"\s+", " ", html.unescape(re.sub(r"<[^>]+>", " ", certificate_html(session, "dut1",
+                                                                                      certificate=c))))
+    assert "mode: set_reset_pair; mode_text: H = (H_SET - H_RESET) / 2" in text
+    assert "the calibration file (reading:)" in text and "the calibration file (tau_source:)" in text
+    assert "B: the coil axes as mounted; h: the DUT's axes the calibration file (frame:)" in text
+    assert "matrices: M[row][column], zero-based the calibration file (indexing:)" in text
