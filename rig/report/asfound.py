@@ -17,6 +17,7 @@ parts estimated from few readings: the scatter's, the ambient's).
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,7 +68,11 @@ def as_found(record) -> tuple[list[AsFound], list[str]]:
     run = record.run
     ds, _ = run.refined(record.ds)
     notes: list[str] = []
-    sources = run.station.field_source.budget_chain(run, record.dut, ds).sources(notes)
+    chain = run.station.field_source.budget_chain(run, record.dut, ds)
+    # issue 46's budget adds a list of the values stated without an uncertainty (the calibration file's
+    # uncertainty.missing refuses the certificate before this); a budget before it takes the notes alone
+    takes_missing = "missing" in inspect.signature(chain.sources).parameters
+    sources = chain.sources(notes, []) if takes_missing else chain.sources(notes)
     ids = np.asarray(ds.columns["point"])
     order = list(dict.fromkeys(ids.tolist()))  # the points in the order taken
     points = [np.flatnonzero(ids == p) for p in order]

@@ -6,9 +6,9 @@ the S1 coverage interval beside U; the calibrated field's figures under the file
     p, said = coverage_probability(record)   # the one coverage probability of the certificate
 
 One coverage probability for every figure: 95.45 %, for which k = 2 with infinite degrees of freedom
-(GUM G.2; calib/stats/student.py P_K2); the coverage factors of every file are t_95.45 of their effective
-degrees of freedom. A file of format 2 labels its uncertainty `coverage_probability: 0.95` beside those
-k: the certificate states 95.45 % and says which file labels it otherwise.
+(GUM G.2; calib/stats/student.py COVERAGE_PROBABILITY); the coverage factors of every file are t_95.45 of
+their effective degrees of freedom. A file of format 2 labels its uncertainty `coverage_probability:
+0.95` beside those k: the certificate states 95.45 % and says which file labels it otherwise.
 """
 
 from __future__ import annotations
@@ -18,12 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.stats.student import P_K2
 from calib.uncertainty.linearise import ParamLayout
 from rig.report.calsection import PARAM_UNITS
 from rig.report.html import ItemList, Section, Table
 
-COVERAGE_PROBABILITY = round(P_K2, 4)  # 0.9545, as every file of format 3 states it
+try:  # the one coverage probability, defined once in calib (calib/stats/student.py, issue 46)
+    from calib.stats.student import COVERAGE_PROBABILITY
+except ImportError:  # a calib before it: the probability for which k = 2 (P_K2), as format 3 rounds it
+    from calib.stats.student import P_K2
+
+    COVERAGE_PROBABILITY = round(P_K2, 4)
 S1_KINDS = {"probabilistically_symmetric": "probabilistically symmetric (between the draws' 2.275 % and "
                                            "97.725 % quantiles)",
             "shortest": "the shortest interval holding 95.45 % of the draws"}

@@ -67,7 +67,7 @@ def test_a_calibration_without_uncertainty_missing_inputs_or_chain_is_refused(tm
     assert refused == [line.removeprefix("error: ")]
 
     session = runs.copy_run(folder, tmp_path / "d")  # a U that is not a number: calib refuses the file
-    cal = session.with_name(session.stem + ".mmc0.p12.yaml")
+    cal = session.with_name(session.stem + ".mmc0.t24.yaml")
     broken = yaml.safe_load(cal.read_text())
     broken["uncertainty"]["expanded"]["b_nt"][1] = float("nan")
     cal.write_text(yaml.safe_dump(broken, sort_keys=False))
@@ -122,14 +122,18 @@ def test_the_certificate_states_every_item_of_7_8(tmp_path_factory):
                  "by MEMSIC", "sampling none: the item itself was calibrated",
                  "This certificate recommends no calibration interval"):
         assert fact in text, fact
-    # the measurand, each item with what states it
-    for fact in ("equation B = (S + tau K) h + b_nt + tau kb_nt_per_c", "how h was read device dut1",
-                 "a SET and a RESET reading per sample",
-                 "the thermometer that gave tau tmp1 (tmp117, beside dut1)",
-                 "frames of B and h B: the station's field frame",
-                 "index order matrices: M[row][column], zero-based",
-                 "S (3x3) dimensionless; K (3x3) in 1/°C; b_nt (3) in nT; kb_nt_per_c (3) in nT/°C"):
-        assert fact in text, fact
+    # the measurand, each item with what states it (the file's own keys, or the session's record)
+    measurand = _text(next((folder / "certificates").glob("*.dut1.certificate.html")), "Measurand")
+    said_by = r"(?:the calibration file|the session's record|this certificate)"
+    rows = dict(re.findall(r"(how h was read|the thermometer that gave tau|frames of B and h|index order) "
+                           rf"(.*?) {said_by}", measurand))
+    assert "MMC5983MA" in rows["how h was read"] and "SET" in rows["how h was read"]
+    assert all(f in rows["the thermometer that gave tau"] for f in ("tmp1", "tmp117", "beside dut1"))
+    assert rows["frames of B and h"].startswith("B: the station's field frame")
+    assert "h: the DUT's axes as its driver reports them" in rows["frames of B and h"]
+    assert "M[row][column], zero-based" in rows["index order"]
+    assert "equation B = (S + tau K) h + b_nt + tau kb_nt_per_c" in measurand
+    assert "S (3x3) dimensionless; K (3x3) in 1/°C; b_nt (3) in nT; kb_nt_per_c (3) in nT/°C" in measurand
     # the results in the file's own numbering, in its order
     cal = folder / f"{session.stem}.dut1.t24.yaml"
     labels = yaml.safe_load(cal.read_text())["uncertainty"]["covariance"]["parameters"]
@@ -154,10 +158,15 @@ def test_as_found_errors_are_the_raw_readings_against_the_reference_with_their_u
     for a in c.as_found:
         rows = ids == a.point
         assert np.allclose(a.error_nt, (ds.h_nt[rows] - ds.ref_nt[rows]).mean(axis=0), atol=1e-9)
-        # sim.yaml's coils are declared to 1 % of 50 000 nT/A per element: the reference field's U per
-        # axis is 2 x 1 % of the currents' field, |B_ref - ambient|; the reading's scatter adds a little
-        declared = 2 * 0.01 * np.linalg.norm(a.reference_nt - ambient)
-        assert np.all(a.expanded_nt >= declared) and np.all(a.expanded_nt < declared * 1.02 + 15), a
+    # sim.yaml's coils are declared to 1 % of 50 000 nT/A per element: the reference field's U per axis is
+    # 2 x 1 % of the currents' field |B_ref - ambient|, which grows with it; what U holds beyond (the
+    # reading's scatter, a stated ambient's uncertainty) is the same at every point
+    declared = np.array([[2 * 0.01 * np.linalg.norm(a.reference_nt - ambient)] * 3 for a in c.as_found])
+    expanded = np.array([a.expanded_nt for a in c.as_found])
+    assert np.all(expanded >= declared)
+    beyond = np.sqrt(expanded**2 - declared**2)
+    assert np.all(np.ptp(beyond, axis=0) <= 10 + 0.05 * beyond.mean(axis=0)), beyond
+    assert np.ptp(declared) > 100  # the points' fields differ enough for a wrong share to show
     page = next((runs.demo(tmp_path_factory) / "certificates").glob("*.mmc0.certificate.html"))
     assert all(a.point in _text(page, "As found") for a in c.as_found)
 
