@@ -92,6 +92,7 @@ def certificate_of(session: str | Path, dut: str, recorded: dict | None = None) 
 
 def certificate_sections(c: Certificate) -> list[Section]:
     r = c.record
+    departures = deviations(r)
     info, station, plan, lab = r.info, r.station, r.plan, r.station.lab
     serial, serial_by = r.serial
     identity = json.dumps(r.identity, sort_keys=True, default=str)[:600] or "-"
@@ -127,9 +128,9 @@ def certificate_sections(c: Certificate) -> list[Section]:
         as_found_section(c.as_found, c.as_found_notes, c.probability),
         Section("Deviations", [
             "Additions to, deviations and exclusions from the procedure: the run's events, grouped.",
-            Table(["what", "times", "points", "first message"], deviations(r))
-            if deviations(r) else "none: every point was taken as planned, without a hold, fault, pause "
-                                  "or retake"]),
+            Table(["what", "times", "points", "first message"], departures)
+            if departures else "none: every point was taken as planned, without a hold, fault, pause "
+                               "or retake"]),
         decision_rule.conformity_section(c.criteria, r.verdicts),
         Section("Traceability", [
             "Traceable to the SI through the chain below (ILAC P10)." if c.chain.traceable else
