@@ -8,10 +8,10 @@
 date, U; rig/config/lab.py), which makes a station's chain traceable on its certificates: an example of
 the keys, for sim-commissioned's ref0 (its issuer says it is fictitious; the station is simulated).
 
-A reference's simulated truth IS its calibration (rig/devices/bench.py reference_truths), so the file is the
-truth in the T24 form (absolute-tau convention), with small nominal standard errors and the uncertainty a
-calibration certificate of such a reference would state (k = 2, from those standard errors): a reference
-calibration without an uncertainty is refused by the rig.
+A reference's simulated truth IS its calibration (rig/devices/simulated/bench.py reference_truths), so the
+file is the truth in the T24 form (absolute-tau convention), with small nominal standard errors and the
+uncertainty a calibration certificate of such a reference would state (k = 2, from those standard errors): a
+reference calibration without an uncertainty is refused by the rig.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.io import calfile
 from rig.config import load_station
-from rig.devices.bench import reference_truths
+from rig.devices.simulated.world import reference_truths
 
 STATIONS = Path(__file__).resolve().parent.parent / "configs" / "stations"
 NOMINAL_SE = {"S": 2e-5, "K": 1e-7, "b_nt": 1.0, "kb_nt_per_c": 0.02}  # what a good coil calibration gives
