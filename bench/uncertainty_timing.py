@@ -8,8 +8,9 @@ RunInputs.budget, every DUT and model) in one process and in two. With
 --before COMMIT the same runs are made with that commit's code (a copy from `git archive`), so the
 figures before and after come from the same machine in the same hour.
 
-certificates: the demo plan on configs/stations/sim-lab.yaml, and `rig certificate` for each DUT (HTML and,
-where a renderer is available, PDF).
+certificates: the demo plan on configs/stations/sim-lab.yaml, and `rig certificate` for each DUT (HTML, its
+DCC and, where a renderer is available, PDF): each one's time, its marks, and whether its DCC is valid
+against DCC 3.1.2 (tests/data/dcc, where xmlschema is installed).
 """
 
 from __future__ import annotations
@@ -118,7 +119,23 @@ def certificates(out: Path) -> None:
     with SessionReader(session) as reader:
         duts = reader.duts()
     for dut in duts:
+        start = time.perf_counter()
         proc = subprocess.run([sys.executable, "-m", "rig", "certificate", str(session), "--dut", dut, "-o",
                                str(out / "certificates")], cwd=REPO, capture_output=True, text=True)
+        took = time.perf_counter() - start
         print(proc.stdout.strip() or proc.stderr.strip())
+        page = next((out / "certificates").glob(f"*.{dut}.certificate.html"), None)
+        if page is not None:
+            marks = re.findall(r'<p class="mark">([^<]+)</p>', page.read_text())
+            print(f"  {dut}: {took:.1f} s; marks: {', '.join(marks) or 'none'}; DCC {_dcc_valid(page)}")
     print(f"demo on {LAB.name}: {wall:.1f} s; certificates in {out / 'certificates'}")
+
+
+def _dcc_valid(page: Path) -> str:
+    dcc = page.with_name(page.name.replace(".certificate.html", ".dcc.xml"))
+    try:
+        import xmlschema
+    except ImportError:
+        return "not validated (pip install xmlschema)"
+    schema = xmlschema.XMLSchema(str(REPO / "tests" / "data" / "dcc" / "dcc.xsd"), allow="local")
+    return "valid against DCC 3.1.2" if schema.is_valid(str(dcc.resolve())) else "INVALID"

@@ -262,4 +262,4 @@ for _options, _has_temperature in ((HMC5883LOptions, False), (HMC5983Options, Tr
     registry.register(registry.DeviceSpec(
         role="magnetometer", type=_options.TYPE, options=_options, transports=("i2c",), build=_build,
         simulator="drivers.sim.devices.hmc5883l:simulate", has_temperature=_has_temperature,
-        sample_time=_sample_time_s, rates_hz=_options.RATES_HZ, probe=PROBE))
+        sample_time=_sample_time_s, rates_hz=_options.RATES_HZ, probe=PROBE, manufacturer="Honeywell"))

@@ -339,4 +339,4 @@ def identify(bus: SMBusLike, address: int) -> str | None:
 registry.register(registry.DeviceSpec(
     role="magnetometer", type="mmc5983ma", options=MMC5983MAOptions, transports=("i2c",), build=_build,
     simulator="drivers.sim.devices.mmc5983ma:simulate", has_temperature=True, sample_time=_sample_time_s,
-    probe=registry.I2cProbe((ADDRESS,), identify)))
+    probe=registry.I2cProbe((ADDRESS,), identify), manufacturer="MEMSIC"))

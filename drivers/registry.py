@@ -197,6 +197,7 @@ class DeviceSpec:
     sample_time: Callable[[Any, bool], float] | None = None  # (options, set_reset_pair) -> s per reading
     rates_hz: tuple[float, ...] = ()
     probe: I2cProbe | SerialProbe | None = None  # how `rig devices scan` recognises it
+    manufacturer: str | None = None  # who makes it (a calibration certificate names the item's maker)
 
     def sample_time_s(self, options, set_reset_pair: bool) -> float:
         """Estimated time for one reading (duration estimates; the driver sets the real pace)."""

@@ -479,4 +479,5 @@ def identify(line: SerialLine, device_id: int, timeout_s: float) -> dict | None:
 registry.register(registry.DeviceSpec(
     role="magnetometer", type="serialmag", options=SerialMagOptions, transports=("serial",), build=_build,
     simulator="drivers.sim.devices.serialmag:simulate", has_temperature=False, sample_time=_sample_time_s,
-    rates_hz=RATES_HZ, probe=registry.SerialProbe(identify, tuple(range(BROADCAST_ID)), BAUD_RATES, quiet)))
+    rates_hz=RATES_HZ, probe=registry.SerialProbe(identify, tuple(range(BROADCAST_ID)), BAUD_RATES, quiet),
+    manufacturer="Honeywell"))

@@ -210,4 +210,4 @@ registry.register(registry.DeviceSpec(
     role="temperature", type="tmp117", options=registry.NoOptions, transports=("i2c",), build=_build,
     simulator="drivers.sim.devices.tmp117:simulate", has_temperature=True, sample_time=_sample_time_s,
     temperature_accuracy_c=0.15,  # TI datasheet: +-0.1 degC from -20 to 50 degC, +-0.15 from -55 to 150
-    probe=registry.I2cProbe(ADDRESSES, identify)))
+    probe=registry.I2cProbe(ADDRESSES, identify), manufacturer="Texas Instruments"))

@@ -2,19 +2,22 @@
 it); temperatures (the schedule: rig/config/temperatures.py); fields (rig/config/fields.py);
 samples_per_point, settle_s, set_reset; fit {models, robust}; acceptance (PASS/FAIL limits per DUT);
 outputs {dir}; accuracy_ppm; stop_when {S, K, b, kb} (target standard errors); notify (word to the
-operator: rig/config/notify.py).
+operator: rig/config/notify.py); customer, received, condition (what a certificate states of the items and
+for whom they were calibrated: rig/config/lab.py).
 
 A "temperature step" is one setpoint of a step schedule (T03 in a point id); the engine runs "tasks".
 """
 
 from __future__ import annotations
 
+import datetime as dt
 from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field, model_validator
 
 from calib.models.registry import MODELS as CALIBRATION_MODELS
 from rig.config.fields import FieldSet
+from rig.config.lab import Customer, Text
 from rig.config.notify import Notify
 from rig.config.temperatures import AnyTemperatures, RampTemperatures, SequentialTemperatures
 from rig.core.configbase import Strict
@@ -105,6 +108,9 @@ class Plan(Strict):
     stop_when: dict[str, bounded(gt=0)] | None = Field(
         None, description="target T24 standard errors (S, K, b nT, kb nT/degC): stop once every DUT meets "
         "them (calib/design/targets.py)")
+    customer: Customer | None = Field(None, description="for whom the items are calibrated")
+    received: dt.date | None = Field(None, description="the date the items were received")
+    condition: Text | None = Field(None, description="the items' condition when received")
 
     @model_validator(mode="after")
     def _stop_groups(self):

@@ -2,9 +2,11 @@
 
     name; sim (the simulated world, rig/config/sim.py);
     chamber {type, transport, unit, limits}; field_source {kind: coils | turntable, ...};
-    duts [{name, type, transport, options, temp_source}];
+    duts [{name, type, transport, options, temp_source, serial?}];
     temperature_sensors [{name, type, transport, beside}];
-    reference_magnetometers [{name, type, transport, options, calibration, temp_source?, samples}].
+    reference_magnetometers [{name, type, transport, options, calibration, temp_source?, samples}];
+    lab {name, address, accreditation_id, place_of_work, procedure_id, ...} (rig/config/lab.py: what its
+    certificates state of the laboratory).
 
 The `type:` values, each type's options (`limits:` of a chamber, `options:` of a magnetometer) and the
 transport kinds it takes come from its driver's spec (drivers/registry.py); field sources come from
@@ -22,6 +24,7 @@ from pydantic import Field, create_model, model_validator
 
 from drivers import registry
 from drivers.chamber import ChamberAlarm, ChamberSettings
+from rig.config.lab import Lab, Text
 from rig.config.notify import Notify
 from rig.config.sim import SimWorld
 from rig.core import names
@@ -68,6 +71,8 @@ class DutConfig(DeviceConfig):
     role: ClassVar[str] = "magnetometer"
 
     name: SafeName
+    serial: Text | None = Field(
+        None, description="its serial number: the item's unique identity on its calibration certificate")
     temp_source: str = Field(description='a temperature sensor\'s name, or "self" (the chip\'s own sensor)')
     position_mm: POSITION_MM | None = Field(
         None, description="where its sensing element sits in the coil set (x, y, z mm); default: the centre")
@@ -154,6 +159,7 @@ class Station(Strict):
     temperature_sensors: list[TemperatureSensor] = []
     reference_magnetometers: list[ReferenceMagnetometer] = []
     notify: Notify | None = None  # word to the operator (rig/config/notify.py); a plan's notify: replaces it
+    lab: Lab | None = None  # the laboratory its certificates name (rig/config/lab.py)
 
     @model_validator(mode="after")
     def _references(self):

@@ -30,6 +30,7 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.io import calfile
 from calib.models import registry
+from rig.config.lab import reference_certificate
 from rig.core.errors import ERRORS, ConfigError, DataError, DeviceFault
 from rig.core.yamlload import locate_in_text
 from rig.engine.commands import FAILED, Hold
@@ -102,6 +103,7 @@ def load_reference_calibrations(station, station_path: str | Path, station_text:
         if registry.needs_temperature(cal.model, cal.params) and ref.temp_source is None:
             raise refuse("temp_source", f"its {cal.model} calibration has temperature terms: name a "
                          "temperature sensor beside it, or 'self'")
+        reference_certificate(path)  # a certificate it transcribes is whole, or refused naming its key
         out[ref.name] = cal
     return out
 

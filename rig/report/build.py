@@ -45,9 +45,11 @@ def write_report(inputs: ReportInputs, out_dir: str | Path, progress: Callable[[
     try:
         out.mkdir(parents=True, exist_ok=True)
         if inputs.session is not None:  # each DUT's certificate beside the page, linked from it
-            certificates = write_certificates(inputs.session, [d.name for d in inputs.duts], out)
+            certificates, refused = write_certificates(inputs.session, [d.name for d in inputs.duts], out)
             none = "none: no DUT has a calibration file beside the session"
-            sections.insert(-1, Section("Calibration certificates", [Links(certificates, none)]))
+            sections.insert(-1, Section("Calibration certificates", [
+                Links(certificates, none if not refused else "none written"),
+                ItemList([f"refused: {why}" for why in refused], kind="warning", empty_text="")]))
         for img in images_in(sections):
             written.append(inside(out, img.filename))
             written[-1].write_bytes(img.png)
@@ -59,18 +61,24 @@ def write_report(inputs: ReportInputs, out_dir: str | Path, progress: Callable[[
     return written
 
 
-def write_certificates(session: Path, duts: list[str], out: Path) -> list[tuple[str, str]]:
-    """Each DUT's calibration certificate (HTML; rig certificate prints PDFs too) in `out`: (text, name)."""
+def write_certificates(session: Path, duts: list[str], out: Path) -> tuple[list[tuple[str, str]], list[str]]:
+    """Each DUT's calibration certificate (HTML; rig certificate prints PDFs and DCCs too) in `out`:
+    ([(text, name)], [why a certificate was refused])."""
     from rig.core.paths import calibration_file
-    from rig.report.certificate import session_record, write_certificate
+    from rig.report.certificate import CertificateRefused, session_record, write_certificate
+    from rig.report.certificate_record import CERTIFIED_MODELS
 
-    links, recorded = [], None
+    links, refused, recorded = [], [], None
     for dut in duts:
-        if any(calibration_file(session, dut, m).is_file() for m in ("t24", "t36", "p12", "scalar")):
+        if any(calibration_file(session, dut, m).is_file() for m in CERTIFIED_MODELS):
             recorded = recorded or session_record(session)
-            page = write_certificate(session, dut, out, pdf=False, recorded=recorded)[0][0]
+            try:
+                page = write_certificate(session, dut, out, pdf=False, dcc=False, recorded=recorded)[0][0]
+            except CertificateRefused as exc:
+                refused.append(str(exc))
+                continue
             links.append((f"{dut}: calibration certificate", page.name))
-    return links
+    return links, refused
 
 
 def read_inputs(

@@ -14,8 +14,11 @@ from rig.report.html import ItemList, Table
 PARAM_UNITS = {
     "S": "-",
     "K": "1/°C",
+    "K2": "1/°C²",
     "b_nt": "nT",
+    "h0_nt": "nT",
     "kb_nt_per_c": "nT/°C",
+    "kb2_nt_per_c2": "nT/°C²",
     "k": "-",
     "angles_deg": "deg",
     "A": "-",

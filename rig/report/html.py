@@ -112,14 +112,20 @@ def _block(block: str | Table | Image | ItemList | Links) -> str:
     return f"<p>{html.escape(block)}</p>"
 
 
-def render_html(title: str, sections: list[Section], subtitle: str = "") -> str:
+def render_html(title: str, sections: list[Section], subtitle: str = "", *,
+                banner: list[tuple[str, str]] = (), css: str = "") -> str:
+    """The page; `banner`: (text, class) lines shown above everything (a certificate's marks), `css`:
+    more style (the page's print layout: the project's own, never a user's text)."""
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{html.escape(title)}</title>",
-        f"<style>{CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
+        f"<style>{CSS}{css}</style></head><body>",
     ]
+    if banner:
+        lines = "".join(f'<p class="{html.escape(kind)}">{html.escape(line)}</p>' for line, kind in banner)
+        parts.append(f'<div class="marks">{lines}</div>')
+    parts.append(f"<h1>{html.escape(title)}</h1>")
     if subtitle:
         parts.append(f'<p class="subtitle">{html.escape(subtitle)}</p>')
     for section in sections:

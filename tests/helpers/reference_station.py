@@ -14,7 +14,7 @@ from calib.io.digest import sha256_file
 from rig.config import CONFIGS_DIR, commissioning_file
 
 STATION = CONFIGS_DIR / "stations" / "sim-commissioned.yaml"
-REFERENCE_CAL = CONFIGS_DIR / "stations" / "sim-reference-cal.yaml"
+REFERENCE_CAL = CONFIGS_DIR / "stations" / "sim-reference-cal-certified.yaml"  # the file the station names
 
 
 def station_data() -> dict:

@@ -33,7 +33,7 @@ from rig.run.campaign import run_campaign
 from rig.session.events import Kind
 from rig.session.reader import SessionReader
 from tests.helpers.once import made_once
-from tests.helpers.reference_station import write_station
+from tests.helpers.reference_station import REFERENCE_CAL, write_station
 from tests.system import browser
 from tests.system.campaign_helpers import run_rig
 
@@ -266,7 +266,7 @@ def test_the_post_run_fits_say_which_dut_and_model_in_the_terminal_and_the_sessi
 
 def test_a_reference_calibration_without_an_uncertainty_is_refused_in_one_line(tmp_path):
     station = write_station(tmp_path)
-    cal_path = tmp_path / "sim-reference-cal.yaml"
+    cal_path = tmp_path / REFERENCE_CAL.name
     cal = calfile.load(cal_path)
     cal.uncertainty = None
     calfile.save(cal, cal_path)
@@ -293,10 +293,10 @@ def test_a_certificate_states_every_item_and_renders_in_the_browser(worlds, tmp_
     for fact in ("dut1", "mmc5983ma", "expanded", "coverage factor" if "coverage factor" in text else "k",
                  "ref0", "sha256", "commissioning", "linearity in temperature", "magrig"):
         assert fact in text, fact
-    assert "U (expanded)" in text and "thermal hysteresis" in text
-    assert "Measurand: the parameters of each model are those that describe the DUT best" in text
+    assert "U = k u" in text and "thermal hysteresis" in text
+    assert "The parameters of each model are those that describe the DUT best" in text
     assert "T24 at a point of use, per axis: model error (" in text
-    assert "the 95 % interval of |B|&#x27;s error, largest: +-" in text  # html.escape's apostrophe
+    assert "nT (the largest interval of |B|&#x27;s error)" in text  # html.escape's apostrophe
     if (why := browser.missing()) is not None:
         pytest.skip(why)
     if not list(tmp_path.glob("*.dut1.certificate.pdf")):

@@ -13,7 +13,12 @@ from rig.config import load_station
 from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError, LimitError
 from rig.schedules.compile import check_campaign
-from tests.helpers.reference_station import commissioned_station, commissioning_data, write_station
+from tests.helpers.reference_station import (
+    REFERENCE_CAL,
+    commissioned_station,
+    commissioning_data,
+    write_station,
+)
 from tests.helpers.small_plan import PLAN
 
 LOCATED = re.compile(r"^\S+: [\w.\[\]]+: .+ \(line \d+\)$")
@@ -74,7 +79,7 @@ def test_a_commissioning_file_older_than_max_age_days_is_refused(tmp_path):
 
 def test_a_changed_reference_calibration_is_refused(tmp_path):
     station, com = commissioned_station(tmp_path)
-    cal = tmp_path / "sim-reference-cal.yaml"
+    cal = tmp_path / REFERENCE_CAL.name
     cal.write_text(cal.read_text().replace("b_nt: [180.0", "b_nt: [181.0"))
     message = _refusal(tmp_path, station)
     assert message.startswith(f"{com}: reference_magnetometer.calibration_sha256: ") and "changed" in message

@@ -94,7 +94,7 @@ def test_every_deviation_key_at_zero_is_the_world_without_them(tmp_path):
             dut["truth"].update(TRUTH_ZERO)
     data["sim"].update(ALL_ZERO)
     data["field_source"]["commissioning"] = str(STATIONS / data["field_source"]["commissioning"])
-    data["reference_magnetometers"][0]["calibration"] = str(STATIONS / "sim-reference-cal.yaml")
+    data["reference_magnetometers"][0]["calibration"] = str(STATIONS / "sim-reference-cal-certified.yaml")
     path = write_station(tmp_path, data)
     assert readings(load_station(path)) == readings(load_station(STATIONS / "sim-commissioned.yaml"))
 
