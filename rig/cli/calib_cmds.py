@@ -218,8 +218,8 @@ def magnitude_guards(cal, h_nt, raw_unit: str | None) -> list[str]:
     outside = outside_magnitudes(span, h_nt)
     if outside.any():
         norm = np.linalg.norm(h_nt[outside], axis=1)
-        out.append(f"{int(outside.sum())} of {len(h_nt)} rows have |h| outside the calibrated field "
-                   f"magnitudes ({span[0]:.0f} .. {span[1]:.0f} nT) by more than {MARGIN:.0%} (they reach "
+        out.append(f"{int(outside.sum())} of {len(h_nt)} rows with |h| outside the calibrated field "
+                   f"magnitudes ({span[0]:.0f} .. {span[1]:.0f} nT) by more than {MARGIN:.0%} (|h| "
                    f"{norm.min():.4g} .. {norm.max():.4g} nT; first row {int(np.flatnonzero(outside)[0])}): "
                    "extrapolated")
     suspect = unit_suspected(span, h_nt)
