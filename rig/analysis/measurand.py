@@ -15,6 +15,7 @@ device, no reading mode and no reference chain, and its calibration says so.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 H_FRAME = {"name": "sensor", "text": "the DUT's axes as its driver reports them (x, y, z)"}
@@ -26,6 +27,9 @@ SCALAR_B_FRAME = {"name": "sensor_aligned",
 IDENTITY_KEYS = frozenset({"name", "kind", "model", "product_id", "serial_number", "firmware", "reading",
                            "address", "port", "link", "device_id", "shared_line", "baudrate"})
 NO_CHAIN_CSV = "none: refitted from a CSV's"
+# how a ramp's lag correction made tau from the thermometer's reading T_m (calib/thermal/lag.py), in words
+LAG_MODELS = {"element_lags": "element_lags: dT_e/dt = (T_m - T_e) / lag_corrected_s, tau = T_e",
+              "sensor_lags": "sensor_lags: tau = T_m + lag_corrected_s * dT_m/dt"}
 
 
 def frame(model: str, b_text: str, b_name: str = "station") -> dict:
@@ -84,10 +88,12 @@ class SessionMeasurand:
         """`tau_source`: the DUT's `temp_source` in the recorded station (a thermometer beside it, or the
         chip's own), and the lag correction a moving schedule's fit applied to it."""
         corrected = lag.get("tau_s") if isinstance(lag, dict) and lag.get("applied") else None
+        direction = None if corrected is None else lag.get("direction")
+        how = {} if corrected is None else {"lag_model": LAG_MODELS.get(direction, direction)}
         config = self._dut(dut)
         if config is None:
             return {"device": None, "place": "not known: the session's recorded station cannot be read",
-                    "unit": "degC", "lag_corrected_s": corrected}
+                    "unit": "degC", "lag_corrected_s": corrected, **how}
         if config.temp_source == "self":
             device, place = self._device(dut, config.type), f"the DUT's own die sensor ({dut})"
         else:
@@ -97,7 +103,7 @@ class SessionMeasurand:
         return {"device": device, "place": place, "unit": "degC",
                 **({"accuracy_c": config.temp_accuracy_c or accuracy} if config.temp_accuracy_c or accuracy
                    else {}),
-                "lag_corrected_s": corrected}
+                "lag_corrected_s": corrected, **how}
 
     def reference_chain(self) -> dict:
         if self.station is None:
@@ -168,14 +174,14 @@ def measurand_rows(cal) -> list[tuple[str, str]]:
                               f"{reading.get('conversion') or 'no conversion from codes stated'}")]
         settings = reading.get("settings") or {}
         if settings:
-            rows.append(("driver settings", ", ".join(f"{k} {v}" for k, v in settings.items())))
+            rows.append(("driver settings", ", ".join(f"{k} {json.dumps(v)}" for k, v in settings.items())))
     tau = cal.tau_source
     if tau is not None:
         device = tau.get("device") or {}
         who = f"{device.get('name')} ({device.get('type')}, {device.get('model')}) " if device else ""
         lag = tau.get("lag_corrected_s")
         rows.append(("tau from", f"{who}{tau.get('place')}, {_or_dash(tau.get('unit'))}; lag corrected: "
-                                 + ("none" if lag is None else f"{lag:.4g} s")))
+                                 + ("none" if lag is None else f"{lag:.4g} s ({tau.get('lag_model')})")))
     if cal.frame is not None:
         for axis in ("B", "h"):
             part = cal.frame.get(axis) or {}

@@ -88,12 +88,13 @@ def uncertainty_comment(uncertainty: dict | None) -> list[str]:
 
     figures = field_figures(uncertainty)
     k = num(figures.coverage_factor)
-    lines = [" * Uncertainty of the calibrated field over the plan's fields and temperatures: combined",
-             f" * standard uncertainty u = {num(figures.standard_nt)} nT (RMS over those points); expanded",
-             f" * uncertainty U = k u = {num(figures.expanded_nt)} nT (k = {k}); 95 % error radius (the",
-             " * largest radius holding 95 % of the 3-D error at any of those points, not k u):",
-             f" * {num(figures.radius_nt)} nT.",
-             " * Budget, standard uncertainty of the calibrated field (nT):"]
+    said = ("Uncertainty of the calibrated field over the plan's fields and temperatures: combined standard "
+            f"uncertainty u = {num(figures.standard_nt)} nT (RMS over those points); expanded uncertainty "
+            f"U = k u = {num(figures.expanded_nt)} nT (k = {k}); 95 % error radius "
+            f"{num(figures.radius_nt)} nT (the largest radius holding 95 % of the 3-D error at any of those "
+            "points, not k u).")
+    lines = [f" * {piece}" for piece in textwrap.wrap(said, NOTE_WIDTH)]
+    lines.append(" * Budget, standard uncertainty of the calibrated field (nT):")
     for item in (uncertainty.get("budget") or [])[:MAX_BUDGET_LINES]:
         if isinstance(item, dict):
             source = c_comment_text(item.get("source", "?"))
