@@ -22,7 +22,8 @@ What each station states (the budget's inputs) and what its world is drawn from:
 - ambient and chamber: measured during the run; the world's drift, steps and heater and compressor
   fields at 0 .. 1.5 x sim-lab's.
 
-Nothing the budget reads is taken from `sim:`; the bench alone reads the truth back (rig/devices/bench.py).
+Nothing the budget reads is taken from `sim:`; the bench alone reads the truth back
+(rig/devices/simulated/bench.py).
 """
 
 from __future__ import annotations

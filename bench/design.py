@@ -38,11 +38,13 @@ import yaml
 from calib.calibration import Calibration
 from calib.design.optimal import information, std_errors
 from rig.config.loading import load_campaign
-from rig.devices.bench import dut_truths  # the truth the held-out errors are judged against, nothing else
+from rig.devices.simulated.world import (
+    dut_truths,  # the truth the held-out errors are judged against, nothing else
+)
+from rig.planning.design import design_inputs, design_plan, designed_plan_text
+from rig.planning.inputs import planning_inputs
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import check_campaign, compile_plan
-from rig.schedules.design import design_inputs, design_plan, designed_plan_text
-from rig.schedules.inputs import planning_inputs
 from rig.session.reader import SessionReader, read_dataset
 
 # as `rig` itself does: a timed-out request is the rig's to retry and log, not pymodbus's to print raw frames

@@ -51,7 +51,7 @@ from calib.calibration import Calibration  # noqa: E402
 from rig.analysis.acceptance import verdict_text  # noqa: E402
 from rig.analysis.judged import judged_fits, quality_of  # noqa: E402
 from rig.config import load_station  # noqa: E402
-from rig.devices.bench import dut_truths  # noqa: E402  the truth the errors are judged against, nothing else
+from rig.devices.simulated.world import dut_truths  # noqa: E402  the truth the errors are judged against, nothing else
 from rig.session.reader import SessionReader  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

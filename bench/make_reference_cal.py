@@ -3,10 +3,10 @@
     python bench/make_reference_cal.py                      # configs/stations/sim-reference-cal.yaml
     python bench/make_reference_cal.py STATION.yaml NAME OUT.yaml
 
-A reference's simulated truth IS its calibration (rig/devices/bench.py reference_truths), so the file is the
-truth in the T24 form (absolute-tau convention), with small nominal standard errors and the uncertainty a
-calibration certificate of such a reference would state (k = 2, from those standard errors): a reference
-calibration without an uncertainty is refused by the rig.
+A reference's simulated truth IS its calibration (rig/devices/simulated/bench.py reference_truths), so the
+file is the truth in the T24 form (absolute-tau convention), with small nominal standard errors and the
+uncertainty a calibration certificate of such a reference would state (k = 2, from those standard errors): a
+reference calibration without an uncertainty is refused by the rig.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.io import calfile
 from rig.config import load_station
-from rig.devices.bench import reference_truths
+from rig.devices.simulated.world import reference_truths
 
 STATIONS = Path(__file__).resolve().parent.parent / "configs" / "stations"
 NOMINAL_SE = {"S": 2e-5, "K": 1e-7, "b_nt": 1.0, "kb_nt_per_c": 0.02}  # what a good coil calibration gives

@@ -23,7 +23,7 @@ import yaml
 import calib
 from rig.analysis.lagfit import lag_corrected
 from rig.config.loading import load_campaign
-from rig.devices.bench import dut_truths
+from rig.devices.simulated.world import dut_truths
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader, read_dataset
 

@@ -47,13 +47,12 @@ from calib.calibration import Calibration
 from calib.io import calfile
 from calib.uncertainty.montecarlo import raw_for
 from drivers.sim.world.coilfield import CoilGeometry, coil_matrix_at
-from drivers.sim.world.truths import world_deviations
 from rig.budget import run_inputs as budget
 from rig.commission.places import commission_place
 from rig.commission.procedure import commission
 from rig.config import load_station
 from rig.config.loading import load_campaign
-from rig.devices.bench import dut_truths, true_position_m, world_field
+from rig.devices.simulated.world import dut_truths, true_position_m, world_deviations, world_field
 from rig.run.campaign import run_campaign
 from rig.session.reader import SessionReader
 
@@ -98,7 +97,8 @@ def run(station_path: Path, plan_path: Path, out: Path) -> Path:
 
 # --- the truth of a simulated station ---------------------------------------------------------------------
 class Truth:
-    """What the simulated world of a station is made of (the same keywords rig/devices/bench.py gives it)."""
+    """What the simulated world of a station is made of (the same keywords rig/devices/simulated/bench.py
+    gives it)."""
 
     def __init__(self, station):
         world = world_field(station)

@@ -56,7 +56,7 @@ from calib.stats.directions import beyond_taken  # noqa: E402
 from calib.uncertainty.fielderror import expanded_at, expanded_norm_at, field_covariance, hysteresis_state_nt  # noqa: E402
 from rig.config import load_station  # noqa: E402
 from rig.core.paths import calibration_file  # noqa: E402
-from rig.devices.bench import dut_truths  # noqa: E402
+from rig.devices.simulated.world import dut_truths  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "plans" / "demo.yaml"

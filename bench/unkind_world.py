@@ -29,7 +29,7 @@ import yaml
 import calib
 from bench.reference_chain import PLAN, prepared, run, validation_grid
 from rig.budget import run_inputs as budget
-from rig.devices.bench import dut_truths
+from rig.devices.simulated.world import dut_truths
 from rig.session.reader import SessionReader
 
 REPO = Path(__file__).resolve().parents[1]

@@ -63,7 +63,7 @@ def register(group: click.Group) -> None:
         for line in station.field_source.commissioning_lines(com.section):
             click.echo(line)
         if com.thermal is not None:
-            from rig.schedules.inputs import thermal_lines
+            from rig.planning.inputs import thermal_lines
 
             for line in thermal_lines(com.thermal):
                 click.echo(line)

@@ -30,8 +30,8 @@ def design_cmd(plan_path: Path, station_path: Path | None, output: Path | None, 
     of the station in the least chamber time, and write it as a plan file."""
     from calib.io.atomic import atomic_write
     from rig.config.loading import load_campaign
+    from rig.planning.design import design_inputs, design_plan, designed_plan_text, schedule_lines
     from rig.schedules.compile import check_campaign, located_errors
-    from rig.schedules.design import design_inputs, design_plan, designed_plan_text, schedule_lines
 
     campaign = load_campaign(plan_path, station_path)
     if session_path is not None and not session_path.is_file():

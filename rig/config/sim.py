@@ -1,7 +1,7 @@
 """The simulated world a station states (`sim:`), used by the devices whose transport is `{kind: sim}`.
 
 Only what the station file says is kept here; a key left out (None) takes the simulator's default
-(drivers/sim/world/truths.py), applied when rig/devices/bench.py builds the world.
+(rig/devices/simulated/world.py), applied when the simulated bench builds the world.
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ DEFAULT_GRADIENT_C_PER_C = 0.002  # a probe glued beside the DUT: 0.1 degC apart
 
 
 class DutExpect(Strict):
-    """What the lab states of a DUT for planning while nothing has measured it (rig/schedules/inputs.py):
+    """What the lab states of a DUT for planning while nothing has measured it (rig/planning/inputs.py):
     one plain reading's noise per axis (its datasheet's RMS noise) and its temperature's lag behind the
     chamber air, first order."""
 

@@ -107,7 +107,7 @@ class Temperatures(Strict):
 class RampTemperatures(Strict):
     """Continuous ramp: the chamber ramps from range_c[0] to range_c[1] and back, `cycles` times, without
     stopping, while the field source sweeps the plan's field set again and again
-    (rig/schedules/moving_tasks.py). Before the first leg the DUTs are brought to range_c[0] and judged stable
+    (rig/schedules/tasks.py). Before the first leg the DUTs are brought to range_c[0] and judged stable
     with `stability`; `end_hold_s`
     keeps sweeping at each leg's end while the DUTs catch up with the air."""
 
@@ -156,7 +156,7 @@ class AssumedDut(Strict):
 
 
 class DesignedTiming(Strict):
-    """The pace a design was made with, as measured (rig/schedules/inputs.py): one sample of every DUT, a
+    """The pace a design was made with, as measured (rig/planning/inputs.py): one sample of every DUT, a
     point's own time beyond settle_s and its samples, and what measured them."""
 
     sample_s: bounded(gt=0, hi=3600.0)

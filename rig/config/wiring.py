@@ -6,9 +6,9 @@
 
 A segment is (simulated?, bus, switch address, channel), or (simulated?, bus, None, None) for the devices
 wired to the bus itself. A simulated chip follows the rules of a real one: with an explicit `address` it
-sits on simulated bus `bus` (rig/devices/bench.py), where two chips at one address without a switch clash
-as they would on `kind: i2c`; only a simulated chip with neither `address` nor `mux` gets a bus of its own
-(nothing was said about its wiring). Real serial devices share a line when they name the same port;
+sits on simulated bus `bus` (rig/devices/simulated/bench.py), where two chips at one address without a switch
+clash as they would on `kind: i2c`; only a simulated chip with neither `address` nor `mux` gets a bus of its
+own (nothing was said about its wiring). Real serial devices share a line when they name the same port;
 simulated ones by `line:`.
 """
 

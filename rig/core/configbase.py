@@ -1,7 +1,7 @@
 """What every station and plan model shares: strictness, vector types, transports, the device base.
 
 A device config's transport is one of the kinds its driver's spec accepts (drivers/registry.py), or
-`{kind: sim}`: the same driver then talks to its simulator (see rig/devices/bench.py).
+`{kind: sim}`: the same driver then talks to its simulator (see rig/devices/simulated/bench.py).
 """
 
 from __future__ import annotations

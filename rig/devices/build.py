@@ -9,9 +9,9 @@ drivers on simulators.
 
 Every device is built the same way: `spec.build(link, options, name=, clock=, set_reset=)` where the
 spec comes from drivers/registry.py and the link from rig/devices/links.py (real transport) or
-rig/devices/bench.py (`transport: {kind: sim}`: the device's simulator, all fed by ONE World on the campaign
-clock). A real device that fails stays failed: nothing falls back to a simulator. An all-simulated station
-runs on SimClock; anything real means RealClock (real chambers do not run on simulated time).
+rig/devices/simulated/bench.py (`transport: {kind: sim}`: the device's simulator, all fed by ONE World on the
+campaign clock). A real device that fails stays failed: nothing falls back to a simulator. An all-simulated
+station runs on SimClock; anything real means RealClock (real chambers do not run on simulated time).
 
 The run lock of a session is rig/session/lock.py.
 """
@@ -101,7 +101,7 @@ def build_devices(station: cfg.Station, plan: cfg.Plan | None = None, clock: Clo
     built = Built(clock=clock, devices={})
     bench = None
     if any(station.simulated_devices().values()):
-        from rig.devices.bench import SimBench
+        from rig.devices.simulated.bench import SimBench
 
         bench = SimBench(station, clock)
         built.world, built.sims = bench.world, bench.running

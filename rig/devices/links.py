@@ -6,8 +6,9 @@ Modbus TCP/RTU -> a ModbusTransport (retries, reconnects, raw-frame log); I2C ->
 /dev/i2c-N (one per bus number, shared; behind a `mux:` switch a MuxedBus on it), or on a USB-to-I2C
 bridge (mcp2221, cp2112, ft232h: one per serial number or URL, shared the same way); serial -> a
 SerialLink on the port's one SerialLine (devices naming the same port share it, each by its device id).
-Simulated devices get the same kinds of link from rig/devices/bench.py (a Modbus server on 127.0.0.1, a
-pty, a simulated I2C bus). `switch_banks` gives the I2C switches as devices (safe state: channels off).
+Simulated devices get the same kinds of link from rig/devices/simulated/bench.py (a Modbus server on
+127.0.0.1, a pty, a simulated I2C bus). `switch_banks` gives the I2C switches as devices (safe state: channels
+off).
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ class Shared:
 
 def open_bridge(t, clock: Clock | None, *, hid_module: Any = None, usb_backend: Any = None) -> Any:
     """A USB-to-I2C bridge transport from its station settings; `hid_module` / `usb_backend` are the
-    simulated USB's stand-ins for hidapi and pyusb (rig/devices/bench.py), None for the real ones."""
+    simulated USB's stand-ins for hidapi and pyusb (rig/devices/simulated/bench.py), None for the real
+    ones."""
     if t.kind == "ft232h":
         from drivers.transports.ft232h import FT232HBus
 

@@ -159,7 +159,7 @@ def scan_station(station, *, device_ids=None, timeout_s: float = SERIAL_TIMEOUT_
     ports: dict[str, PortReport] = {}
     bench = None
     if any(d.simulated for d in station.devices()):
-        from rig.devices.bench import SimBench
+        from rig.devices.simulated.bench import SimBench
 
         bench = SimBench(station, SimClock())
     try:

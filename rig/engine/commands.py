@@ -1,28 +1,42 @@
 """The engine's command vocabulary: what a task yields, and what a handler may raise instead of a result.
 
 A task (one point of the plan) is a generator; each command it yields is run by the handler registered for
-its type (rig/run/campaign.py for most, rig/schedules/moving_tasks.py for StartRamp and AwaitAir) and the
-result is sent back. Schedules import this vocabulary, never the executor (rig/engine/executor.py).
+its type and the result is sent back. Schedules (rig/schedules/) yield these and nothing else: every effect
+on the run is a command, so the engine sees, logs and can pause at each. Schedules import this vocabulary,
+never the executor (rig/engine/executor.py) or the runner (rig/run/).
+
+What the rig does (handlers in rig/run/runner.py and rig/run/ramping.py):
 
     SetChamber(temp_c, ramp_c_per_min)   chamber set point (and its ramp rate, where the chamber has one)
-    WaitStable(target_c, criteria)       until every DUT's own temperature is stable (rig/engine/stability.py)
+    WaitStable(target_c, criteria)       until every DUT's own temperature is stable (engine/stability.py);
+                                         returns the stability statistics the points of the step record
     StartRamp(end_c, rate_c_per_min)     ramp towards end_c from wherever the air is (moving schedules)
-    AwaitAir(nominal_c, rising, max_s)   until the air has passed a sweep's nominal temperature
+    AwaitAir(nominal_c, rising, max_s)   until the air has passed a sweep's nominal temperature; returns its
+                                         statistics as WaitStable does
     MoveField(target)                    field vector (coils) or table angles (turntable)
     Settle(seconds)                      the field source's wait_settled, then a fixed delay
-    CollectPoint(point, temp_band_c)     every DUT and sensor read, stored in one transaction
+    CollectPoint(point, temp_band_c,     every DUT and sensor read, stored in one transaction with the
+                 stability, decide)      stability statistics and what `decide` made of the rows; returns
+                                         a Collected
     Checkpoint(point_id)                 the point is recorded: a safe place to pause
+    ReadTargets(targets)                 each DUT's live T24 fit against standard-error targets
+
+What the engine does itself (rig/engine/executor.py):
+
+    AddTasks(tasks)                      points decided during the run (a sequential schedule's next sweep)
+    Event(kind, message, code, ...)      an event in the session and the live status
+    RequestStop(message, code)           end the run as completed after this point (targets met)
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from rig.core.errors import MagrigError
 from rig.engine.stability import StabilityCriteria
-from rig.session.events import Reason
+from rig.session.events import Kind, Reason
 
 # how a run ends (its exit status in the session)
 COMPLETED = "completed"
@@ -59,11 +73,41 @@ class Settle:
 
 
 @dataclass(frozen=True)
+class RunView:
+    """What a schedule's decision may know of the run when a point is collected (read-only data)."""
+
+    now_s: float  # the run's clock
+    air_c: float | None  # the chamber air, as last read
+    started_s: float  # when the session began (clock seconds)
+    decisions: int  # decisions the session holds so far
+    point_durations_s: tuple[float, ...]  # the recent points' durations
+
+
+@dataclass(frozen=True)
 class CollectPoint:
-    """Collect the point's samples from every DUT and temperature sensor and store them in one go."""
+    """Collect the point's samples from every DUT and temperature sensor and store them in one go, with the
+    stability statistics of the wait before it and what `decide(point, rows, view)` returns of them (a
+    sequential schedule's next sweep: stored in the same transaction as the point)."""
 
     point: Any
     temp_band_c: float | None = None  # hold if a DUT temperature leaves target +- band during the point
+    stability: dict | None = None  # what WaitStable / AwaitAir returned
+    decide: Callable[[Any, list, RunView], Any] | None = None
+
+
+@dataclass(frozen=True)
+class Collected:
+    """What CollectPoint stored: each DUT's last temperature, and the decision stored with the point."""
+
+    temps_c: dict[str, float]
+    decision: Any = None
+
+
+@dataclass(frozen=True)
+class ReadTargets:
+    """Each DUT's live T24 fit checked against standard-error targets (calib.design.targets.TargetStatus)."""
+
+    targets: dict[str, float]
 
 
 @dataclass(frozen=True)
@@ -81,6 +125,9 @@ class StartRamp:
     rate_c_per_min: float
 
 
+AIR_TOLERANCE_C = 0.2  # the air counts as at a sweep's nominal temperature this close to it
+
+
 @dataclass(frozen=True)
 class AwaitAir:
     """Wait until the chamber air has reached nominal_c in the ramp's direction (Hold after max_wait_s)."""
@@ -90,15 +137,42 @@ class AwaitAir:
     max_wait_s: float
 
 
-Command = SetChamber | WaitStable | MoveField | Settle | CollectPoint | Checkpoint | StartRamp | AwaitAir
-
-
 @dataclass(frozen=True)
 class Task:
     """One point of the plan as the engine runs it ("step" is kept for temperature steps)."""
 
     point_id: str
     make: Callable[[bool], Generator[Any, Any, None]]
+
+
+@dataclass(frozen=True)
+class AddTasks:
+    """Points decided during the run, appended to the engine's list."""
+
+    tasks: tuple[Task, ...]
+
+
+@dataclass(frozen=True)
+class Event:
+    """An event of the run (rig.session.events: kind, reason code, point, device, message, data)."""
+
+    kind: Kind
+    message: str
+    code: Reason
+    point_id: str | None = None
+    data: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RequestStop:
+    """End the run as completed after the current point although points remain (good enough)."""
+
+    message: str
+    code: Reason
+
+
+Command = (SetChamber | WaitStable | MoveField | Settle | CollectPoint | Checkpoint | StartRamp | AwaitAir
+           | ReadTargets | AddTasks | Event | RequestStop)
 
 
 class Hold(MagrigError):

@@ -2,10 +2,10 @@
 abort, holds and the final safe state.
 
 A task is one point of the plan (`Task(point_id, make)`); `make(retake)` returns a generator that yields
-small commands (`SetChamber`, `WaitStable`, `MoveField`, `Settle`, `CollectPoint`, `Checkpoint`) and
-receives each command's result. The engine looks the command's type up in its `handlers` (the rig-aware
-code in rig/run/campaign.py) and runs it. Tasks never catch Ctrl-C, never call safe_state() and never record
-exit status: that is the engine's job, so every exit path is the same.
+small commands (rig/engine/commands.py) and receives each command's result. The engine runs the ones that
+concern the run itself (AddTasks, Event, RequestStop) and looks any other command's type up in its
+`handlers` (the rig-aware code in rig/run/). Tasks never catch Ctrl-C, never call safe_state() and never
+record exit status: that is the engine's job, so every exit path is the same.
 
 - Ctrl-C (SIGINT) asks for a pause; the engine takes it at the next safe point (a command boundary, or a
   poll inside a long wait), puts every device in its safe state, and asks `prompt` whether to resume or
@@ -20,12 +20,6 @@ exit status: that is the engine's job, so every exit path is the same.
   reason.
 - Whatever happens (completion, abort, an unexpected exception), every device gets safe_state() and the
   session records the exit status and reason.
-
-Continuous mode (sampling while the chamber ramps) fits the same engine: its task would yield
-`SetChamber(target, ramp_c_per_min=...)` without `WaitStable`, then a loop of `MoveField` + `CollectPoint`
-(each sample already carries its own DUT temperature) with a `Checkpoint` after each stored block, until
-the DUT reaches the target. Only a new task generator and its point list are needed; holds, pause, resume
-by point id and the final safe state stay as they are.
 """
 
 from __future__ import annotations
@@ -41,7 +35,17 @@ from drivers.base import make_all_safe
 from drivers.clock import Clock
 from rig.core.errors import ERRORS, DeviceError, MagrigError
 from rig.core.signals import TERMINATE, handled, name_of
-from rig.engine.commands import ABORTED, COMPLETED, FAILED, CollectPoint, Hold, Task
+from rig.engine.commands import (
+    ABORTED,
+    COMPLETED,
+    FAILED,
+    AddTasks,
+    CollectPoint,
+    Event,
+    Hold,
+    RequestStop,
+    Task,
+)
 from rig.session.events import Kind, Reason, code_of, device_of
 
 log = logging.getLogger("magrig.engine")
@@ -122,6 +126,8 @@ class Engine:
         self.inbox = inbox  # rig.session.inbox.Inbox: requests from outside the process, or None
         self._pause_source: str | None = None  # who asked for the pending pause, when not Ctrl-C
         self._todo: list[Task] = []
+        # the commands that concern the run itself; every other command goes to the rig's handlers
+        self.own = {AddTasks: self.add_tasks, Event: self.record_event, RequestStop: self.request_stop}
 
     # --- requests (signal handlers and tests call these) -----------------------------------------
     def request_pause(self) -> None:
@@ -139,16 +145,18 @@ class Engine:
         if self._prompting:
             raise KeyboardInterrupt  # stop waiting for the operator's answer
 
-    def add_tasks(self, tasks: Iterable[Task]) -> None:
+    def add_tasks(self, cmd: AddTasks) -> None:
         """Append tasks to the running list (a schedule decided during the run,
         rig/schedules/sequential_run.py)."""
-        added = list(tasks)
-        self._todo.extend(added)
-        self.status.points_total += len(added)
+        self._todo.extend(cmd.tasks)
+        self.status.points_total += len(cmd.tasks)
 
-    def request_stop(self, reason: str, code: Reason) -> None:
+    def request_stop(self, cmd: RequestStop) -> None:
         """End the run after the current task as completed although points remain (good enough)."""
-        self._stop = (reason, code)
+        self._stop = (cmd.message, cmd.code)
+
+    def record_event(self, cmd: Event) -> None:
+        self.event(cmd.kind, cmd.message, code=cmd.code, point_id=cmd.point_id, **cmd.data)
 
     def check_interrupt(self) -> None:
         """Called between commands and by long handlers at every poll: raises to pause or abort."""
@@ -293,7 +301,7 @@ class Engine:
                     self.check_interrupt()
                 command = gen.send(reply)
                 recorded = recorded or isinstance(command, CollectPoint)
-                handler = self.handlers.get(type(command))
+                handler = self.own.get(type(command)) or self.handlers.get(type(command))
                 if handler is None:
                     raise MagrigError(f"no handler for command {type(command).__name__}")
                 self.status.command = type(command).__name__

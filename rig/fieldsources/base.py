@@ -260,8 +260,8 @@ class FieldSourceConfig(DeviceConfig):
 
     def declared_world(self) -> dict:
         """What the station declares of the field this source makes, as keywords of the simulated world
-        (drivers/sim/world/__init__.py); the simulated bench (rig/devices/bench.py) lays the station's `sim:`
-        truth over them. None: not declared (measured during the run)."""
+        (drivers/sim/world/__init__.py); the simulated bench (rig/devices/simulated/bench.py) lays the
+        station's `sim:` truth over them. None: not declared (measured during the run)."""
         raise NotImplementedError
 
 

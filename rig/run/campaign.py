@@ -1,14 +1,15 @@
-"""A campaign run: the session, its lock, the rig, the engine and the runner's tasks (rig/run/runner.py),
-then the post-run fits, whatever happens in between.
+"""A campaign run: the session, its lock, the rig, the engine, the schedule's tasks and the runner's
+handlers, then the post-run fits, whatever happens in between.
 
     outcome = run_campaign(campaign=load_campaign(plan_path), session_path=path)   # or resume=True
     outcome.result.status, outcome.result.reason, outcome.fits
 
 What run_campaign does with the pieces:
-    runner = CampaignRunner(rig, plan, points, session, status=RunStatus())
+    schedule = tasks_for(plan, station, points)     # rig/schedules/compile.py TASKS: generators only
+    runner = CampaignRunner(rig, plan, points, session, status=RunStatus())   # the handlers
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session, ...)
     runner.engine = engine
-    engine.run(runner.tasks(), done_ids=session.done_point_ids())
+    engine.run(schedule.tasks(), done_ids=session.done_point_ids())
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from rig.fieldsources.fieldmaths import reference_for
 from rig.reference import chain_record, sitefield
 from rig.run.notify import watching
 from rig.run.runner import CampaignRunner
-from rig.schedules.compile import check_campaign
+from rig.schedules.compile import check_campaign, tasks_for
 from rig.schedules.sequential import decided_points
 from rig.session.events import Kind, Reason
 from rig.session.inbox import Inbox
@@ -202,14 +203,15 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
         session.record_snapshot(dev.name, dev.describe())
     session.record_snapshot(chain_record.SNAPSHOT, chain_record.record(rig.station, calibrations))
     status = RunStatus()
+    schedule = tasks_for(plan, rig.station, points)
     runner = CampaignRunner(rig, plan, points, session, status)
     if runner.source.needs_measurement():
         sitefield.measure_for_run(runner, session, calibrations or {})
     done = session.done_point_ids()
     if done:
         runner.preload_live(session.path)
-        if hasattr(runner.ramp, "preload"):  # a sequential schedule decides from every row so far
-            runner.ramp.preload(session.path)
+        if hasattr(schedule, "preload"):  # a sequential schedule decides from every row so far
+            schedule.preload(session.path)
     engine = Engine(runner.handlers(), devices=rig.devices(), clock=rig.clock, session=session,
                     prompt=prompt, max_retakes=max_retakes, hold_wait_s=hold_wait_s, status=status,
                     inbox=Inbox(session.path))
@@ -220,7 +222,7 @@ def _run_in_session(rig, plan, points, session, lock, prompt, display_factory, h
     # the post-run fits' helper process gets ready on the other core while the run goes on
     with run_helper(session.path, tuple(plan.fit.models), bool(plan.fit.robust), len(rig.duts)) as helper:
         with display or contextlib.nullcontext():
-            result = engine.run(runner.tasks(), done_ids=done)
+            result = engine.run(schedule.tasks(), done_ids=done)
         if runner.site is not None and result.status == COMPLETED:  # the field source is at its safe setting
             runner.site.check_at_end(session.log_event)
         record_final_state(rig, session)

@@ -1,18 +1,14 @@
-"""The campaign runner: a plan's points as engine tasks (command generators) and the handlers the engine
-calls for each command (rig/engine/commands.py). A schedule that samples while the temperature moves adds
-its own tasks and handlers (rig/schedules/moving_tasks.py, rig/schedules/sequential_run.py).
+"""The campaign runner: the handlers the engine calls for each command a schedule's tasks yield
+(rig/engine/commands.py; the tasks: rig/schedules/tasks.py). StartRamp and AwaitAir are rig/run/ramping.py's.
 
-Step and dwell: a point sets the chamber and waits for every DUT's temperature to be stable when the
-temperature step changes (or when it is retaken after a hold or a pause), then moves the field, lets it
-settle and collects `samples` readings from every DUT with each DUT's temperature and the reference
-field of that very sample. The point is stored in one transaction.
+A point's samples: `samples` readings from every DUT with each DUT's temperature and the reference field
+of that very sample, stored in one transaction with the stability statistics of the wait before it and
+whatever a schedule decided from its rows.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
-from collections.abc import Generator
 from typing import Any
 
 import numpy as np
@@ -25,32 +21,26 @@ from rig.devices.build import Rig
 from rig.devices.interleave import read_all
 from rig.engine.commands import (
     Checkpoint,
+    Collected,
     CollectPoint,
     Hold,
     MoveField,
+    ReadTargets,
+    RunView,
     SetChamber,
     Settle,
-    Task,
     WaitStable,
 )
 from rig.engine.executor import Engine, RunStatus
 from rig.engine.frozen import FrozenReadings
-from rig.engine.stability import (
-    OFFSET,
-    STABLE,
-    TIMEOUT,
-    StabilityCriteria,
-    StabilityDetector,
-    criteria_of,
-)
+from rig.engine.stability import OFFSET, STABLE, TIMEOUT, StabilityCriteria, StabilityDetector
 from rig.fieldsources.fieldmaths import reference_for
+from rig.run.ramping import RampHandlers
 from rig.session.events import Kind, Reason
 from rig.session.rows import SampleRow
 from rig.session.temperature_log import TemperatureLog
 
 log = logging.getLogger("magrig.campaign")
-
-HOLD_BAND_FACTOR = 2.0  # during a point, a DUT may drift this many stability bands before the point is held
 
 
 def poll_interval_s(criteria: StabilityCriteria) -> float:
@@ -75,44 +65,20 @@ class CampaignRunner:
         # a measured ambient / site field: the reference is made once it is measured (measure_site_field)
         self.reference = None if self.source.needs_measurement() else reference_for(rig.station)
         self.site = None  # rig.reference.sitefield.SiteFieldMonitor when the field source needs a measurement
-        self.stable_at_c: float | None = None  # the setpoint the DUTs were last found stable at
         self.settled_c: dict[str, float] = {}  # where each DUT settled there (its place may be off the air)
         temps = [p.setpoint_c for p in points] or [25.0]
         self.live = {name: LiveFit(float(np.mean(temps))) for name in rig.duts}
         self.live_summaries = LiveSummaries(self.live)  # each solved when read (the live view), not per point
         self.on_point: list = []  # callbacks(point_id) after each stored point (the display)
-        self._stability_stats: dict = {}
         self.frozen = FrozenReadings()  # a stuck temperature sensor must not pass for a stable DUT
         self.temperatures = TemperatureLog(session)  # what the cockpit plots between points
-        self.decide = None  # (point, rows) -> store.Decision | None: a schedule decided during the run
-        from rig.schedules import moving_tasks, sequential_run
-
-        # tasks of a schedule that samples while the temperature moves (None for steps); stop_when
-        self.ramp = sequential_run.attach(self) or moving_tasks.attach(self)
-
-    # --- the plan as generators -------------------------------------------------------------------
-    def tasks(self) -> list[Task]:
-        if self.ramp is not None:
-            return self.ramp.tasks()
-        return [Task(p.id, functools.partial(self.point_commands, p)) for p in self.points]
-
-    def point_commands(self, point: Point, retake: bool) -> Generator[Any, Any, None]:
-        criteria = criteria_of(point.stability)
-        if retake or self.stable_at_c != point.setpoint_c:
-            self.stable_at_c = None
-            yield SetChamber(point.setpoint_c, point.ramp_c_per_min)
-            self._stability_stats = yield WaitStable(point.setpoint_c, criteria)
-            self.stable_at_c = point.setpoint_c
-        yield MoveField(point.command)
-        yield Settle(point.settle_s)
-        yield CollectPoint(point, criteria.band_c * HOLD_BAND_FACTOR)
-        yield Checkpoint(point.id)
+        self.ramping = RampHandlers(self)
 
     # --- handlers ---------------------------------------------------------------------------------
     def handlers(self) -> dict:
         return {SetChamber: self.set_chamber, WaitStable: self.wait_stable, MoveField: self.move_field,
                 Settle: self.settle, CollectPoint: self.collect_point, Checkpoint: self.checkpoint,
-                **(self.ramp.handlers() if self.ramp is not None else {})}
+                ReadTargets: self.read_targets, **self.ramping.handlers()}
 
     def set_chamber(self, cmd: SetChamber) -> None:
         chamber = self.rig.chamber
@@ -121,7 +87,9 @@ class CampaignRunner:
         chamber.set(cmd.temp_c)
         self.status.thermal = f"chamber -> {cmd.temp_c:g} degC"
 
-    def _check_chamber(self) -> None:
+    def check_chamber(self):
+        """The chamber's reading, noted for the live view and the cockpit; Hold on an alarm, a sensor
+        fault or a chamber off its course."""
         reading = self.rig.chamber.read()
         self.status.chamber_c = reading.air_c
         self.temperatures.note(reading, self.status.dut_temps_c)
@@ -129,6 +97,7 @@ class CampaignRunner:
             code = (Reason.CHAMBER_ALARM if reading.alarm else
                     Reason.CHAMBER_SENSOR if reading.input_error else Reason.CHAMBER_OFF_COURSE)
             raise Hold(f"chamber {reading.problem}", code=code, device=self.rig.chamber.name)
+        return reading
 
     def _dut_temps(self) -> dict[str, float | None]:
         """Each DUT's temperature from its temp source: every source read once, their conversions
@@ -144,7 +113,7 @@ class CampaignRunner:
         poll_s = poll_interval_s(cmd.criteria)
         start = clock.now()
         while True:
-            self._check_chamber()
+            self.check_chamber()
             temps = self._dut_temps()
             t = clock.now()
             for dut, temp_c in temps.items():
@@ -204,10 +173,10 @@ class CampaignRunner:
         setting = self.reference.readback(self.rig.field_source.read())
         return self.reference.fields_nt(setting, self.rig.duts)
 
-    def collect_point(self, cmd: CollectPoint) -> None:
+    def collect_point(self, cmd: CollectPoint) -> Collected:
         point: Point = cmd.point
         started = self.rig.clock.now()
-        self._check_chamber()
+        self.check_chamber()
         rows: list[SampleRow] = []
         beside = {s.beside: s.name for s in self.rig.station.temperature_sensors}
         together = self._sample_devices()
@@ -233,12 +202,22 @@ class CampaignRunner:
                 rows.append(SampleRow.from_field_sample(dut, sample, ref_nt[dut], temp_c=temp_c,
                                                         ref_temp_c=other_c))
                 self.status.dut_temps_c[dut] = temp_c
-        self._check_chamber()
+        self.check_chamber()
         self._feed_live(rows)
-        decision = self.decide(point, rows) if self.decide is not None else None  # stored with the point
-        stats = {**self._stability_stats, "reference": self.reference.record()}
+        decision = cmd.decide(point, rows, self.run_view()) if cmd.decide is not None else None
+        stats = {**(cmd.stability or {}), "reference": self.reference.record()}
         self.session.record_point(point.id, rows, stats, started=started,
                                   temperatures=self.temperatures.take(), decision=decision)
+        return Collected({r.dut: r.temp_c for r in rows}, decision)
+
+    def run_view(self) -> RunView:
+        return RunView(self.rig.clock.now(), self.status.chamber_c, self.session.info()["started"],
+                       len(self.session.decisions()), tuple(self.status.point_durations_s))
+
+    def read_targets(self, cmd: ReadTargets) -> dict:
+        from calib.design.targets import check_targets
+
+        return {dut: check_targets(live.acc, cmd.targets) for dut, live in self.live.items()}
 
     def _sample_devices(self) -> dict[str, Any]:
         """The DUTs and the temperature sensors, read as one: each probe right after the DUT it sits beside,

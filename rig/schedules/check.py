@@ -19,55 +19,15 @@ import numpy as np
 from rig.core.errors import ConfigError, LimitError
 from rig.core.points import Point
 from rig.core.yamlload import KeyPath, blamed, format_path, locate_in_text
+from rig.planning.pace import (
+    MAX_DURATION_S,
+    format_duration,
+)
 
 if TYPE_CHECKING:
-    from rig.config import Campaign, Plan, Stability, Station
+    from rig.config import Campaign, Plan, Station
 
 # Bounds on every expansion, checked before anything is built (a hostile plan must not exhaust memory).
-MAX_TEMPERATURES = 1_000
-MAX_FIELDS = 10_000
-MAX_POINTS = 100_000
-MAX_SAMPLES_PER_DUT = 1_000_000  # the full campaign takes 19 200
-MAX_DURATION_S = 8 * 7 * 86_400.0  # eight weeks
-
-ASSUMED_START_C = 22.0  # a room: where the air is taken to start when nothing measured it
-
-
-@dataclass(frozen=True)
-class DutInput:
-    """What planning knows of a DUT (rig/schedules/inputs.py): its noise per fitted sample and axis (nT, as
-    the plan reads it), its temperature's first-order lag behind the air (s) and where it settles relative
-    to the air (degC); None where the source does not say."""
-
-    name: str
-    noise_nt: float | None
-    lag_s: float | None
-    offset_c: float | None
-    origin: str
-
-
-@dataclass(frozen=True)
-class ChamberInput:
-    """The chamber as measured: the air's fastest pace (degC/min) and overshoot (degC), where the air
-    starts (degC); rate None: not measured."""
-
-    rate_c_per_min: float | None
-    overshoot_c: float | None
-    start_c: float
-    origin: str
-
-
-@dataclass(frozen=True)
-class Timing:
-    """The pace of a point: one sample of every DUT (with the sensors and the field source's read-back,
-    interleaved as a campaign reads them) and a point's own time beyond its settle_s and samples (moving
-    and settling the field source, reading the chamber), both s."""
-
-    sample_s: float
-    point_overhead_s: float
-    origin: str
-
-
 def plan_error(cls: type[Exception], plan: Plan, path: KeyPath, what: str) -> Exception:
     """An error of the plan, blamed on its key so that located_errors can name the line."""
     return blamed(cls(f"plan {plan.name}: {format_path(path)}: {what}"), path, what)
@@ -86,13 +46,6 @@ def located_errors(campaign: Campaign | None) -> Iterator[None]:
         source, text = ((campaign.plan_path, campaign.plan_text) if document == "plan"
                         else (campaign.station_path, campaign.station_text))
         raise type(err)(locate_in_text(str(source), text, path, what)) from None
-
-
-def format_duration(seconds: float) -> str:
-    seconds = int(round(seconds))
-    h, rem = divmod(seconds, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}h{m:02d}m" if h else (f"{m}m{s:02d}s" if m else f"{s}s")
 
 
 @dataclass
@@ -149,11 +102,6 @@ class ScheduleCheck:
 
 
 # --- the field source -----------------------------------------------------------------------------------
-def field_targets(plan: Plan, station: Station) -> list[tuple[float, ...]]:
-    """The field source's targets for the plan's field set, in plan order."""
-    return station.field_source.targets(plan.fields, plan.name, station.name)
-
-
 def _field_path(plan: Plan, field_index: int) -> KeyPath:
     """The plan key of one field target (1-based), where the plan lists them one by one."""
     keys = {"vectors": "vectors_nt", "orientations": "angles_deg", "directions": "directions"}
@@ -179,33 +127,6 @@ def check_field_limits(plan: Plan, station: Station, points: list[Point], warnin
 
 
 # --- times ----------------------------------------------------------------------------------------------
-def stated_sample_time_s(plan: Plan, station: Station) -> float:
-    """Time for one sample of every DUT from the drivers' stated conversion times, for a station whose pace
-    nothing has measured (rig/schedules/inputs.py). Reading is interleaved (rig/devices/interleave.py): the
-    DUTs wait for their conversions together, so a sample takes as long as the slowest DUT, except that
-    DUTs sharing one serial line are polled in turn. The temperature sensors are read first, together
-    likewise."""
-    pair = plan.set_reset == "pair"
-    groups: dict[tuple[str, str], float] = {}
-    for d in station.duts:
-        line, port = getattr(d.transport, "line", None), getattr(d.transport, "port", None)
-        key = ("line", line) if line else ("port", port) if port else ("dut", d.name)
-        groups[key] = groups.get(key, 0.0) + d.spec.sample_time_s(d.options, pair)
-    sensors = [s.spec.sample_time_s(s.options, pair) for s in station.temperature_sensors]
-    return max(groups.values()) + max(sensors, default=0.0)
-
-
-def stable_after_ramp_s(delta_c: float, ramp_c_per_min: float, lag_s: float | None, st: Stability,
-                        overshoot_c: float = 0.0) -> float:
-    """A first-order mount lags a ramp by rate*lag (and the air overshoots by overshoot_c); after the ramp
-    that error decays with the lag. Without a known lag only the dwell is counted."""
-    if lag_s is None:
-        return st.dwell_s
-    lag_error_c = max(min(abs(delta_c), ramp_c_per_min / 60.0 * lag_s), overshoot_c)
-    decay = lag_s * math.log(lag_error_c / st.band_c) if lag_error_c > st.band_c else 0.0
-    return decay + st.dwell_s
-
-
 def check_range_limits(plan: Plan, station: Station, range_c, rate_c_per_min: float | None,
                        rate_path: KeyPath) -> None:
     """A moving schedule's range and rate against the chamber's limits (LimitError naming the plan key)."""

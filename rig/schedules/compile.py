@@ -12,6 +12,7 @@ The plan's temperature schedule is one of (SCHEDULES, chosen by the plan's `temp
 - a sequential schedule (rig/schedules/sequential.py, run by rig/schedules/sequential_run.py): only the
   first sweep is known before the run, each further sweep is decided after the one before and recorded
   in the session; `L02-S0003-F07`.
+Each kind's points run as tasks (TASKS, rig/schedules/tasks.py): generators that yield engine commands.
 The plan check asks the schedule once for its points, limits and duration, then applies what every plan
 shares (rig/schedules/check.py): the field source's limits, the T24 design, the duration bound,
 stop_when; and the reference chain's (rig/reference/checks.py): commissioning, non-uniformity at the DUT
@@ -33,18 +34,20 @@ from rig.config import (
 )
 from rig.core.errors import ConfigError
 from rig.core.points import Point, RampPoint, point_id
-from rig.reference.checks import reference_lines
-from rig.schedules.check import (
+from rig.planning.pace import (
     MAX_DURATION_S,
     MAX_FIELDS,
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
     MAX_TEMPERATURES,
+    field_targets,
+    format_duration,
+)
+from rig.reference.checks import reference_lines
+from rig.schedules.check import (
     PlanCheck,
     check_duration,
     check_field_limits,
-    field_targets,
-    format_duration,
     located_errors,
     plan_error,
     stop_when_line,
@@ -53,11 +56,16 @@ from rig.schedules.check import (
 from rig.schedules.designed import LegSchedule
 from rig.schedules.ramp import RampSchedule
 from rig.schedules.sequential import SequentialSchedule
+from rig.schedules.sequential_run import SequentialTasks
 from rig.schedules.steps import StepSchedule
+from rig.schedules.tasks import MovingTasks, StepTasks
 
 SCHEDULES = {Temperatures: StepSchedule, RampTemperatures: RampSchedule, DesignedTemperatures: LegSchedule,
              SequentialTemperatures: SequentialSchedule}
 Schedule = StepSchedule | RampSchedule | LegSchedule | SequentialSchedule
+# the tasks each kind's points run as (rig/schedules/tasks.py): generators of engine commands, nothing else
+TASKS = {Temperatures: StepTasks, RampTemperatures: MovingTasks, DesignedTemperatures: MovingTasks,
+         SequentialTemperatures: SequentialTasks}
 
 
 def schedule_for(plan: Plan, station: Station) -> Schedule:
@@ -70,6 +78,12 @@ def schedule_for(plan: Plan, station: Station) -> Schedule:
 
 def compile_plan(plan: Plan, station: Station) -> list[Point]:
     return schedule_for(plan, station).points()
+
+
+def tasks_for(plan: Plan, station: Station, points: list[Point]) -> StepTasks | MovingTasks | SequentialTasks:
+    """The plan's points as engine tasks: `.tasks()` for the engine; a sequential schedule's also
+    `.preload(session_path)` for a resume (it decides from every row so far)."""
+    return TASKS[type(plan.temperatures)](plan, station, points)
 
 
 def check_campaign(campaign: Campaign) -> PlanCheck:

@@ -1,14 +1,14 @@
 """A designed schedule (`temperatures: {mode: designed, legs: [...]}`, written by `rig design`): legs run
 back to back from wherever the air is; in each the chamber ramps to the leg's temperature and holds there
 while the field source sweeps the plan's fields `sweeps` times. As on a continuous ramp
-(rig/schedules/moving_tasks.py) every sample carries its DUT's temperature and each sweep has a nominal air
+(rig/schedules/tasks.py) every sample carries its DUT's temperature and each sweep has a nominal air
 temperature, where the air is when the sweep starts if every sweep takes the estimated sweep time; a sweep
 waits for the air to reach it. So the point list is known before the run and stable:
 
     L02-S003-F07     leg 2, sweep 3 of that leg, field 7 (O07 for a turntable's orientation)
 
 Its part of `rig check`: the chamber's limits, the sweep's pace, the duration, and the standard errors the
-design predicts for each DUT against chamber time (rig/schedules/design.py, calib/design/planner.py).
+design predicts for each DUT against chamber time (rig/planning/design.py, calib/design/planner.py).
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ import math
 from rig.config import DesignedTemperatures, Plan, Station
 from rig.core.errors import ConfigError, LimitError
 from rig.core.points import RampPoint
-from rig.schedules.check import (
+from rig.planning.inputs import planning_inputs, timing_of
+from rig.planning.pace import (
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
-    ScheduleCheck,
+    MAX_SWEEP_SPAN_FRACTION,
     format_duration,
-    plan_error,
+    sweep_time_s,
 )
-from rig.schedules.inputs import planning_inputs
-from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
+from rig.schedules.check import ScheduleCheck, plan_error
 
 LEGS_PATH = ("temperatures", "legs")
 DURATION_KEYS = {"to and at the ends": LEGS_PATH, "across via the checks": LEGS_PATH}
@@ -72,9 +72,9 @@ def leg_points(plan: Plan, station: Station, targets: list[tuple[float, ...]], *
 def leg_times_s(temps: DesignedTemperatures, start_c: float, sweep_s: float, air_rate_c_per_min: float
                 ) -> list[float]:
     """Each leg's time as a run takes it: a sweep begins when the one before has ended and the air has
-    reached the sweep's nominal temperature (rig/schedules/moving_tasks.py AwaitAir), the air moving at the
+    reached the sweep's nominal temperature (rig/schedules/tasks.py AwaitAir), the air moving at the
     leg's rate, or at the chamber's pace where that is slower."""
-    from rig.schedules.moving_tasks import AIR_TOLERANCE_C
+    from rig.engine.commands import AIR_TOLERANCE_C
 
     nominal_from, air, out = start_c, start_c, []
     for i, leg in enumerate(temps.legs):
@@ -99,7 +99,7 @@ class LegSchedule:
     def __init__(self, plan: Plan, station: Station, targets: list[tuple[float, ...]]):
         assert isinstance(plan.temperatures, DesignedTemperatures)
         self.plan, self.station, self.targets, self.temps = plan, station, targets, plan.temperatures
-        self.sweep_parts_s = sweep_time_s(plan, station, targets)
+        self.sweep_parts_s = sweep_time_s(plan, station, targets, timing_of(plan, station))
         self.sweep_s = sum(self.sweep_parts_s.values())
         self.inputs = planning_inputs(plan, station)
 
@@ -126,7 +126,7 @@ class LegSchedule:
         return points
 
     def check(self) -> ScheduleCheck:
-        from rig.schedules.design import predicted_lines
+        from rig.planning.design import predicted_lines
 
         self._check_limits()
         points = self.points()

@@ -3,7 +3,7 @@
 The chamber ramps from range_c[0] to range_c[1] (leg U when that is upwards) and back (leg D), `cycles`
 times. Meanwhile the field source sweeps the plan's field set again and again. Each sweep has a nominal
 air temperature, where the air is when the sweep starts if every sweep takes the estimated sweep time;
-a sweep waits for the air to reach it, never the other way round (rig/schedules/moving_tasks.py). A leg has as
+a sweep waits for the air to reach it, never the other way round (rig/schedules/tasks.py). A leg has as
 many sweeps as fit in its ramp plus its end hold, so the point list is known before the run and stable:
 
     R1U-S003-F07     cycle 1, leg up, sweep 3 of that leg, field 7 (O07 for a turntable's orientation)
@@ -20,24 +20,22 @@ from dataclasses import dataclass
 from rig.config import Plan, RampTemperatures, Station
 from rig.core.errors import ConfigError, LimitError
 from rig.core.points import RampPoint
-from rig.schedules.check import (
+from rig.planning.inputs import planning_inputs, timing_of
+from rig.planning.pace import (
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
-    ScheduleCheck,
-    Timing,
-    check_range_limits,
+    MAX_SWEEP_SPAN_FRACTION,
     format_duration,
-    plan_error,
     stable_after_ramp_s,
+    sweep_time_s,
 )
-from rig.schedules.inputs import planning_inputs, timing_of
+from rig.schedules.check import ScheduleCheck, check_range_limits, plan_error
 
 RAMP_PATH = ("temperatures", "rate_c_per_min")
 DURATION_KEYS = {
     "to start": ("temperatures", "range_c"), "stability": ("temperatures", "stability"),
     "ramps": RAMP_PATH, "end holds": ("temperatures", "end_hold_s"), "last sweeps": ("fields",),
 }
-MAX_SWEEP_SPAN_FRACTION = 0.1  # one sweep may span at most this fraction of the ramp's range
 
 
 @dataclass(frozen=True)
@@ -65,16 +63,6 @@ def legs(ramp: RampTemperatures) -> list[Leg]:
     return out
 
 
-def sweep_time_s(plan: Plan, station: Station, targets: list[tuple[float, ...]],
-                 timing: Timing | None = None) -> dict[str, float]:
-    """One sweep of the field set at the measured pace (rig/schedules/inputs.py `timing_of`, or `timing`):
-    moves (back to the first target included) and each point's own time, settling, and sampling."""
-    timing = timing or timing_of(plan, station)
-    moves = station.field_source.move_time_s([*targets, targets[0]])
-    return {"moves+settle": moves + (plan.settle_s + timing.point_overhead_s) * len(targets),
-            "sampling": timing.sample_s * plan.samples_per_point * len(targets)}
-
-
 def sweeps_per_leg(ramp: RampTemperatures, sweep_s: float) -> int:
     """As many as fill the ramp and the end hold, plus the one at the leg's end (the air there)."""
     leg_s = abs(ramp.range_c[1] - ramp.range_c[0]) / ramp.rate_c_per_min * 60.0 + ramp.end_hold_s
@@ -89,7 +77,7 @@ class RampSchedule:
     def __init__(self, plan: Plan, station: Station, targets: list[tuple[float, ...]]):
         assert plan.ramp is not None
         self.plan, self.station, self.targets, self.ramp = plan, station, targets, plan.ramp
-        self.sweep_parts_s = sweep_time_s(plan, station, targets)
+        self.sweep_parts_s = sweep_time_s(plan, station, targets, timing_of(plan, station))
         self.sweep_s = sum(self.sweep_parts_s.values())
 
     def points(self) -> list[RampPoint]:

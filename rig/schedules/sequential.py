@@ -1,6 +1,6 @@
 """A sequential schedule (`temperatures: {mode: sequential, ...}`): the campaign decides its sweeps as it goes
 (rig/schedules/sequential_run.py runs it; calib/design/planner.py decides). It needs no prior: what is known
-of the DUTs (measured or stated, rig/schedules/inputs.py) only shapes its first leg, and the run measures each
+of the DUTs (measured or stated, rig/planning/inputs.py) only shapes its first leg, and the run measures each
 DUT's lag and noise itself. Before the run only the first sweep is known: to the end of `range_c` the design
 from the known values starts with, or, when a DUT's lag is not known, to the nearer end (the run's own
 characterisation: it stays on that leg until it has measured every DUT's lag), at the fastest rate, with the
@@ -29,17 +29,12 @@ from calib.design.planner import MAX_SWEEPS, ChamberModel, Pace, crossing_rate, 
 from rig.config import Plan, SequentialTemperatures, Station
 from rig.core.errors import ConfigError, LimitError, SessionError
 from rig.core.points import RampPoint
-from rig.schedules.check import (
-    ScheduleCheck,
-    check_range_limits,
-    format_duration,
-    plan_error,
-)
+from rig.planning.inputs import dut_models, planning_inputs, timing_of
+from rig.planning.pace import MAX_SWEEP_SPAN_FRACTION, format_duration, sweep_time_s
+from rig.schedules.check import ScheduleCheck, check_range_limits, plan_error
 from rig.schedules.designed import leg_points
-from rig.schedules.inputs import dut_models, planning_inputs
-from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION, sweep_time_s
 
-END_TOLERANCE_SHARE = 0.5  # as a designed plan's (rig/schedules/design.py): the other half for the errors
+END_TOLERANCE_SHARE = 0.5  # as a designed plan's (rig/planning/design.py): the other half for the errors
 
 RATE_PATH = ("temperatures", "rate_c_per_min")
 WIDTHS_LEG_SWEEP = (2, len(str(MAX_SWEEPS)))
@@ -55,7 +50,7 @@ class SequentialSchedule:
         assert isinstance(plan.temperatures, SequentialTemperatures)
         self.plan, self.station, self.targets, self.temps = plan, station, targets, plan.temperatures
         self.n_pick = min(self.temps.fields_per_sweep or len(targets), len(targets))
-        self.sweep_parts_s = sweep_time_s(plan, station, targets[: self.n_pick])
+        self.sweep_parts_s = sweep_time_s(plan, station, targets[: self.n_pick], timing_of(plan, station))
         self.sweep_s = sum(self.sweep_parts_s.values())
         self.widths = (*WIDTHS_LEG_SWEEP, max(2, len(str(len(targets)))))
         self.inputs = planning_inputs(plan, station)
@@ -214,7 +209,7 @@ def decided_points(plan: Plan, station: Station, decisions: list[dict], first_in
         return []
     if not isinstance(plan.temperatures, SequentialTemperatures):
         raise SessionError("the session records decisions of a sequential schedule, but its plan has none")
-    from rig.schedules.check import field_targets
+    from rig.planning.pace import field_targets
 
     return SequentialSchedule(plan, station, field_targets(plan, station)).decided_points(decisions,
                                                                                           first_index)

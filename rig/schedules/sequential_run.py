@@ -1,9 +1,10 @@
 """Running a sequential schedule (rig/schedules/sequential.py): after the last point of each sweep, decide the
 next.
 
-A point runs as on a continuous ramp (rig/schedules/moving_tasks.py: StartRamp when its leg begins, AwaitAir,
-MoveField, Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from wherever the
-air is. CollectPoint of a sweep's last point calls `decide` with the point's rows before storing them:
+A point runs as on a continuous ramp (rig/schedules/tasks.py MovingTasks: StartRamp when its leg begins,
+AwaitAir, MoveField, Settle, CollectPoint, Checkpoint), without a stable start: the first leg ramps from
+wherever the air is. CollectPoint carries `decide`, which the runner calls with the point's rows before
+storing them; at a sweep's last point it decides the next sweep:
 
 1. each DUT's data so far, its temperature moved to the element's (calib/thermal/lag.py, when the lag shows),
    gives its Gram, noise and standard errors; the worst ratio to the targets (calib/design/targets.py);
@@ -23,8 +24,8 @@ air is. CollectPoint of a sweep's last point calls `decide` with the point's row
 
 The decision (with the estimates in use) and the sweep's points go into the session in the same transaction as
 the point itself (rig/session/writer.py), so a resume (rig/schedules/sequential.py `decided_points`) finds
-exactly the points decided so far, whenever the run stopped; the engine gets the new tasks at the point's
-Checkpoint.
+exactly the points decided so far, whenever the run stopped. After the point's Checkpoint the task yields the
+new sweep's tasks (AddTasks) and the decision's Event, or the Event and RequestStop of a stop.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
-from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -40,108 +41,46 @@ from calib.design.optimal import gain_for, worst_parameter
 from calib.design.planner import CHECK, END, DutModel, Leg, State, crossing_rate, temp_ref_of
 from calib.design.sequential import next_leg
 from calib.equations import t24_regressors
-from rig.config import SequentialTemperatures
+from rig import config as cfg
 from rig.core.errors import ERRORS
 from rig.core.points import RampPoint
-from rig.engine.commands import Task
-from rig.schedules.check import field_targets
-from rig.schedules.moving_tasks import RampMode
+from rig.engine.commands import (
+    AddTasks,
+    Checkpoint,
+    CollectPoint,
+    Event,
+    MoveField,
+    RequestStop,
+    RunView,
+    Settle,
+    Task,
+)
+from rig.planning.pace import field_targets
 from rig.schedules.sequential import SequentialSchedule
 from rig.schedules.sequential_checks import AddedChecks, decide_with_checks
-from rig.schedules.sequential_estimates import AirLog, Estimate, adopted, affine_sigma_nt
+from rig.schedules.sequential_estimates import (
+    AirLog,
+    DutRows,
+    Estimate,
+    Measured,
+    adopted,
+    affine_sigma_nt,
+    measure,
+)
+from rig.schedules.tasks import Commands, MovingTasks
 from rig.session.events import Kind, Reason
 from rig.session.rows import Decision
 
 log = logging.getLogger("magrig.seqrun")
 
-MIN_LAG_ROWS = 200  # fewer rows than this: the lag is not estimated yet
-LAG_REFIT_GROWTH = 1.25  # within a leg, the lag is fitted again once the rows grew by this factor
-
-
-@dataclass
-class _Rows:
-    """One DUT's samples so far, in time order (t, h, recorded temperature, reference)."""
-
-    t: list = field(default_factory=list)
-    h: list = field(default_factory=list)
-    temp: list = field(default_factory=list)
-    ref: list = field(default_factory=list)
-    # the lag model found first (calib/thermal/lag.py); kept after, as fitting both is slow
-    direction: str = "auto"
-    lag: tuple[float, float | None] | None = None  # the last identifiable (tau, its se)
-    lag_rows: int = 0  # the rows of the last lag fit
-    lag_leg: int | None = None  # the leg of the last lag fit
-
-    def extend(self, t, h, temp, ref) -> None:
-        self.t.extend(np.asarray(t, float).tolist())
-        self.h.extend(np.asarray(h, float).reshape(-1, 3).tolist())
-        self.temp.extend(np.asarray(temp, float).tolist())
-        self.ref.extend(np.asarray(ref, float).reshape(-1, 3).tolist())
-
-    def arrays(self):
-        return (np.array(self.t), np.array(self.h).reshape(-1, 3), np.array(self.temp),
-                np.array(self.ref).reshape(-1, 3))
-
-
-@dataclass
-class Measured:
-    """What one DUT's data says now."""
-
-    gram: np.ndarray
-    sigma_nt: float | None
-    ratio: float
-    element_c: float | None
-    lag_s: float | None
-    lag_se_s: float | None
-    covered_c: tuple[float, float] | None = None  # its lowest and highest element temperature so far
-    element_temps_c: np.ndarray | None = None  # every row's, for the model check
-
-
-def measure(rows: _Rows, targets: dict[str, float], temp_ref_c: float, leg: int | None = None) -> Measured:
-    """Gram, noise, worst target ratio and element temperature of one DUT from its rows so far."""
-    from calib.design.targets import check_targets
-    from calib.models.gram import GramAccumulator
-    from calib.thermal.lag import element_temperature, estimate_lag
-
-    t, h, temp, ref = rows.arrays()
-    acc = GramAccumulator(temp_ref_c)
-    if len(t) == 0:
-        return Measured(acc.gram[:8, :8].copy(), None, math.inf, None, None, None)
-    corrected, lag, lag_se = temp, None, None
-    # a lag fit is a grid of T24 fits over every row: made in each new leg and once the rows grew by
-    # LAG_REFIT_GROWTH; in between, the last lag found (if any) is applied to the new rows
-    due = leg != rows.lag_leg or len(t) >= LAG_REFIT_GROWTH * rows.lag_rows
-    if len(t) >= MIN_LAG_ROWS and not due:
-        if rows.lag is not None:
-            lag, lag_se = rows.lag
-            corrected = element_temperature(t, temp, lag, rows.direction)
-    elif len(t) >= MIN_LAG_ROWS:
-        rows.lag_rows, rows.lag_leg = len(t), leg
-        try:
-            res = estimate_lag(t, h, temp, ref, direction=rows.direction)
-        except ERRORS as exc:
-            log.info("lag not estimated: %s", exc)
-        else:
-            if res.identifiable:
-                corrected, lag, lag_se = res.temp_element_c, res.tau_s, res.tau_se_s
-                rows.direction = res.direction
-                rows.lag = (lag, lag_se)
-    acc.add(h, corrected, ref)
-    status = check_targets(acc, targets)
-    sigma = None
-    if math.isfinite(status.worst_ratio):
-        sigma = max(acc.solve().stats["sigma_nt"].values())
-    return Measured(acc.gram[:8, :8].copy(), sigma, status.worst_ratio, float(corrected[-1]), lag, lag_se,
-                    (float(np.min(corrected)), float(np.max(corrected))), np.asarray(corrected, float))
-
-
-class SequentialMode(RampMode):
+class SequentialTasks(MovingTasks):
     """The ramp-like tasks of a sequential plan, and its decisions (see the module docstring)."""
 
-    def __init__(self, runner):
-        super().__init__(runner, settle_at_start=False)
-        plan, station = runner.plan, runner.rig.station
-        self.temps: SequentialTemperatures = plan.temperatures
+    def __init__(self, plan: cfg.Plan, station: cfg.Station, points: list[RampPoint]):
+        super().__init__(plan, station, points)
+        self.watch = None  # a sequential plan decides its own stop
+        self.plan = plan
+        self.temps: cfg.SequentialTemperatures = plan.temperatures
         self.schedule = SequentialSchedule(plan, station, field_targets(plan, station))
         self.targets = plan.se_targets()
         self.temp_ref_c = temp_ref_of(self.schedule.chamber())
@@ -151,20 +90,15 @@ class SequentialMode(RampMode):
         self.air = AirLog()
         self.reached: dict[str, tuple[float, float]] = {}  # each DUT's lowest and highest element so far
         self.added = AddedChecks(self.temps.max_added_checks)  # interior temperatures the model check added
-        self.rows = {dut: _Rows() for dut in runner.rig.duts}
-        self.pending: list[RampPoint] = []
-        self.stop_message: tuple[str, Reason] | None = None
-        self.started_s: float | None = None
-        runner.decide = self.decide
-        runner.on_point.append(self.after_checkpoint)
+        self.rows = {dut.name: DutRows() for dut in station.duts}
+        self.view: RunView | None = None  # the run as the last decision saw it
 
     # --- data ------------------------------------------------------------------------------------------
-    def preload(self, session_path) -> None:
+    def preload(self, session_path: Path) -> None:
         """On resume: the rows the session already holds."""
         from rig.session.reader import SessionReader
 
         with SessionReader(session_path) as reader:
-            self.started_s = reader.info()["started"]
             for row in reader.temperatures():
                 self.air.add(row["t"], row["air_c"])
             decisions = reader.decisions()
@@ -190,12 +124,34 @@ class SequentialMode(RampMode):
             buf.extend([r.t for r in mine], [r.field_nt for r in mine], [r.temp_c for r in mine],
                        [r.ref_field_nt for r in mine])
 
+    # --- the tasks: a moving schedule's, deciding as they go -------------------------------------------
+    def commands(self, point: RampPoint, retake: bool) -> Commands:
+        stability = yield from self.leg_commands(point, retake)
+        yield MoveField(point.command)
+        yield Settle(point.settle_s)
+        collected = yield CollectPoint(point, None, stability, self.decide)
+        yield Checkpoint(point.id)
+        decision = collected.decision
+        if decision is None:
+            return
+        data = decision.data
+        if data.get("stop"):
+            yield Event(Kind.RUN, data["reason"], Reason(data["code"]), point.id)
+            yield RequestStop(data["reason"], Reason(data["code"]))
+            return
+        self.points.extend(decision.points)
+        yield AddTasks(tuple(Task(p.id, functools.partial(self.commands, p)) for p in decision.points))
+        yield Event(Kind.DECISION, f"after {point.id}: {data['reason']}", Reason.DECIDED, point.id,
+                    {"leg": data["leg"], "sweep": data["sweep"], "to_c": data["to_c"],
+                     "rate_c_per_min": data["rate_c_per_min"]})
+
     # --- the decision ----------------------------------------------------------------------------------
-    def decide(self, point: RampPoint, rows) -> Decision | None:
+    def decide(self, point: RampPoint, rows, view: RunView) -> Decision | None:
         """Called with each point's rows before they are stored; the next sweep after a sweep's last point."""
+        self.view = view
         self._add(rows)
-        self.air.add(self.runner.rig.clock.now(), self.runner.status.chamber_c)
-        if point.id != self.runner.points[-1].id:
+        self.air.add(view.now_s, view.air_c)
+        if point.id != self.points[-1].id:
             return None
         try:
             data, points = self._next(point)
@@ -204,15 +160,10 @@ class SequentialMode(RampMode):
             data, points = self._sweep_data(point, point.leg, point.sweep + 1, point.leg_start_c,
                                             point.leg_end_c, point.ramp_c_per_min, self._picks(None, point),
                                             f"decision failed: {exc}; one more sweep of the same leg", {})
-        if data.get("stop"):
-            self.stop_message = (data["reason"], Reason(data["code"]))
-        self.pending = points
         return Decision(data, tuple(points))
 
     def _elapsed_s(self) -> float:
-        if self.started_s is None:
-            self.started_s = self.runner.session.info()["started"]
-        return self.runner.rig.clock.now() - self.started_s
+        return self.view.now_s - self.view.started_s
 
     def _next(self, point: RampPoint) -> tuple[dict, list[RampPoint]]:
         targets, ref_c = self.targets, self.temp_ref_c
@@ -243,7 +194,7 @@ class SequentialMode(RampMode):
                                     point.ramp_c_per_min, self._picks(None, point),
                                     f"characterising: the lag or noise of {', '.join(unknown[:4])} is not "
                                     "measured yet", {**info, "kind": "characterise"})
-        air = self.runner.status.chamber_c
+        air = self.view.air_c
         air = point.setpoint_c if air is None else float(air)
         state = State(elapsed, air,
                       {d: (m.element_c if m.element_c is not None else air) for d, m in measured.items()},
@@ -295,7 +246,7 @@ class SequentialMode(RampMode):
         if m.sigma_nt is not None:
             return m.sigma_nt
         t, h, temp, ref = self.rows[dut].arrays()
-        last = self.schedule.n_pick * self.runner.plan.samples_per_point
+        last = self.schedule.n_pick * self.plan.samples_per_point
         sigma = affine_sigma_nt(h[-last:], temp[-last:], ref[-last:]) if len(t) >= last else None
         prior = self.in_use.get(dut)
         return sigma if sigma is not None else (None if prior is None else prior.noise_nt)
@@ -316,11 +267,10 @@ class SequentialMode(RampMode):
                     reason: str, info: dict) -> tuple[dict, list[RampPoint]]:
         data = {"stop": False, "leg": leg, "sweep": sweep, "from_c": from_c, "to_c": to_c,
                 "rate_c_per_min": rate, "picks": picks, "reason": reason, **info}
-        decided = self.runner.session.decisions()
         points = self.schedule.sweep_points(leg=leg, sweep=sweep, from_c=from_c, to_c=to_c,
                                             rate_c_per_min=rate,
                                             picks=picks, first_index=point.index + 1,
-                                            first_temp_index=len(decided) + 2)
+                                            first_temp_index=self.view.decisions + 2)
         return data, points
 
     def _pace(self):
@@ -329,7 +279,7 @@ class SequentialMode(RampMode):
         from calib.design.planner import Pace
 
         pace = self.schedule.pace(self.schedule.first_picks())
-        taken = list(self.runner.status.point_durations_s)
+        taken = list(self.view.point_durations_s)
         if len(taken) >= 10:
             pace = Pace(pace.fields_nt, pace.samples, float(np.median(taken)))
         return pace
@@ -338,7 +288,7 @@ class SequentialMode(RampMode):
         """The legs so far (from the points, all taken by now), each with its sweeps."""
         checks = {*self.temps.checks(), *self.added.added_c}
         legs: dict[int, Leg] = {}
-        for p in self.runner.points:
+        for p in self.points:
             legs[p.leg] = Leg(p.leg_end_c, max(p.sweep, legs[p.leg].sweeps if p.leg in legs else 0),
                               p.ramp_c_per_min, CHECK if p.leg_end_c in checks else END, p.leg_start_c)
         return [legs[k] for k in sorted(legs)]
@@ -362,7 +312,7 @@ class SequentialMode(RampMode):
         x = t24_regressors(h, np.full(len(h), temp), self.temp_ref_c)
         gram = worst.gram.copy()
         _, row = worst_parameter(gram, self.temp_ref_c, self.targets)
-        samples = self.runner.plan.samples_per_point
+        samples = self.plan.samples_per_point
         chosen: list[int] = []
         free = np.ones(len(h), bool)
         for _ in range(self.schedule.n_pick):
@@ -373,29 +323,6 @@ class SequentialMode(RampMode):
             gram = gram + samples * np.outer(x[k], x[k])
         return sorted(chosen)
 
-    # --- after the point is stored ---------------------------------------------------------------------
-    def after_checkpoint(self, point_id: str) -> None:
-        runner = self.runner
-        if self.pending:
-            added = self.pending
-            self.pending = []
-            runner.points.extend(added)
-            runner.engine.add_tasks(Task(p.id, functools.partial(self.point_commands, p)) for p in added)
-            last = runner.session.decisions()[-1]
-            runner.engine.event(Kind.DECISION, f"after {point_id}: {last['reason']}", code=Reason.DECIDED,
-                                point_id=point_id, leg=last["leg"], sweep=last["sweep"], to_c=last["to_c"],
-                                rate_c_per_min=last["rate_c_per_min"])
-        elif self.stop_message is not None:
-            message, code = self.stop_message
-            runner.engine.event(Kind.RUN, message, code=code, point_id=point_id)
-            runner.engine.request_stop(message, code)
-
-
 def _num(value) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
-
-def attach(runner) -> SequentialMode | None:
-    """The SequentialMode of a sequential plan (None for any other: rig/schedules/moving_tasks.py attaches
-    those)."""
-    return SequentialMode(runner) if isinstance(runner.plan.temperatures, SequentialTemperatures) else None

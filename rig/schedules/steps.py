@@ -19,16 +19,15 @@ from rig.config import Plan, Station
 from rig.core.errors import ConfigError, LimitError
 from rig.core.points import Point, point_id
 from rig.core.yamlload import KeyPath
-from rig.schedules.check import (
+from rig.planning.inputs import planning_inputs
+from rig.planning.pace import (
     MAX_FIELDS,
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
     MAX_TEMPERATURES,
-    ScheduleCheck,
-    plan_error,
     stable_after_ramp_s,
 )
-from rig.schedules.inputs import planning_inputs
+from rig.schedules.check import ScheduleCheck, plan_error
 
 ORDER_SEED = 20_240_024  # any fixed number: the orders only need to differ from step to step
 
@@ -152,7 +151,7 @@ class StepSchedule:
     def _duration(self, points: list[Point], inputs) -> dict[str, float]:
         """Seconds spent ramping (at the step's rate, or the air's measured pace when slower), waiting for
         stability (the slowest DUT's measured lag; the dwell alone without it), moving/settling and sampling
-        at the measured pace (rig/schedules/inputs.py)."""
+        at the measured pace (rig/planning/inputs.py)."""
         station = self.station
         lag_s = inputs.slowest_lag_s()
         ramp_s = stable_s = 0.0

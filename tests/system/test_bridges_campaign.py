@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from rig import config as cfg
-from rig.devices.bench import dut_truths
+from rig.devices.simulated.world import dut_truths
 from tests.system.campaign_helpers import REPO, quick_demo, run_rig
 
 pytestmark = pytest.mark.system

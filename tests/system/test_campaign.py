@@ -12,7 +12,7 @@ import yaml
 from calib.io import calfile
 from rig.config import load_station
 from rig.config.loading import load_campaign
-from rig.devices.bench import dut_truths
+from rig.devices.simulated.world import dut_truths
 from rig.run.campaign import run_campaign
 from rig.schedules.compile import compile_plan
 from tests.helpers.statistics import assert_within_std_errors

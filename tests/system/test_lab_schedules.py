@@ -13,8 +13,8 @@ import yaml
 from calib.io import calfile
 from rig.config import CONFIGS_DIR, load_station
 from rig.config.loading import load_campaign
+from rig.planning.design import design_inputs, design_plan, designed_plan_text
 from rig.run.campaign import run_campaign
-from rig.schedules.design import design_inputs, design_plan, designed_plan_text
 from tests.system.campaign_helpers import query
 
 pytestmark = pytest.mark.system

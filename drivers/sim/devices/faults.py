@@ -8,7 +8,7 @@
     faults.alarm()              # the chamber's alarm register shows an alarm now
 
 The simulators call these from their fault hooks (modbus_server.py, serialmag.py, i2c_bus.py, tmp117.py,
-mmc5983ma.py, chamber.py); rig/devices/bench.py builds one per device from the station's
+mmc5983ma.py, chamber.py); rig/devices/simulated/bench.py builds one per device from the station's
 `transport: {kind: sim, faults: ...}`. Draws come from a generator seeded by the station's `sim.seed` and
 the device's name, so the same station and plan inject the same faults in the same operations. (The
 serial firmware answers in real time on a pty, so which of its lines a draw lands on may vary.)

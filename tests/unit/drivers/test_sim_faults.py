@@ -12,10 +12,10 @@ from drivers.sim.devices.faults import DeviceFaults, Window
 from drivers.sim.devices.tmp117 import TMP117Sim
 from drivers.sim.transports.i2c_bus import FakeSMBus
 from drivers.sim.world import World
-from drivers.sim.world.truths import mount_truth
 from drivers.tmp117 import TMP117
 from drivers.transports.modbus import ModbusTransport
 from drivers.watlow import WatlowF4T
+from rig.devices.simulated.world import mount_truth
 
 LIMITS = dict(min_setpoint_c=-40.0, max_setpoint_c=125.0, max_ramp_c_per_min=5.0, safe_setpoint_c=25.0)
 

@@ -213,7 +213,7 @@ def test_an_off_centre_reference_needs_the_geometry(tmp_path):
 def test_a_file_without_a_thermal_section_still_loads_and_plans_nothing_from_it(tmp_path):
     from rig.config import CONFIGS_DIR
     from rig.config.commissioning_file import read
-    from rig.schedules.inputs import planning_inputs
+    from rig.planning.inputs import planning_inputs
 
     old = read(CONFIGS_DIR / "stations" / "sim-commissioned.commissioning.yaml")  # written before --thermal
     assert old.thermal is None and old.record.coils is not None

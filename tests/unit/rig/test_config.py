@@ -10,7 +10,7 @@ import pytest
 from rig.config import CONFIGS_DIR, DEFAULT_STATION, Plan, Station, load_plan, load_station
 from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
-from rig.devices.bench import dut_truths, world_field
+from rig.devices.simulated.world import dut_truths, world_field
 from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
 
 PLAN = """\

@@ -15,14 +15,18 @@ from rig.engine.commands import (
     ABORTED,
     COMPLETED,
     FAILED,
+    AddTasks,
     Checkpoint,
     CollectPoint,
+    Event,
     Hold,
     MoveField,
+    RequestStop,
     SetChamber,
     Task,
 )
 from rig.engine.executor import Engine
+from rig.session.events import Kind, Reason
 from rig.session.reader import SessionReader
 from rig.session.writer import Session
 
@@ -320,22 +324,44 @@ def test_holds_and_faults_are_stored_typed_and_the_report_reads_their_codes(new_
 
 
 def test_tasks_added_during_the_run_are_run_in_order_and_counted(new_session):
-    """A schedule decided during the run (rig/schedules/sequential_run.py) appends its next points from a
-    checkpoint."""
+    """A schedule decided during the run (rig/schedules/sequential_run.py) yields its next points after a
+    checkpoint (AddTasks), and its decision as an Event: the engine runs both itself."""
     session = new_session()
     extra = ["T03-F01", "T03-F02"]
     rig = Rig(session)
     engine = make_engine(rig, session)
 
-    def add_after_last(point_id):
-        if point_id == IDS[-1]:
-            session.store._conn.executemany(  # the planned rows the real schedule records with its decision
-                "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
-                "VALUES (?, ?, 3, 25.0, ?, '{}')", [(pid, 4 + i, i + 1) for i, pid in enumerate(extra)])
-            engine.add_tasks(rig.steps(extra))
+    def deciding(pid):
+        def gen(retake):
+            yield from rig.steps([pid])[0].make(retake)
+            if pid == IDS[-1]:
+                # the planned rows the real schedule stores with its decision
+                session.store._conn.executemany(
+                    "INSERT INTO points (id, idx, temp_index, setpoint_c, field_index, target_json) "
+                    "VALUES (?, ?, 3, 25.0, ?, '{}')", [(p, 4 + i, i + 1) for i, p in enumerate(extra)])
+                yield AddTasks(tuple(rig.steps(extra)))
+                yield Event(Kind.DECISION, "two more points", Reason.DECIDED, pid)
+        return gen
 
-    rig.on_collect = add_after_last
-    result = engine.run(rig.steps(IDS))
+    result = engine.run([Task(pid, deciding(pid)) for pid in IDS])
     assert result.status == COMPLETED and result.points_done == 6
     assert session.points == IDS + extra
     assert engine.status.points_total == 6 and "all 6 points taken" in result.reason
+    assert any("two more points" in e for e in engine.status.events)
+
+
+def test_a_stop_requested_by_a_task_ends_the_run_completed_after_its_point(new_session):
+    session = new_session()
+    rig = Rig(session)
+    engine = make_engine(rig, session)
+
+    def stopping(pid):
+        def gen(retake):
+            yield from rig.steps([pid])[0].make(retake)
+            if pid == IDS[1]:
+                yield RequestStop("targets met", Reason.TARGETS_MET)
+        return gen
+
+    result = engine.run([Task(pid, stopping(pid)) for pid in IDS])
+    assert result.status == COMPLETED and result.code == Reason.TARGETS_MET
+    assert session.points == IDS[:2] and result.reason == "targets met"

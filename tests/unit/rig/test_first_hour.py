@@ -18,7 +18,7 @@ from rig.analysis.judged import dominant_phrase, judged_cell, quality
 from rig.cli import main
 from rig.config import load_plan, load_station
 from rig.core.errors import ConfigError
-from rig.devices.bench import SimBench
+from rig.devices.simulated.bench import SimBench
 from rig.engine.executor import RunStatus
 from rig.run.display import PlainLog
 from rig.run.summary import header_lines

@@ -1,4 +1,4 @@
-"""What a plan is made and checked with (rig/schedules/inputs.py): the station's thermal commissioning, a
+"""What a plan is made and checked with (rig/planning/inputs.py): the station's thermal commissioning, a
 designed plan's recorded values, the station's statements, in that order, each with its origin; the
 simulated world's own values never."""
 
@@ -14,8 +14,8 @@ from rig.config import CONFIGS_DIR, Plan
 from rig.config.commissioning_file import ThermalDut, ThermalRecord
 from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError
+from rig.planning.inputs import planning_inputs, require_duts
 from rig.schedules.compile import check_plan
-from rig.schedules.inputs import planning_inputs, require_duts
 from tests.unit.rig.test_plan import coil_station, make_plan
 
 LAB = CONFIGS_DIR / "stations" / "sim-lab.yaml"

@@ -121,7 +121,7 @@ def test_no_bus_or_pty_module_on_the_way_to_a_run():
     """What `rig run` imports before it opens a device: not smbus2 (fcntl at its import) nor the pty
     simulator's modules. (fcntl and termios may come, each behind a guard, with filelock and pymodbus:
     tests/system/test_no_posix_run.py runs without them.)"""
-    code = ("import sys\nimport rig.run.campaign, rig.cli.campaign_cmds, rig.devices.bench\n"
+    code = ("import sys\nimport rig.run.campaign, rig.cli.campaign_cmds, rig.devices.simulated.bench\n"
             "import rig.devices.scan\n"
             "import rig.config.station, drivers.registry\ndrivers.registry.specs('magnetometer')\n"
             "print(' '.join(sorted({'pty', 'tty', 'smbus2', 'drivers.sim.transports.pty'}"

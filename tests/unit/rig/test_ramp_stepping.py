@@ -1,5 +1,5 @@
 """A chamber without a ramp of its own gets its set point stepped at the ramp's pace
-(rig/schedules/moving_tasks.py)."""
+(rig/run/ramping.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from drivers.clock import SimClock
 from rig.engine.commands import StartRamp
 from rig.engine.executor import RunStatus
-from rig.schedules.moving_tasks import STEP_C, RampMode
+from rig.run.ramping import STEP_C, RampHandlers
 
 
 class SteppedChamber:
@@ -37,7 +37,7 @@ def test_a_chamber_without_ramps_is_stepped_at_the_rate_from_where_the_air_is():
     clock = SimClock()
     chamber = SteppedChamber(air_c=22.0)
     runner = SimpleNamespace(rig=SimpleNamespace(chamber=chamber, clock=clock), status=RunStatus())
-    mode = RampMode(runner)
+    mode = RampHandlers(runner)
     mode.start_ramp(StartRamp(end_c=30.0, rate_c_per_min=2.0))
     assert chamber.setpoints == [pytest.approx(22.0 + STEP_C)]  # one increment ahead of the air
     for _ in range(60):  # 10 minutes in 10 s slices

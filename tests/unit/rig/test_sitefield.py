@@ -18,8 +18,8 @@ from drivers.sim.world import World
 from rig.config import CONFIGS_DIR, Station, load_station
 from rig.config.loading import load_campaign
 from rig.core.errors import ConfigError, LimitError
-from rig.devices.bench import reference_truths
-from rig.devices.bench import world_field as bench_world_field
+from rig.devices.simulated.world import reference_truths
+from rig.devices.simulated.world import world_field as bench_world_field
 from rig.reference.sitefield import load_reference_calibrations
 from rig.schedules.compile import compile_plan
 

@@ -10,7 +10,7 @@ import yaml
 
 from drivers.clock import SimClock
 from rig.config import load_station
-from rig.devices.bench import make_world
+from rig.devices.simulated.world import make_world
 
 IDEAL = {"S": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}  # a DUT with no T24 errors: its reading is the field
 

@@ -7,7 +7,7 @@ import numpy as np
 from drivers.clock import SimClock
 from rig.config import CONFIGS_DIR
 from rig.config.loading import load_campaign
-from rig.devices.bench import make_world
+from rig.devices.simulated.world import make_world
 
 
 def test_the_lab_station_turns_every_deviation_on():

@@ -13,7 +13,7 @@ import yaml
 
 from drivers.clock import SimClock
 from rig.config import load_station
-from rig.devices.bench import make_world
+from rig.devices.simulated.world import make_world
 from tests.unit.drivers.sim.benches import write_station
 
 HERE = Path(__file__).parent

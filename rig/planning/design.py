@@ -4,10 +4,10 @@
     designed = design_plan(plan, station, inputs)            # fields, samples, legs (calib/design/planner.py)
     text = designed_plan_text(plan_text, designed, ...)      # a normal plan file: rig check / rig run take it
 
-Where the numbers come from (rig/schedules/inputs.py, each with its origin printed):
+Where the numbers come from (rig/planning/inputs.py, each with its origin printed):
 - targets: the plan's `stop_when`, else its `acceptance.max_std_error` (t24);
 - each DUT's noise (one fitted sample, per axis), its lag behind the air and where it settles relative to
-  it: an earlier session given with --from (rig/schedules/measured.py), a designed plan's `assumed:`, the
+  it: an earlier session given with --from (rig/planning/measured.py), a designed plan's `assumed:`, the
   station's thermal commissioning, the station's `duts[].expect`; with none of them the design stops in one
   line naming the three ways. The simulated world's own values are never read: a design --from a session
   is the same whatever the station's `sim:` says;
@@ -44,15 +44,17 @@ from calib.design.planner import (
 )
 from rig.config import DesignedTemperatures, Plan, Station, VectorFields
 from rig.core.errors import ConfigError
-from rig.schedules.check import (
+from rig.planning.facts import Timing
+from rig.planning.inputs import PlanningInputs, dut_models, planning_inputs, require_duts
+from rig.planning.pace import (
     MAX_DURATION_S,
     MAX_POINTS,
     MAX_SAMPLES_PER_DUT,
-    Timing,
+    MAX_SWEEP_SPAN_FRACTION,
     field_targets,
     format_duration,
+    sweep_time_s,
 )
-from rig.schedules.inputs import PlanningInputs, dut_models, planning_inputs, require_duts
 
 MAX_SAMPLES = 100  # per point; beyond this a sweep gains little and spans more temperature
 MIN_SWEEP_FIELDS = 8  # [1, h] has 4 parameters; twice that keeps a sweep balanced
@@ -157,8 +159,6 @@ def _with(plan: Plan, fields: list[tuple[float, ...]], samples: int, station: St
 def pace_for(plan: Plan, station: Station, fields: list[tuple[float, ...]], samples: int,
              timing: Timing | None = None) -> Pace:
     """One sweep of `fields` with `samples` per point, timed as rig check times it (at `timing`'s pace)."""
-    from rig.schedules.ramp import sweep_time_s
-
     sweep_s = sum(sweep_time_s(_with(plan, fields, samples, station), station, fields, timing).values())
     nominal = np.array([station.field_source.nominal_field_nt(f) for f in fields], float)
     return Pace(nominal, samples, sweep_s / len(fields))
@@ -166,8 +166,6 @@ def pace_for(plan: Plan, station: Station, fields: list[tuple[float, ...]], samp
 
 def design_plan(plan: Plan, station: Station, inputs: DesignInputs, *, criterion: str = "I",
                 n_checks: int = DEFAULT_CHECKS, check_sweeps: int = 1) -> Designed:
-    from rig.schedules.ramp import MAX_SWEEP_SPAN_FRACTION
-
     fields = design_fields(plan, station, criterion)
     lo, hi = inputs.range_c
     timing = inputs.planning.timing

@@ -11,7 +11,7 @@ station, or what the station states for real. The simulated world's own truth is
 
 Sources, the first that says wins:
 - each DUT's noise and lag (and where it settles relative to the air): `--from SESSION`
-  (rig/schedules/measured.py); a designed plan's `assumed:` (what it was designed with); the station's
+  (rig/planning/measured.py); a designed plan's `assumed:` (what it was designed with); the station's
   thermal commissioning (`rig commission --thermal`, rig/commission/thermal.py); the station's
   `duts[].expect: {noise_nt, thermal_lag_s}` (stated by the user: one plain reading's noise, so a
   SET/RESET pair divides it by sqrt 2). Without any, `rig design` refuses in one line naming the three.
@@ -30,14 +30,25 @@ from pathlib import Path
 from rig.config import DesignedTemperatures, Plan, Station
 from rig.core.errors import ConfigError
 from rig.core.yamlload import blamed
-from rig.schedules.check import (
-    ASSUMED_START_C,
-    ChamberInput,
-    DutInput,
-    Timing,
-    format_duration,
-    stated_sample_time_s,
-)
+from rig.planning.facts import ASSUMED_START_C, ChamberInput, DutInput, Timing
+from rig.planning.pace import format_duration
+
+
+def stated_sample_time_s(plan: Plan, station: Station) -> float:
+    """Time for one sample of every DUT from the drivers' stated conversion times, for a station whose pace
+    nothing has measured (rig/planning/inputs.py). Reading is interleaved (rig/devices/interleave.py): the
+    DUTs wait for their conversions together, so a sample takes as long as the slowest DUT, except that
+    DUTs sharing one serial line are polled in turn. The temperature sensors are read first, together
+    likewise."""
+    pair = plan.set_reset == "pair"
+    groups: dict[tuple[str, str], float] = {}
+    for d in station.duts:
+        line, port = getattr(d.transport, "line", None), getattr(d.transport, "port", None)
+        key = ("line", line) if line else ("port", port) if port else ("dut", d.name)
+        groups[key] = groups.get(key, 0.0) + d.spec.sample_time_s(d.options, pair)
+    sensors = [s.spec.sample_time_s(s.options, pair) for s in station.temperature_sensors]
+    return max(groups.values()) + max(sensors, default=0.0)
+
 
 THREE_WAYS = ("give `rig design --from SESSION` (an earlier session of these DUTs), run `rig commission "
               "--thermal` (the station's commissioning file), or state them in the station "
@@ -164,7 +175,7 @@ def planning_inputs(plan: Plan, station: Station, session: Path | None = None) -
     thermal = thermal_of(station)
     measured = None
     if session is not None:
-        from rig.schedules.measured import measure_session
+        from rig.planning.measured import measure_session
 
         measured = measure_session(session, [d.name for d in station.duts])
     stated = _stated(plan, station, thermal)

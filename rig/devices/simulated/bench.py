@@ -1,16 +1,16 @@
 """The simulated part of a station: ONE world on the campaign clock, and a simulator for every device
-whose transport is `{kind: sim}`. The only production module that imports drivers.sim.
+whose transport is `{kind: sim}`; the world itself is made in rig/devices/simulated/world.py.
 
     bench = SimBench(station, clock)
     link = bench.link(device_config)        # starts the device's simulator; the SAME driver is built on it
     bench.i2c_bus(1)                        # the shared simulated bus 1 (its switches), for the safe state
     bench.stop()
 
-Each driver's spec names its simulator (drivers/registry.py); the world's field comes from the station's
-field source (`world_field`: the `sim:` truth over what the station declares), the DUT truths and the
-simulator's defaults from drivers/sim/world/truths.py. A station may mix real and simulated devices (a dry run
-with a real chamber): the simulated ones share the world, the real ones talk to their real transports, and a
-simulated probe beside a real DUT reads a mount that follows the simulated air.
+Each driver's spec names its simulator (drivers/registry.py); the world comes from the station's `sim:`
+(rig/devices/simulated/world.py: its field source's field, the DUT truths and the simulator's defaults). A
+station may mix real and simulated devices (a dry run with a real chamber): the simulated ones share the
+world, the real ones talk to their real transports, and a simulated probe beside a real DUT reads a mount that
+follows the simulated air.
 
 A simulated device's `transport: {kind: sim, faults: ...}` becomes its fault schedule
 (drivers/sim/devices/faults.py), handed to its simulator's fault hooks; world.faults keeps them by device
@@ -31,113 +31,18 @@ from __future__ import annotations
 import contextlib
 from typing import Any
 
-import numpy as np
-
 from drivers.clock import Clock
 from drivers.registry import I2cLink, SerialLink, SimI2c, SimModbus, SimSerial
 from drivers.sim.devices.faults import DeviceFaults, Window
 from drivers.sim.transports.i2c_bus import FakeSMBus
-from drivers.sim.world import DutTruth, World
-from drivers.sim.world.truths import (
-    AIR_C,
-    DUT_KEYS,
-    dut_truth,
-    mount_truth,
-    world_deviations,
-)
 from drivers.transports.serial import SerialLine
 from rig.core.configbase import BRIDGE_KINDS, ModbusTcp
 from rig.core.errors import ConfigError
 from rig.devices.links import muxed, open_bridge, open_link
-from rig.fieldsources.fieldmaths import TYPICAL_FIELD_NT
+from rig.devices.simulated.world import make_world
 
 LOOPBACK = "127.0.0.1"
 FAULTY_TIMEOUT_S = 0.3  # a simulator answers within ms: a lost reply need not cost the usual second
-
-
-def dut_truths(station) -> dict[str, DutTruth]:
-    """{DUT name: truth} for the simulated DUTs, from the station's `sim.duts` (defaults applied)."""
-    out = {}
-    for position, dut in enumerate(station.duts):
-        if not dut.simulated:
-            continue
-        spec = station.sim.duts.get(dut.name)
-        if spec is None:
-            out[dut.name] = dut_truth(station.sim.seed, position)
-        else:
-            truth: Any = spec.truth if spec.truth == "random" else spec.truth.model_dump()
-            out[dut.name] = dut_truth(station.sim.seed, position, truth, spec.noise_nt, spec.thermal_lag_s,
-                                      **spec.model_dump(include=set(DUT_KEYS)))
-            out[dut.name].sensor_lag_s = spec.sensor_lag_s
-        out[dut.name].position_m = true_position_m(station, dut)
-    return out
-
-
-def true_position_m(station, device) -> np.ndarray:
-    """Where a simulated sensor really sits (m): its stated position_mm plus sim.duts' position_error_mm."""
-    stated = np.zeros(3) if device.position_mm is None else np.asarray(device.position_mm, float)
-    spec = station.sim.duts.get(device.name)
-    error = np.zeros(3) if spec is None else np.asarray(spec.position_error_mm, float)
-    return (stated + error) / 1000.0
-
-
-def reference_truths(station) -> dict[str, DutTruth]:
-    """{name: truth} of the simulated reference magnetometers. A reference's calibration file is its
-    truth, so it is never drawn at random: `sim.duts` states it (S, b_nt...) to match the shipped file,
-    or it is an ideal sensor (what an identity calibration file describes)."""
-    out = {}
-    for ref in station.reference_magnetometers:
-        if not ref.simulated:
-            continue
-        spec = station.sim.duts.get(ref.name)
-        beside = {} if spec is None else spec.model_dump(include=set(DUT_KEYS))  # as a DUT's
-        if spec is None or spec.truth == "random":
-            out[ref.name] = dut_truth(station.sim.seed, 0, {"S": np.eye(3)},
-                                      None if spec is None else spec.noise_nt,
-                                      None if spec is None else spec.thermal_lag_s, **beside)
-        else:
-            out[ref.name] = dut_truth(station.sim.seed, 0, spec.truth.model_dump(), spec.noise_nt,
-                                      spec.thermal_lag_s, **beside)
-        out[ref.name].position_m = true_position_m(station, ref)
-    return out
-
-
-def world_field(station) -> dict:
-    """The simulated field source's keywords: the station's `sim:` truth where it states one, else what
-    the station declares (else a typical field)."""
-    sim = station.sim
-    out = station.field_source.declared_world()
-    truth = {"ambient_nt": sim.ambient_nt, "site_field_nt": sim.site_field_nt,
-             "coil_constants_nt_per_a": sim.coil_constants_nt_per_a,
-             "coil_geometry": None if sim.coil_geometry is None else
-             (sim.coil_geometry.shape, tuple(sim.coil_geometry.size_m), tuple(sim.coil_geometry.spacing_m))}
-    for key, value in truth.items():
-        if key in out and value is not None:
-            out[key] = value if key == "coil_geometry" else np.asarray(value, float)
-    for key in ("ambient_nt", "site_field_nt"):
-        if key in out and out[key] is None:
-            out[key] = np.asarray(TYPICAL_FIELD_NT, float)
-    out["coil_nonlinearity_per_a"] = np.asarray(sim.coil_nonlinearity_per_a, float)
-    axes = sim.turntable_axes
-    out["turntable_axes"] = None if axes is None else (tuple(axes.az_tilt_deg), axes.el_tilt_deg,
-                                                       tuple(axes.zero_offsets_deg))
-    if sim.ambient_drift_nt_per_h is not None:  # nT/h in the station, nT/s in the world
-        out["ambient_drift_nt_per_s"] = np.asarray(sim.ambient_drift_nt_per_h, float) / 3600.0
-    return out
-
-
-def make_world(station, clock: Clock) -> World:
-    """The station's world: its field source's field, its deviations (drivers/sim/world/truths.py), its
-    DUTs."""
-    air_c = AIR_C if station.sim.air_c is None else station.sim.air_c
-    world = World(clock, air_c=air_c, seed=station.sim.seed, **world_field(station),
-                  **world_deviations(station.sim.model_dump()))
-    for name, truth in (dut_truths(station) | reference_truths(station)).items():
-        world.add_dut(name, truth)
-    for sensor in station.temperature_sensors:
-        if sensor.simulated and sensor.beside not in world.duts:
-            world.add_dut(sensor.beside, mount_truth())
-    return world
 
 
 def _window(spec) -> Window | None:

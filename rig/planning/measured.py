@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from rig.core.errors import ERRORS, DataError
-from rig.schedules.check import ChamberInput, DutInput, Timing
+from rig.planning.facts import ChamberInput, DutInput, Timing
 
 DESIGN_HORIZON_S = 7 * 86_400.0  # a lag beyond this is no lag a campaign could plan with
 
