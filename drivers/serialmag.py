@@ -44,6 +44,7 @@ from drivers.serialmag_protocol import (
     ESC,
     LINE_BYTES,
     NT_PER_COUNT,
+    NT_PER_GAUSS,
     OK,
     PULSE_COMMAND,
     PULSE_REPLY,

@@ -288,7 +288,7 @@ def test_bad_settings_are_config_errors():
 def test_describe_states_how_a_reading_is_made(set_reset, mode):
     """The reading's mode follows the SET/RESET setting; the stated conversion is the driver's counts to nT
     (15000 counts a gauss)."""
-    from drivers.serialmag import counts_to_nt
+    from drivers.serialmag_protocol import counts_to_nt
     from tests.helpers.conversion import stated_nt
 
     mag = SerialMagnetometer(scripted_transport(ScriptedPort([])), name="dut2", set_reset=set_reset)
