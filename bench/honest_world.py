@@ -117,7 +117,7 @@ def evaluate(session: Path, station_path: Path) -> dict[str, DutFigures]:
         h = np.array([truth.raw_from_field(f, t) for f, t in zip(fields, temps, strict=True)])
         error = np.linalg.norm(Calibration.from_dict(record).apply(h, temps) - fields, axis=1)
         checks = {c["name"]: c["verdict"] for c in record.get("stats", {}).get("model_checks") or []}
-        out[dut] = DutFigures(float(np.sqrt(np.mean(error**2))), quality_of(record).expanded_nt, checks, said)
+        out[dut] = DutFigures(float(np.sqrt(np.mean(error**2))), quality_of(record).radius_nt, checks, said)
     return out
 
 

@@ -63,7 +63,7 @@ DEMO = REPO / "configs" / "plans" / "demo.yaml"
 DEMO_STEPS_C = yaml.safe_load(DEMO.read_text())["temperatures"]["steps"]
 GROUPS = {"S": "S", "K": "K", "b": "b_nt", "kb": "kb_nt_per_c"}
 # each model's parameter groups (report name: the calibration file's key)
-MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "b": "b_nt"},
+MODEL_GROUPS = {"t24": GROUPS, "p12": {"k": "k", "angles": "angles_deg", "h0": "h0_nt"},
                 "scalar": {"A": "A", "c": "c_nt", "KA": "KA_per_c", "kc": "kc_nt_per_c"}}
 WORST_SHARE = 0.05
 

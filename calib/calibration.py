@@ -6,6 +6,15 @@ DUT temperature in degC as measured; `not_used`), and `tau_0_c` only where the e
 a constant from tau. The centre a solve used internally (`temp_ref_c` in memory; it changes rounding, not
 the field) is `solve_centre_c`: not part of the equation, never to be applied. Files of format version 1
 (a top-level `temp_ref_c`) still load.
+
+Format version 3 states the measurand beside the equation, so that firmware can act on the file alone
+(docs/calibration-file.md): `reading` (how h was made from the device: its identity, SET/RESET mode, raw
+unit and the conversion from its output codes, the driver's settings, the readings averaged into one h),
+`tau_source` (the thermometer that gave tau), `frame` (of B and of h), `indexing` (calib/equations.py
+INDEXING: one convention for every parameter name) and `reference_chain` (whether the reference field
+rests on a commissioned reference). calib states what it is given (rig/analysis/measurand.py makes them);
+a key nobody stated is null, and `missing_measurand()` says in words what a file lacks (files of versions
+1 and 2 lack them all).
 """
 
 from __future__ import annotations
@@ -15,14 +24,38 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.equations import MODELS, OPTIONAL_PARAMS, PARAM_SHAPES, apply, equation_of, tau_convention
+from calib.equations import (
+    INDEXING,
+    MODELS,
+    OPTIONAL_PARAMS,
+    PARAM_SHAPES,
+    RENAMED_PARAMS,
+    apply,
+    equation_of,
+    parameter_labels,
+    renamed,
+    renamed_label,
+    tau_convention,
+)
 from calib.errors import DataError
 
 FORMAT_NAME = "magrig-calibration"
-FORMAT_VERSION = 2  # 2: `equation`, `tau`, `tau_0_c` / `solve_centre_c` instead of `temp_ref_c`
-READABLE_VERSIONS = (1, 2)
+# 2: `equation`, `tau`, `tau_0_c` / `solve_centre_c` instead of `temp_ref_c`; 3: the measurand (module doc),
+# P12's raw offset `h0_nt` (was `b_nt`)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 TAU_0_KEY = "tau_0_c"  # the constant an equation subtracts from tau (named in the equation)
 SOLVE_CENTRE_KEY = "solve_centre_c"  # internal to the solve: not part of the equation
+# the measurand's keys (format version 3), each with the words that say what a file without it lacks
+MEASURAND = {
+    "reading": "how h was read from the device (reading:)",
+    "tau_source": "the thermometer that gave tau (tau_source:)",
+    "frame": "the frames of B and h (frame:)",
+    "indexing": "the parameters' index convention (indexing:)",
+    "reference_chain": "what the reference field rests on (reference_chain:)",
+}
+READING_MODES = ("set_reset_pair", "set_only", "single", "not_stated")
+MAGNITUDES_KEY = "magnitude_range_nt"  # stats: {h: [lo, hi], B: [lo, hi]} of the rows used
 
 
 def _utc_now() -> str:
@@ -47,6 +80,13 @@ class Calibration:
     uncertainty: dict | None = None
     # per-row flags of a robust fit (True = flagged as outlier); not saved in the calibration file
     outliers: np.ndarray | None = field(default=None, repr=False, compare=False)
+    # the measurand (module doc); None: not stated
+    reading: dict | None = None
+    tau_source: dict | None = None
+    frame: dict | None = None
+    indexing: dict | None = field(default_factory=lambda: dict(INDEXING))
+    reference_chain: dict | None = None
+    format_version: int = FORMAT_VERSION  # of the file it was read from (a new calibration: this one's)
 
     def apply(self, h_nt: np.ndarray, temp_c: np.ndarray | None = None) -> np.ndarray:
         """Calibrated field B (N,3) in nT for raw readings h (N,3) in nT."""
@@ -59,6 +99,7 @@ class Calibration:
             "format_version": FORMAT_VERSION,
             "model": self.model,
             **self.equation_keys(),
+            **{key: to_plain(getattr(self, key)) for key in MEASURAND},
             "params": {k: np.asarray(v, float).tolist() for k, v in self.params.items()},
             "std_errors": {k: np.asarray(v, float).tolist() for k, v in self.std_errors.items()},
             "stats": to_plain(self.stats),
@@ -78,6 +119,19 @@ class Calibration:
             out[SOLVE_CENTRE_KEY] = float(self.temp_ref_c)
         return out
 
+    def missing_measurand(self) -> list[str]:
+        """What the file does not state of its measurand, one plain phrase each ([] for a whole one): the
+        measurand's keys (files before version 3 have none), the field magnitudes it was calibrated at
+        (`rig apply` checks rows against them), and, for a session's file before version 3, a source hash
+        taken of the session as its run closed it."""
+        out = [words for key, words in MEASURAND.items() if getattr(self, key) is None]
+        if MAGNITUDES_KEY not in self.stats:
+            out.append(f"the field magnitudes it was calibrated at (stats.{MAGNITUDES_KEY})")
+        if self.format_version < 3 and self.source.get("kind") == "session":
+            out.append("a source.sha256 of the session as its run closed it (before version 3 a run's "
+                       "files hashed the session while it was still being written)")
+        return out
+
     @classmethod
     def from_dict(cls, d: object, where: str = "calibration") -> Calibration:
         """Validate and build; a problem raises DataError naming `where` and the key path."""
@@ -88,16 +142,18 @@ class Calibration:
         model = d.get("model")
         if model not in MODELS:
             raise DataError(f"{where}: key 'model' is {model!r}, expected one of {', '.join(MODELS)}")
-        params = _read_arrays(d, "params", model, where)
-        std_errors = _read_arrays(d, "std_errors", model, where, required=set(params))
         version = d.get("format_version", FORMAT_VERSION)
         if version not in READABLE_VERSIONS:
             raise DataError(f"{where}: key 'format_version' is {version!r}; this magrig reads "
                             f"{', '.join(map(str, READABLE_VERSIONS))}")
+        d = _with_current_names(d, model)
+        params = _read_arrays(d, "params", model, where)
+        std_errors = _read_arrays(d, "std_errors", model, where, required=set(params))
         temp_ref = _read_centre(d, model, params, where, legacy=version == 1)
         for key in ("stats", "source"):
             if not isinstance(d.get(key, {}), dict):
                 raise DataError(f"{where}: key {key!r} must be a mapping")
+        measurand = _read_measurand(d, where)
         return cls(
             model=model,
             params=params,
@@ -108,7 +164,61 @@ class Calibration:
             software_version=str(d.get("software_version", "unknown")),
             created_utc=str(d.get("created_utc", "")),
             uncertainty=_read_uncertainty(d, params, where),
+            format_version=version,
+            **measurand,
         )
+
+
+def _with_current_names(d: dict, model: str) -> dict:
+    """The file's content with every parameter under its current name (RENAMED_PARAMS: P12's `b_nt` is
+    `h0_nt`), in `params`, `std_errors`, the uncertainty's per-parameter tables and the covariance's labels,
+    and its equation as this model states it with that name. A file that gives both names is left as it is
+    (and refused for the unknown one)."""
+    old_names = RENAMED_PARAMS.get(model, {})
+    params = d.get("params")
+    if not old_names or not isinstance(params, dict) or not any(old in params for old in old_names):
+        return d
+    if any(new in params for new in old_names.values()):
+        return d
+
+    def table(block):
+        return {renamed(model, k): v for k, v in block.items()} if isinstance(block, dict) else block
+
+    out = {**d, "params": table(params), "std_errors": table(d.get("std_errors"))}
+    equation = d.get("equation")
+    if isinstance(equation, str):
+        for old, new in old_names.items():
+            equation = equation.replace(f"(h - {old})", f"(h - {new})")
+        out["equation"] = equation
+    u = d.get("uncertainty")
+    if isinstance(u, dict):
+        per_parameter = ("expanded", "coverage_factors", "effective_dof", "interval")
+        u = {**u, **{key: table(u[key]) for key in per_parameter if key in u}}
+        cov = u.get("covariance")
+        if isinstance(cov, dict) and isinstance(cov.get("parameters"), list):
+            u["covariance"] = {**cov, "parameters": [renamed_label(model, str(x)) for x in cov["parameters"]]}
+        out["uncertainty"] = u
+    return out
+
+
+def _read_measurand(d: dict, where: str) -> dict:
+    """The measurand's keys (MEASURAND), each a mapping or null; `reading.mode` one of READING_MODES and
+    `reference_chain.traceable` true or false where they are given. A file before version 3 has none: all
+    None, which `missing_measurand` says."""
+    out = {}
+    for key in MEASURAND:
+        value = d.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise DataError(f"{where}: key {key!r} must be a mapping or null")
+        out[key] = value
+    mode = (out["reading"] or {}).get("mode")
+    if out["reading"] is not None and mode not in READING_MODES:
+        raise DataError(f"{where}: key 'reading.mode' is {mode!r}, expected one of "
+                        f"{', '.join(READING_MODES)}")
+    chain = out["reference_chain"]
+    if chain is not None and not isinstance(chain.get("traceable"), bool):
+        raise DataError(f"{where}: key 'reference_chain.traceable' must be true or false")
+    return out
 
 
 def _read_centre(d: dict, model: str, params: dict, where: str, legacy: bool) -> float | None:
@@ -205,8 +315,7 @@ def _check_covariance(cov, params: dict, where: str) -> None:
     flat parameter labels in order, matrix: P x P, finite and symmetric}."""
     if cov is None:
         return
-    labels = [name + "".join(f"[{i}]" for i in idx) if np.shape(v) else name
-              for name, v in params.items() for idx in np.ndindex(*np.shape(v))]
+    labels = parameter_labels(params)
     if not isinstance(cov, dict) or cov.get("parameters") != labels:
         raise DataError(f"{where}: key 'uncertainty.covariance.parameters' must list the parameters in "
                         f"order: {', '.join(labels[:3])}, ...")

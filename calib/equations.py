@@ -6,13 +6,18 @@ calibration.
 
 - t24 (absolute-tau convention of the paper): B = (S + T K) h + b + T kb, T the DUT temperature in degC.
 - t36 (same convention): B = (S + T K + T^2 K2) h + b + T kb + T^2 kb2, T24 with quadratic temperature terms.
-- p12: h = Q P B + b, so B = (Q P)^-1 (h - b). Q = diag(k); P lower-triangular with unit rows
+- p12: h = Q P B + h0, so B = (Q P)^-1 (h - h0_nt). Q = diag(k); P lower-triangular with unit rows
   row 1 = (1, 0, 0), row 2 = (sin e1, cos e1, 0), row 3 = (sin e2 cos e3, sin e3, cos e2 cos e3):
   e1 tilts axis 2 towards axis 1, e2 tilts axis 3 towards axis 1, e3 tilts axis 3 towards axis 2.
 - scalar: B = (A + t KA)(h - c - t kc), t = T - temp_ref_c (the file's tau_0_c). A (and KA)
   upper-triangular: the field comes out in a sensor-aligned frame (axis 1 along sensor axis 1, axis 2 in
   the sensor 1-2 plane), which is the true frame up to one unknown rotation. The temperature terms are
   optional.
+
+No parameter name means two things across models: T24's `b_nt` is added to the field, P12's raw offset,
+subtracted from h, is `h0_nt` (files that called it `b_nt` still load: RENAMED_PARAMS). Every parameter
+element is named one way everywhere (the YAML, the covariance, the report, the certificate, the exports):
+`parameter_label`, zero-based `[row][column]`, rows the output axes (INDEXING).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from calib.errors import DataError
 # required parameters of each model and their shapes, in the order models are listed everywhere
 PARAM_SHAPES: dict[str, dict[str, tuple[int, ...]]] = {
     "t24": {"S": (3, 3), "K": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,)},
-    "p12": {"k": (3,), "angles_deg": (3,), "b_nt": (3,)},
+    "p12": {"k": (3,), "angles_deg": (3,), "h0_nt": (3,)},
     "scalar": {"A": (3, 3), "c_nt": (3,)},
     "t36": {"S": (3, 3), "K": (3, 3), "K2": (3, 3), "b_nt": (3,), "kb_nt_per_c": (3,), "kb2_nt_per_c2": (3,)},
 }
@@ -35,6 +40,38 @@ OPTIONAL_PARAMS: dict[str, dict[str, tuple[int, ...]]] = {
     "t36": {},
 }
 MODELS = tuple(PARAM_SHAPES)
+# names older files gave a parameter, by model: {old: new}; a file is read with the new name
+RENAMED_PARAMS: dict[str, dict[str, str]] = {"p12": {"b_nt": "h0_nt"}}
+
+# The one index convention of every parameter element, as a calibration file states it (key `indexing`).
+INDEXING = {
+    "matrices": "M[row][column], zero-based; row = output axis of B (x, y, z), column = input axis of h",
+    "vectors": "v[i], zero-based (x, y, z)",
+    "flat_order": "row-major: S[0][0], S[0][1], ..., S[2][2], then the next parameter",
+}
+
+
+def parameter_label(name: str, index: tuple[int, ...] = ()) -> str:
+    """One element's name: `S[0][1]` (row 0, column 1), `b_nt[2]`, `name` for a scalar; INDEXING."""
+    return name + "".join(f"[{int(i)}]" for i in index)
+
+
+def parameter_labels(params: dict) -> list[str]:
+    """Every element's name in INDEXING's flat order (each parameter row-major, in the dict's order): the
+    order of a covariance's rows and of every export's list."""
+    return [parameter_label(name, idx) for name, value in params.items()
+            for idx in np.ndindex(*np.shape(value))]
+
+
+def renamed(model: str, name: str) -> str:
+    """A parameter's current name for the name an older file gave it (RENAMED_PARAMS)."""
+    return RENAMED_PARAMS.get(model, {}).get(name, name)
+
+
+def renamed_label(model: str, label: str) -> str:
+    """A flat label (`b_nt[2]`) with its parameter's current name (`h0_nt[2]` for P12)."""
+    name, bracket, rest = label.partition("[")
+    return renamed(model, name) + bracket + rest
 
 
 def t24_regressors(h_nt, temp_c, temp_ref_c: float = 0.0) -> np.ndarray:
@@ -59,7 +96,7 @@ def t36_regressors(h_nt, temp_c, temp_ref_c: float = 0.0) -> np.ndarray:
 EQUATIONS: dict[str, str] = {
     "t24": "B = (S + tau K) h + b_nt + tau kb_nt_per_c",
     "t36": "B = (S + tau K + tau^2 K2) h + b_nt + tau kb_nt_per_c + tau^2 kb2_nt_per_c2",
-    "p12": "B = inv(Q P) (h - b_nt); Q = diag(k); P rows (1, 0, 0), (sin e1, cos e1, 0), "
+    "p12": "B = inv(Q P) (h - h0_nt); Q = diag(k); P rows (1, 0, 0), (sin e1, cos e1, 0), "
            "(sin e2 cos e3, sin e3, cos e2 cos e3); (e1, e2, e3) = angles_deg",
     "scalar": "B = A (h - c_nt)",
     "scalar with temperature terms":
@@ -141,7 +178,7 @@ def apply(model: str, params: dict, h_nt: np.ndarray, temp_c: np.ndarray | None,
         return linear + (t * t) * (h @ params["K2"].T + params["kb2_nt_per_c2"])
     if model == "p12":
         m = p12_matrix(params["k"], params["angles_deg"])
-        return np.linalg.solve(m, (h - params["b_nt"]).T).T
+        return np.linalg.solve(m, (h - params["h0_nt"]).T).T
     if model == "scalar":
         if "KA_per_c" not in params:
             return (h - params["c_nt"]) @ params["A"].T

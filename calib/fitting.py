@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.calibration import Calibration
+from calib.calibration import MAGNITUDES_KEY, Calibration
 from calib.dataset import Dataset
 from calib.errors import DataError
 from calib.models import registry
@@ -62,6 +62,8 @@ def fit(
     )
     if ds.temp_c is not None and used.any():  # the temperatures the calibration is valid between
         stats["temperature_range_c"] = [float(ds.temp_c[used].min()), float(ds.temp_c[used].max())]
+    if used.any():  # the magnitudes calibrated: `rig apply` counts rows outside them, or in another unit
+        stats[MAGNITUDES_KEY] = magnitude_ranges(ds, used)
     if used.any():  # and the field directions, as the calibrated field has them (calib/stats/directions.py)
         rows = np.flatnonzero(used)[spread_rows(int(used.sum()))]
         calibrated = cal.apply(ds.h_nt[rows], None if ds.temp_c is None else ds.temp_c[rows])
@@ -77,6 +79,20 @@ def fit(
     cal.outliers = flagged
     cal.software_version = software_version
     return cal
+
+
+def magnitude_ranges(ds: Dataset, used: np.ndarray) -> dict:
+    """{h: [least, largest |h|], B: [least, largest |B|] of the reference (where the data has one)} over the
+    rows used, nT."""
+    def span(values: np.ndarray) -> list[float]:
+        return [float(values.min()), float(values.max())]
+
+    out = {"h": span(np.linalg.norm(ds.h_nt[used], axis=1))}
+    if ds.ref_nt is not None:
+        out["B"] = span(np.linalg.norm(ds.ref_nt[used], axis=1))
+    elif ds.ref_norm_nt is not None:
+        out["B"] = span(np.asarray(ds.ref_norm_nt, float)[used])
+    return out
 
 
 def check_dataset(ds: Dataset) -> None:

@@ -97,7 +97,7 @@ def random_p12_params(rng: np.random.Generator) -> dict:
     return {
         "k": 1 + rng.normal(0, 0.02, 3),
         "angles_deg": rng.normal(0, 0.5, 3),
-        "b_nt": rng.normal(0, 400, 3),
+        "h0_nt": rng.normal(0, 400, 3),
     }
 
 
@@ -112,11 +112,11 @@ def p12_dataset(
     outlier_fraction: float = 0.0,
     outlier_nt: float = 5000.0,
 ):
-    """h = Q P B + b + n at constant temperature."""
+    """h = Q P B + h0 + n at constant temperature."""
     p = random_p12_params(rng) if params is None else params
     dirs = coil_directions() if directions is None else directions
     ref = field_nt * np.repeat(dirs, samples_per_point, axis=0)
-    h = ref @ p12_matrix(p["k"], p["angles_deg"]).T + p["b_nt"] + rng.normal(0, noise_nt, ref.shape)
+    h = ref @ p12_matrix(p["k"], p["angles_deg"]).T + p["h0_nt"] + rng.normal(0, noise_nt, ref.shape)
     outliers = _add_outliers(h, rng, outlier_fraction, outlier_nt)
     ds = Dataset(
         h_nt=h,

@@ -34,6 +34,13 @@ class FieldSample:
     flags: frozenset[str] = field(default_factory=frozenset)
 
 
+def reading_description(mode: str, mode_text: str, conversion: str | None, raw_unit: str = "nT") -> dict:
+    """What a magnetometer's describe() states of how one read() makes h (recorded in the session, and
+    from there in every calibration's `reading:`): `mode` set_reset_pair | set_only | single, what that
+    does in words, the unit of h and the conversion from the device's output codes to it."""
+    return {"mode": mode, "mode_text": mode_text, "raw_unit": raw_unit, "conversion": conversion}
+
+
 @dataclass(frozen=True)
 class TempSample:
     t: float

@@ -23,7 +23,7 @@ from typing import ClassVar, Literal
 from pydantic import Field, field_validator
 
 from drivers import registry
-from drivers.base import Device, FieldSample
+from drivers.base import Device, FieldSample, reading_description
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.steps import Steps, run_steps
@@ -163,6 +163,13 @@ class HMC5883L(Device):
             "averaging": self.averaging,
             "output_rate_hz": OUTPUT_RATE_HZ[self.output_rate_code],
             "temperature": self.read_temperature,
+            "reading": reading_description(
+                "single", "h = H of one single measurement (the chip averages `averaging` samples into it); "
+                "the driver sends no SET/RESET pulse, the chip has none to send: its datasheet states the "
+                "bridge offset cancelled inside it",
+                f"H_nT = code / {lsb_per_gauss} * {NT_PER_GAUSS:.0f} per axis (signed 12-bit codes, read in "
+                f"the order X, Z, Y and reported as x, y, z; gain code {self.gain}; code {OVERFLOW_CODE} is "
+                "an overflow)"),
         }
 
     def read(self) -> FieldSample:

@@ -22,7 +22,7 @@ import math
 from typing import Literal
 
 from drivers import registry
-from drivers.base import Device, FieldSample
+from drivers.base import Device, FieldSample, reading_description
 from drivers.clock import Clock
 from drivers.errors import DeviceError, OptionError, ProtocolError
 from drivers.steps import Steps, run_steps
@@ -175,7 +175,20 @@ class MMC5983MA(Device):
             "max_odr_hz": MAX_ODR_HZ[self.bandwidth],
             "set_reset": self.set_reset,
             "continuous_hz": self.continuous_hz,
+            "reading": self.reading(),
         }
+
+    def reading(self) -> dict:
+        """How read() makes h (drivers/base.py reading_description)."""
+        conversion = (f"H_nT = (code - {NULL_CODE}) / {COUNTS_PER_GAUSS} * {NT_PER_GAUSS:.0f} per axis "
+                      f"(18-bit output codes X, Y, Z; {NT_PER_GAUSS / COUNTS_PER_GAUSS:.4g} nT per code)")
+        if self.set_reset and self.continuous_hz is None:
+            return reading_description(
+                "set_reset_pair", "h = (H_SET - H_RESET) / 2: a measurement after a SET pulse and one after "
+                "a RESET pulse; the bridge offset cancels", conversion)
+        return reading_description(
+            "single", "h = H of one measurement, no SET/RESET pulse before it: the bridge offset stays in h "
+            "(the calibration's offset holds it)", conversion)
 
     def read(self) -> FieldSample:
         """One field sample (and the temperature, if enabled); in continuous mode the next new one.

@@ -28,7 +28,7 @@ import logging
 from pydantic import Field, field_validator
 
 from drivers import registry
-from drivers.base import Device, FieldSample
+from drivers.base import Device, FieldSample, reading_description
 from drivers.clock import Clock
 from drivers.errors import DeviceError, DeviceTimeout, OptionError, ProtocolError
 from drivers.serialmag_protocol import (
@@ -44,6 +44,7 @@ from drivers.serialmag_protocol import (
     ESC,
     LINE_BYTES,
     NT_PER_COUNT,
+    NT_PER_GAUSS,
     OK,
     PULSE_COMMAND,
     PULSE_REPLY,
@@ -399,7 +400,23 @@ class SerialMagnetometer(Device):
             "counts_per_gauss": COUNTS_PER_GAUSS,
             "range_nt": RANGE_COUNTS * NT_PER_COUNT,
             "temperature": None,
+            "reading": self.reading(),
         }
+
+    def reading(self) -> dict:
+        """How read() makes h (drivers/base.py reading_description)."""
+        conversion = (f"H_nT = counts / {COUNTS_PER_GAUSS} * {NT_PER_GAUSS:.0f} per axis (the signed counts "
+                      "of the ASCII sample line X, Y, Z)")
+        if self.set_reset == "pulse":
+            return reading_description(
+                "set_reset_pair", "h = (H_SET - H_RESET) / 2: a poll after a RESET pulse and one after a SET "
+                "pulse; the bridge offset cancels", conversion)
+        if self.set_reset == "off":
+            return reading_description(
+                "set_only", "h = H of one poll; one SET pulse at connect and none after: the bridge offset "
+                "stays in h (the calibration's offset holds it)", conversion)
+        return reading_description(
+            "single", "h = H of one poll, with the device's own automatic SET/RESET on (`TN`)", conversion)
 
 
 def _check_rate(name: str, rate_hz: int) -> None:

@@ -1,4 +1,5 @@
-"""P12: h = Q P B + b. Three scale factors, three non-orthogonality angles, three offsets.
+"""P12: h = Q P B + h0. Three scale factors, three non-orthogonality angles, three raw offsets (`h0_nt`:
+subtracted from h, B = (Q P)^-1 (h - h0_nt); not T24's `b_nt`, which is added to the field).
 
 Q P is lower-triangular, so each raw axis i is a linear least-squares fit of h_i on (B_1..B_i, 1)
 (decoupled by rows, as in the paper). The scale factor is the norm of the fitted row and the angles follow
@@ -89,17 +90,17 @@ def fit_weighted(ds: Dataset, weights: np.ndarray | None):
     se = np.sqrt(var)
     cal = Calibration(
         model="p12",
-        params={"k": values[:3], "angles_deg": values[3:], "b_nt": b},
-        std_errors={"k": se[:3], "angles_deg": se[3:], "b_nt": np.sqrt(var_b)},
+        params={"k": values[:3], "angles_deg": values[3:], "h0_nt": b},
+        std_errors={"k": se[:3], "angles_deg": se[3:], "h0_nt": np.sqrt(var_b)},
         stats={"sigma_raw_nt": {a: float(np.sqrt(s)) for a, s in zip("xyz", sigma2, strict=True)}},
         source={"kind": "dataset"},
     )
     return cal, residuals
 
 
-def penalty(ds: Dataset, k: np.ndarray, angles_deg: np.ndarray, b_nt: np.ndarray) -> float:
-    """Sum of squared raw-axis residuals sum_l |h - Q P B - b|^2."""
-    r = ds.h_nt - ds.ref_nt @ p12_matrix(k, angles_deg).T - b_nt
+def penalty(ds: Dataset, k: np.ndarray, angles_deg: np.ndarray, h0_nt: np.ndarray) -> float:
+    """Sum of squared raw-axis residuals sum_l |h - Q P B - h0|^2."""
+    r = ds.h_nt - ds.ref_nt @ p12_matrix(k, angles_deg).T - h0_nt
     return float(np.sum(r**2))
 
 
@@ -125,7 +126,7 @@ def stationary_points(ds: Dataset) -> list[dict]:
                     "signs": (s2, s3),
                     "k": k,
                     "angles_deg": angles,
-                    "b_nt": b.copy(),
+                    "h0_nt": b.copy(),
                     "penalty": penalty(ds, k, angles, b),
                     "physical": bool(np.all(k > 0) and np.all(np.abs(angles) < 90)),
                 }

@@ -167,7 +167,7 @@ class LinearInReference:
 
 
 def _p12_params(coef: list[np.ndarray]) -> np.ndarray:
-    """(k, angles_deg, b_nt) from the three row fits' coefficients [m_i1..m_ii, b_i]."""
+    """(k, angles_deg, h0_nt) from the three row fits' coefficients [m_i1..m_ii, h0_i]."""
     m = np.zeros((3, 3))
     for i, c in enumerate(coef):
         m[i, :i + 1] = c[:-1]
@@ -182,7 +182,7 @@ class P12Rows:
 
     def __init__(self, ds: Dataset, cal: Calibration, weights):
         self.layout = ParamLayout.of(cal.params)
-        if self.layout.names != ("k", "angles_deg", "b_nt"):
+        if self.layout.names != ("k", "angles_deg", "h0_nt"):
             raise FitError("P12: unexpected parameters " + ", ".join(self.layout.names))
         self.ds, self.w = ds, _weights(ds, weights)
         n_used = int(np.count_nonzero(self.w))

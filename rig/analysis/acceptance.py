@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.equations import renamed
 from calib.io.atomic import atomic_write
 from rig.core.errors import ERRORS
 
@@ -161,12 +162,12 @@ def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, fl
             shown = "not computable" if value is None else f"{value:.4g} nT"
             failed.append(f"{name} {shown} > {limit:g}")
     for name, limit in acceptance.max_std_error.items():
-        se = float(np.max(np.abs(cal.std_errors[name])))
+        se = float(np.max(np.abs(cal.std_errors[renamed(cal.model, name)])))
         figures[f"std_error.{name}"] = se
         if not se <= limit:
             failed.append(f"std_error.{name} {se:.3g} > {limit:g}")
     for name, (low, high) in acceptance.bounds.items():
-        values = np.asarray(cal.params[name], float)
+        values = np.asarray(cal.params[renamed(cal.model, name)], float)
         outside = values[(values < low) | (values > high)]
         if outside.size:
             failed.append(f"bounds.{name} {float(outside[np.argmax(np.abs(outside))]):.4g} "

@@ -4,8 +4,10 @@
         results = fits.fit("dut1")                  # [DutFit per model], its calibration files written
 
 A DUT's fits read nothing but the session (its recorded plan and station, its samples), so they can run
-in another process. A DutFit is plain data, the same from either process: the calibration, its file, and
-what the cross-covariance needs of its budget (rig/analysis/crosscov.py).
+in another process. They run while the run still writes the session, so their files cite it without a
+hash; the run gives them the session's once it has closed it (rig/analysis/postrun.py seal_sources). A
+DutFit is plain data, the same from either process: the calibration, its file, and what the
+cross-covariance needs of its budget (rig/analysis/crosscov.py).
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ class SessionFits:
             ds = self.reader.dataset(dut)
         except ERRORS as exc:
             return [DutFit(dut, "-", error=str(exc))]
+        ds.source["sha256"] = None  # the run still writes the session: its hash once closed (seal_sources)
         prepared = self.fitter.prepare(ds)
         fitted: dict[str, Any] = {}
         for model in self.models:

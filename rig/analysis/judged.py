@@ -5,10 +5,16 @@ here, so they give one answer.
     model, fits = judged_fits(reader)      # the plan's judged model, each DUT's last recorded judged fit
     judged_for_dut("t24", {"t24": cal24, "t36": cal36})   # "t36" when T24's temperature check chose it
     q = quality(cal.stats, cal.uncertainty)
-    q.rms_nt, q.expanded_nt, q.exceeds, q.dominant   # residual, stated uncertainty, flag, what dominates
+    q.rms_nt, q.radius_nt, q.exceeds, q.dominant     # residual, stated 95 % radius, flag, what dominates
+    f = field_figures(cal.uncertainty)               # u, k, U = k u and the radius, each by its own name
 
 The phrase for what dominates an uncertainty comes from the calibration's own budget lines (their
 source and note), never from the station or its simulator.
+
+Every number keeps its own name: the combined standard uncertainty u of the calibrated field (RMS over the
+plan's fields and temperatures), its expanded uncertainty U = k u (labelled "expanded (k = K)", and always
+K times u), and the largest radius holding 95 % of the 3-D error at any of those points (a radius over a
+grid, not k u: RADIUS_LABEL).
 """
 
 from __future__ import annotations
@@ -20,6 +26,8 @@ from dataclasses import dataclass
 from rig.core.errors import ERRORS
 
 MAX_NAMED_DUTS = 3  # a listing's cell names each DUT's residual up to this many, else the largest
+RADIUS_LABEL = "95 % error radius (nT, largest over the plan's grid)"  # every table's column for radius_nt
+RADIUS_KEYS = ("vector_radius_nt", "expanded_vector_error_nt")  # the uncertainty section's name for it
 
 # what to do about the largest budget line: (source, words its note must contain, advice)
 ADVICE = (
@@ -40,7 +48,7 @@ class Quality:
     """A calibration's residual beside the uncertainty it states."""
 
     rms_nt: float | None
-    expanded_nt: float | None  # the stated expanded (95 %) vector error over the plan's fields
+    radius_nt: float | None  # the largest 95 % radius of the 3-D error over the plan's grid
     dominant: str | None  # what dominates that uncertainty, in one phrase
     coverage_factor: float | None = None
 
@@ -48,26 +56,54 @@ class Quality:
     def exceeds(self) -> bool:
         """The fit's residual is larger than the error it claims: the model does not describe the sensor
         to its stated uncertainty, or the sensor's noise alone is larger than it."""
-        return self.rms_nt is not None and self.expanded_nt is not None and self.rms_nt > self.expanded_nt
+        return self.rms_nt is not None and self.radius_nt is not None and self.rms_nt > self.radius_nt
 
     def exceeds_text(self) -> str:
         """One sentence for a flagged fit ("" when it is not flagged)."""
         if not self.exceeds:
             return ""
-        k = f"k = {self.coverage_factor:g}" if self.coverage_factor else "expanded"
-        return (f"residual RMS {self.rms_nt:.1f} nT is above its stated uncertainty "
-                f"{self.expanded_nt:.1f} nT ({k}): the fit leaves more than the budget states (a model "
-                "error, or noise above the stated uncertainty)")
+        return (f"residual RMS {self.rms_nt:.1f} nT is above its stated 95 % error radius "
+                f"{self.radius_nt:.1f} nT: the fit leaves more than the budget states (a model error, or "
+                "noise above the stated uncertainty)")
 
     def uncertainty_text(self) -> str:
-        return "-" if self.expanded_nt is None else f"{self.expanded_nt:.1f}"
+        return "-" if self.radius_nt is None else f"{self.radius_nt:.1f}"
+
+
+@dataclass(frozen=True)
+class FieldFigures:
+    """The calibrated field's uncertainty figures of a calibration's `uncertainty:` section, each by the
+    name it is shown under (module doc)."""
+
+    standard_nt: float | None  # u: the combined standard uncertainty (RMS over the plan's grid)
+    coverage_factor: float | None  # k
+    radius_nt: float | None  # the largest radius holding 95 % of the 3-D error at a grid point
+
+    @property
+    def expanded_nt(self) -> float | None:
+        """U = k u: what "expanded (k = K)" labels, K times the standard uncertainty shown beside it."""
+        if self.standard_nt is None or self.coverage_factor is None:
+            return None
+        return self.coverage_factor * self.standard_nt
+
+
+def field_figures(uncertainty: dict | None) -> FieldFigures:
+    u = uncertainty if isinstance(uncertainty, dict) else {}
+    return FieldFigures(_number(u.get("combined_standard_nt")), _number(u.get("coverage_factor")),
+                        vector_radius_nt(u))
+
+
+def vector_radius_nt(uncertainty: dict | None) -> float | None:
+    """The section's largest 95 % radius of the 3-D error (RADIUS_KEYS: its name, and the older one)."""
+    u = uncertainty if isinstance(uncertainty, dict) else {}
+    return next((_number(u[key]) for key in RADIUS_KEYS if _number(u.get(key)) is not None), None)
 
 
 def quality(stats: dict | None, uncertainty: dict | None) -> Quality:
     stats = stats if isinstance(stats, dict) else {}
     u = uncertainty if isinstance(uncertainty, dict) else {}
-    return Quality(_number(stats.get("rms_after_nt")), _number(u.get("expanded_vector_error_nt")),
-                   dominant_phrase(u), _number(u.get("coverage_factor")))
+    return Quality(_number(stats.get("rms_after_nt")), vector_radius_nt(u), dominant_phrase(u),
+                   _number(u.get("coverage_factor")))
 
 
 def quality_of(cal) -> Quality:
@@ -150,7 +186,7 @@ def judged_fits(reader) -> tuple[str | None, dict[str, dict]]:
 def judged_cell(model: str | None, fits: dict[str, dict]) -> str:
     """The judged calibration's residual in one cell: `t24 RMS: mmc0 29.0, serial0 17.4 nT`, or the largest
     of many DUTs; a DUT judged on another model than the plan's (T36 chosen) named with it; flagged DUTs
-    named after `RMS > U:`."""
+    named after `RMS > radius:`."""
     if model is None or not fits:
         return "no fit" if model is None else f"no {model} fit"
     rms = {dut: fit.get("residual_rms_nt") for dut, fit in fits.items()}
@@ -171,4 +207,4 @@ def judged_cell(model: str | None, fits: dict[str, dict]) -> str:
         if others:
             text += f"; {sum(f.get('model') != model for f in fits.values())} judged on {', '.join(others)}"
     flagged = [d for d, fit in fits.items() if quality_of(fit["calibration"]).exceeds]
-    return text + (f" [RMS > U: {', '.join(flagged)}]" if flagged else "")
+    return text + (f" [RMS > radius: {', '.join(flagged)}]" if flagged else "")

@@ -58,6 +58,35 @@ def fit_session(session, plan: cfg.Plan, station: cfg.Station, progress=None, he
     return [entry for dut in duts for entry in kept[dut]]
 
 
+def seal_sources(session_path, fits: list[dict]) -> None:
+    """Once the run has closed its session (nothing more is written to it): the session's sha256 in every
+    calibration file the run wrote (`source.sha256`, left empty by the fits, which ran while the session was
+    still written), so that each file cites the file its `source.path` names as it stays. A file that cannot
+    be rewritten, or a session whose log a reader kept from being folded in, keeps no hash and the reason is
+    logged: never a wrong one."""
+    import logging
+
+    from calib.io import calfile
+    from calib.io.digest import sha256_file
+    from rig.core.errors import ERRORS
+    from rig.session.reader import wal_bytes
+
+    log = logging.getLogger("magrig.postrun")
+    if wal_bytes(session_path):  # a reader kept the log from being folded in: the file is not the session
+        log.warning("%s: still has a write-ahead log; its calibrations cite it without a hash", session_path)
+        return
+    digest = sha256_file(session_path)
+    for entry in fits:
+        cal, path = entry.get("calibration"), entry.get("path")
+        if cal is None or path is None:
+            continue
+        cal.source["sha256"] = digest
+        try:
+            calfile.save(cal, path)
+        except ERRORS as exc:
+            log.warning("%s: source.sha256 not written: %s", path, exc)
+
+
 def _keep(session, fit, shared) -> dict[str, Any]:
     """A fit's record in the session (its file is written already), or its failure logged."""
     entry: dict[str, Any] = {"dut": fit.dut, "model": fit.model}

@@ -34,15 +34,18 @@ class Prepared:
 @dataclass
 class SessionFitter:
     inputs: Any  # rig.budget.run_inputs.RunInputs, or None when the recorded plan or station cannot be read
+    measurand: Any = None  # rig.analysis.measurand.SessionMeasurand: what every calibration states of it
 
     @classmethod
     def of(cls, reader) -> SessionFitter:
+        from rig.analysis.measurand import SessionMeasurand
         from rig.budget.run_inputs import RunInputs
 
         try:
-            return cls(RunInputs.of_session(reader))
+            inputs = RunInputs.of_session(reader)
         except ConfigError:
-            return cls(None)
+            inputs = None
+        return cls(inputs, SessionMeasurand.of(reader, None if inputs is None else inputs.station))
 
     @property
     def plan(self):
@@ -87,9 +90,10 @@ class SessionFitter:
 
     def calibrate(self, prepared: Prepared, model: str, *, robust: bool | None = None,
                   software_version: str = "unknown", budget: bool = True, **fit_options):
-        """calib.fit with the session's options, then what every session calibration carries: the lag
-        estimate, T24's model checks (and, where its linearity in temperature fails, the choice of T24 or
-        T36: rig/analysis/tempchoice.py), the ambient used and (with `budget`) the uncertainty budget."""
+        """calib.fit with the session's options, then what every session calibration carries: its measurand
+        (rig/analysis/measurand.py), the lag estimate, T24's model checks (and, where its linearity in
+        temperature fails, the choice of T24 or T36: rig/analysis/tempchoice.py), the ambient used and (with
+        `budget`) the uncertainty budget."""
         return self.calibrate_budgeted(prepared, model, robust=robust, software_version=software_version,
                                        budget=budget, **fit_options)[0]
 
@@ -103,6 +107,8 @@ class SessionFitter:
         ds = prepared.ds
         cal = calib.fit(ds, model, robust=self.robust(robust), software_version=software_version,
                         **fit_options)
+        if self.measurand is not None:
+            self.measurand.state(cal, ds.source.get("dut", ""), prepared.lag)
         if prepared.lag is not None:
             from rig.analysis.lagfit import annotate
 

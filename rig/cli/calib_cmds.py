@@ -141,9 +141,11 @@ def refit(
             click.echo(prepared.lag["message"])
     else:
         from calib.uncertainty.montecarlo import statistical_only
+        from rig.analysis.measurand import state_csv
 
         cal = calib.fit(ds, model, robust=bool(robust), software_version=__version__, **options)
         cal.uncertainty = statistical_only(ds, cal)
+        state_csv(cal, ds)
     calfile.save(cal, output)
     print_summary(cal)
     click.echo(f"wrote {output}")
@@ -190,8 +192,40 @@ def apply_cmd(calibration, data, raw_unit, counts_per_unit, column_map, output, 
     csvio.write_csv(output, out)
     click.echo(f"wrote {output}: {len(ds)} rows calibrated with {cal.model} ({calibration}){note}; "
                + equation_line(cal))
-    for line in beyond_calibration(cal, ds.temp_c, field):
+    for line in [*beyond_calibration(cal, ds.temp_c, field), *magnitude_guards(cal, ds.h_nt, raw_unit)]:
         click.echo(f"warning: {line}", err=True)
+    for line in missing_lines(cal, calibration):
+        click.echo(line, err=True)
+
+
+def missing_lines(cal, where: str) -> list[str]:
+    """One line for each thing the calibration file does not state of its measurand (files before format
+    version 3 state none of it: calib.Calibration.missing_measurand)."""
+    return [f"note: {where} (format version {cal.format_version}) does not state {what}"
+            for what in cal.missing_measurand()]
+
+
+def magnitude_guards(cal, h_nt, raw_unit: str | None) -> list[str]:
+    """Rows whose |h| lies more than 10 % outside the field magnitudes the calibration was made at, and
+    input whose magnitudes suggest another raw unit (calib/stats/magnitudes.py); each one line."""
+    from calib.calibration import MAGNITUDES_KEY
+    from calib.stats.magnitudes import MARGIN, outside_magnitudes, unit_suspected
+
+    span = (cal.stats.get(MAGNITUDES_KEY) or {}).get("h")
+    if span is None or not len(h_nt):
+        return []
+    out = []
+    outside = outside_magnitudes(span, h_nt)
+    if outside.any():
+        norm = np.linalg.norm(h_nt[outside], axis=1)
+        out.append(f"{int(outside.sum())} of {len(h_nt)} rows with |h| outside the calibrated field "
+                   f"magnitudes ({span[0]:.0f} .. {span[1]:.0f} nT) by more than {MARGIN:.0%} (|h| "
+                   f"{norm.min():.4g} .. {norm.max():.4g} nT; first row {int(np.flatnonzero(outside)[0])}): "
+                   "extrapolated")
+    suspect = unit_suspected(span, h_nt)
+    if suspect:
+        out.append(f"raw unit {raw_unit or 'nT'}: {suspect} (state it with --raw-unit)")
+    return out
 
 
 def beyond_calibration(cal, temp_c, field_nt) -> list[str]:
@@ -263,20 +297,25 @@ def _fmt_with_error(value: float, err: float) -> str:
 def print_summary(cal) -> None:
     """Parameters with standard errors, residual RMS before/after, per axis and per temperature step."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
+
+    from rig.analysis.measurand import reference_chain_words
 
     console = Console(highlight=False)
     st = cal.stats
     console.print(f"[bold]{cal.model}[/bold] fit of {st.get('n_used')} of {st.get('n')} samples")
     console.print(equation_line(cal), markup=False)
-    title = "parameters ± std errors"
-    params = Table("parameter", "1 / x", "2 / y", "3 / z", title=title)
+    console.print(reference_chain_words(cal.reference_chain), markup=False)
+    title = escape("parameters ± std errors, named as the file names them: S[row][column], zero-based, "
+                   "row = output axis of B")
+    params = Table("parameter", *(escape(f"[{i}] {axis}") for i, axis in enumerate("xyz")), title=title)
     for name, value in cal.params.items():
         value = np.atleast_2d(value)
         err = np.atleast_2d(cal.std_errors[name])
         for i, (row, erow) in enumerate(zip(value, err, strict=True)):
-            label = name if value.shape[0] == 1 else f"{name} row {i + 1}"
-            params.add_row(label, *(_fmt_with_error(v, e) for v, e in zip(row, erow, strict=True)))
+            label = name if value.shape[0] == 1 else f"{name}[{i}][column]"
+            params.add_row(escape(label), *(_fmt_with_error(v, e) for v, e in zip(row, erow, strict=True)))
     console.print(params)
     fit = Table("rows", "n", "RMS before (nT)", "RMS after (nT)", title="residuals")
     fit.add_row("all used", str(st.get("n_used")), f"{st['rms_before_nt']:.4g}", f"{st['rms_after_nt']:.4g}")

@@ -35,7 +35,12 @@ def report_cmd(source: Path, data: Path | None, dut: str | None, output_dir: Pat
     from rig.report.build import read_inputs, write_report
 
     try:
-        page, *figures = write_report(read_inputs(source, data=data, dut=dut), output_dir,
+        inputs = read_inputs(source, data=data, dut=dut)
+        for d in inputs.duts:  # what the calibration shown does not state of its measurand, a line each
+            for what in [] if d.calibration is None else d.calibration.missing_measurand():
+                click.echo(f"note: {d.name}: its {d.calibration.model} calibration does not state {what}",
+                           err=True)
+        page, *figures = write_report(inputs, output_dir,
                                       progress=lambda said: click.echo(f"report: {said}", err=True))
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # numbers the checks let through
         raise DataError(f"{source}: cannot build the report: {exc}") from None

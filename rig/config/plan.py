@@ -55,7 +55,9 @@ class Acceptance(Strict):
         "linearity in the field) fails where the judged model does not capture it")
 
     def check_against(self, models: list[str]) -> None:
-        """The judged model is fitted, the parameters named are its own, each bound is low <= high."""
+        """The judged model is fitted, the parameters named are its own (a name it had before, such as P12's
+        b_nt, counts as the one it has now: calib/equations.py RENAMED_PARAMS), each bound is low <= high."""
+        from calib.equations import renamed
         from calib.models.registry import REGISTRY
 
         model = self.model or models[0]
@@ -65,7 +67,7 @@ class Acceptance(Strict):
         known = {**spec.params, **spec.optional}
         for key in ("max_std_error", "bounds"):
             for name in getattr(self, key):
-                if name not in known:
+                if renamed(model, name) not in known:
                     raise KeyPathError(("acceptance", key, name),
                                        f"{model} has no parameter {name!r} (it has {', '.join(known)})")
         for name, (low, high) in self.bounds.items():

@@ -203,6 +203,34 @@ class FieldSourceConfig(DeviceConfig):
         """`rig check`'s lines on the reference chain; LimitError where the plan's accuracy target fails."""
         return []
 
+    # --- what a calibration states of its reference (rig/analysis/measurand.py) ------------------------
+    frame_text: ClassVar[str] = "the field source's frame"  # the frame of B, as a calibration file states it
+    declared_words: ClassVar[str] = "the field source's declared values"  # its field without a commissioning
+    commissioned_words: ClassVar[str] = "the field source as `rig commission` measured it"
+
+    def reference_chain_statement(self, reference_names: Sequence[str]) -> dict:
+        """What a calibration's reference field rests on (its file's `reference_chain`): `traceable` when
+        the source was commissioned (measured with a calibrated reference magnetometer by `rig
+        commission`), in words, with the commissioning file and its reference named."""
+        com = self.commissioned
+        measured = self.needs_measurement()
+        ref = self.measuring_magnetometer(reference_names) if measured else None
+        stated = "the commissioning or the station" if com is not None else "the station"
+        field = (f"the {self.measured_name} measured during the run by reference magnetometer {ref}"
+                 if measured else f"the {self.measured_name} as {stated} states it")
+        if com is None:
+            return {"traceable": False, "text": f"{self.declared_words} only (not commissioned); {field}",
+                    "commissioning": None}
+        record = com.as_record()
+        used = com.record.reference_magnetometer
+        return {"traceable": True,
+                "text": f"{self.commissioned_words} with reference magnetometer {used.name} ({used.type}, "
+                        f"calibration {used.calibration}); {field}",
+                "commissioning": {"path": record["path"], "sha256": record["sha256"]},
+                "reference_magnetometer": {"name": used.name, "type": used.type,
+                                           "calibration": used.calibration,
+                                           "calibration_sha256": used.calibration_sha256}}
+
     def uncertainty_caveat(self) -> str | None:
         """One line on what will dominate the calibrations' uncertainty before the run starts (e.g. an
         uncommissioned source's declared tolerance), or None: `rig run` and `rig check` print it first."""

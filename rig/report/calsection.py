@@ -1,6 +1,8 @@
 """The report's blocks about the calibration shown: where it comes from (its file and sha256), its equation,
-its residual beside its stated uncertainty (flagged when the residual is the larger), its parameters with
-their standard errors and expanded uncertainties, its budget, its model checks, and the run's other
+its measurand (how h was read, tau's thermometer, the frames, the indexing, the reference chain, what the
+file does not state), its residual beside its stated uncertainty (flagged when the residual is the
+larger), its parameters with their standard errors and expanded uncertainties (named as the file names
+them: calib/equations.py parameter_label, zero-based), its budget, its model checks, and the run's other
 calibrations. Every figure here is read from the calibration itself (rig/analysis/judged.py for the words).
 """
 
@@ -8,7 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.analysis.judged import quality_of
+from calib.equations import parameter_label
+from rig.analysis.judged import RADIUS_LABEL, field_figures, quality_of
+from rig.analysis.measurand import measurand_rows
 from rig.report.html import ItemList, Table
 
 PARAM_UNITS = {
@@ -53,9 +57,9 @@ def quality_text(cal) -> str:
     """Residual beside the stated uncertainty, what dominates it, and the flag."""
     q = quality_of(cal)
     parts = [f"Residual RMS {fmt(q.rms_nt)} nT"]
-    if q.expanded_nt is not None:
-        parts.append(f"stated uncertainty {q.expanded_nt:.4g} nT (k = {fmt(q.coverage_factor, 2)}, "
-                     "95 % of the calibrated field's error over the plan's fields and temperatures)")
+    if q.radius_nt is not None:
+        parts.append(f"stated 95 % error radius {q.radius_nt:.4g} nT (the largest radius holding 95 % of the "
+                     "calibrated field's 3-D error at a point of the plan's fields and temperatures)")
     if q.dominant:
         parts.append(f"largest contribution: {q.dominant}")
     text = "; ".join(parts) + "."
@@ -67,7 +71,15 @@ def intro_blocks(r) -> list:
     origin = r.origin or (f"a {r.main.model.upper()} calibration fitted here (robust: "
                           f"{str(r.robust).lower()}): the run wrote none")
     return [f"{len(r.ds)} samples; residuals shown for {origin}.", equation_text(r.main),
-            quality_text(r.main)]
+            quality_text(r.main), measurand_table(r.main)]
+
+
+def measurand_table(cal) -> Table:
+    """What the calibration states of its measurand, and a line for each thing it does not."""
+    return Table(["measurand", "as the calibration file states it"],
+                 [list(row) for row in measurand_rows(cal)],
+                 f"{cal.model.upper()}: the measurand (the file's reading, tau_source, frame, indexing, "
+                 "reference_chain and source)")
 
 
 def params_table(title: str, cal) -> Table:
@@ -80,14 +92,15 @@ def params_table(title: str, cal) -> Table:
         big_u = np.asarray(expanded.get(key, np.full(values.shape, np.nan)), dtype=float)
         unit = PARAM_UNITS.get(key, "")
         for index in np.ndindex(values.shape):
-            label = key + "".join(f"[{i + 1}]" for i in index)
+            label = parameter_label(key, index)
             se = errors[index] if errors.shape == values.shape else np.nan
             u = big_u[index] if big_u.shape == values.shape else np.nan
             rows.append([label, f"{values[index]:.8g}", fmt(se, 3), fmt(u, 3), unit])
     stats = cal.stats if isinstance(cal.stats, dict) else {}
     centre = cal.equation_keys().get("solve_centre_c")
     solve = "" if centre is None else f"; the solve centred tau at {centre:.4g} °C internally (not applied)"
-    caption = f"{cal.model.upper()}: {title}; RMS after {fmt(stats.get('rms_after_nt'))} nT{solve}"
+    caption = (f"{cal.model.upper()}: {title}; RMS after {fmt(stats.get('rms_after_nt'))} nT{solve}; "
+               "named as in the file: M[row][column], zero-based, row = output axis of B")
     k_text = f"k = {fmt(k, 2)}" if np.isfinite(k) else "no budget"
     header = ["parameter", "value", "std error", f"expanded uncertainty ({k_text})", "unit"]
     return Table(header, rows, caption)
@@ -108,12 +121,17 @@ def uncertainty_blocks(r) -> list:
         return ["No uncertainty budget: the calibration states none (calibrations from a campaign carry "
                 "one; see rig/budget/run_inputs.py)."]
     u = r.uncertainty
-    k = number(u.get("coverage_factor"))
+    f = field_figures(u)
+    k = "-" if f.coverage_factor is None else fmt(f.coverage_factor, 3)
     table = Table(["input", "standard uncertainty of the field (nT)", "how it was drawn"],
                   [[name, fmt(value, 3), note] for name, value, note in rows]
-                  + [["combined", fmt(number(u.get("combined_standard_nt")), 3), str(u.get("method", ""))],
-                     [f"expanded (k = {fmt(k, 2)})", fmt(number(u.get("expanded_vector_error_nt")), 3),
-                      "95 % of the calibrated field's error lengths, plan's fields and temperatures"]],
+                  + [["combined standard uncertainty u", fmt(f.standard_nt, 3),
+                      f"RMS over the plan's fields and temperatures; {u.get('method', '')}"],
+                     [f"expanded uncertainty U = k u (k = {k})", fmt(f.expanded_nt, 3),
+                      f"{k} times the combined standard uncertainty above"],
+                     [RADIUS_LABEL, fmt(f.radius_nt, 3),
+                      "a radius over the grid, not k u: at every point of the plan's fields and "
+                      "temperatures 95 % of the calibrated field's 3-D error lies within it"]],
                   f"Uncertainty budget of {r.uncertainty_of}")
     notes = [f"Note: {n}" for n in u.get("notes") or []]
     return [table, *notes]
@@ -153,5 +171,5 @@ def others_table(others: list) -> Table:
     for rec in others:
         q = quality_of(rec.calibration)
         rows.append([rec.model.upper(), rec.file_text(), fmt(q.rms_nt), q.uncertainty_text(),
-                     ("RMS > U: " + q.exceeds_text()) if q.exceeds else ("ok" if q.expanded_nt else "-")])
-    return Table(["model", "file", "RMS after (nT)", "uncertainty (nT, 95 %)", "check"], rows)
+                     ("RMS > radius: " + q.exceeds_text()) if q.exceeds else ("ok" if q.radius_nt else "-")])
+    return Table(["model", "file", "RMS after (nT)", RADIUS_LABEL, "check"], rows)

@@ -1,9 +1,16 @@
 """The C header export of a calibration (rig/report/exports.py makes the flight form it writes).
 
-Text from the calibration file (software version, creation time, source hash, DUT name, notes) is hostile
-until proven otherwise: it only appears through `c_comment_text` (a short run of harmless characters,
-everything else spelt as <U+XXXX>, so no `*/`, newline, backslash, trigraph or `#` can end the comment or
-start a directive), `c_string` (escaped literal) and rig/core/names.py's identifiers and guard.
+Text from the calibration file (software version, creation time, source hash, DUT name, notes, its
+measurand) is hostile until proven otherwise: it only appears through `c_comment_text` (a short run of
+harmless characters, everything else spelt as <U+XXXX>, so no `*/`, `/*`, newline, backslash, trigraph or
+`#` can end the comment or start a directive), `c_string` (escaped literal) and rig/core/names.py's
+identifiers and guard.
+
+The header compiles as C89 and as C99 (`gcc -std=c89 -pedantic -Werror`): declarations before statements,
+no // comments, and the apply function `static inline` where the compiler knows inline (C99, or GCC's
+`__inline__`), plain `static` otherwise (MAGRIG_INLINE; define it to override). Its opening comment states
+the measurand as the calibration file does (rig/analysis/measurand.py measurand_rows): how h is read, the
+thermometer of tau, the frames of B and h, the indexing, the reference chain, the source and its sha256.
 
 The header states tau as the calibration file does: for T24 tau is temp_c itself (the file's
 `tau: absolute_c`), so no reference temperature appears that anyone could subtract; a model whose equation
@@ -26,15 +33,21 @@ NOTE_WIDTH = 96  # a note's comment lines, wrapped below c_comment_text's limit
 
 c_identifier = names.c_identifier
 
-COMMENT_SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 _-.,:;+=()[]@")
+COMMENT_SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789"
+                         " _-.,:;+=()[]@/*'%<>^|")
 MAX_COMMENT_TEXT = 120
 
 
 def c_comment_text(text: object) -> str:
-    """Any text made safe inside a C block comment, on one line, at most MAX_COMMENT_TEXT characters."""
+    """Any text made safe inside a C block comment, on one line, at most MAX_COMMENT_TEXT characters: a
+    '/' or '*' that would pair with the one before it into `*/` or `/*` is spelt out too."""
     text = str(text)
-    out = "".join(ch if ch in COMMENT_SAFE else f"<U+{ord(ch):04X}>" for ch in text[:MAX_COMMENT_TEXT])
-    return out + ("..." if len(text) > MAX_COMMENT_TEXT else "")
+    out, before = [], ""
+    for ch in text[:MAX_COMMENT_TEXT]:
+        pairs = ch in "/*" and before in "/*" and before != "" and before != ch
+        out.append(ch if ch in COMMENT_SAFE and not pairs else f"<U+{ord(ch):04X}>")
+        before = ch if ch in COMMENT_SAFE and not pairs else ""
+    return "".join(out) + ("..." if len(text) > MAX_COMMENT_TEXT else "")
 
 
 def c_string(text: str) -> str:
@@ -71,11 +84,17 @@ def uncertainty_comment(uncertainty: dict | None) -> list[str]:
             return "?"
         return f"{value:.3g}" if math.isfinite(value) else "?"
 
-    k = num(uncertainty.get("coverage_factor"))
-    within = num(uncertainty.get("expanded_vector_error_nt"))
-    lines = [f" * Uncertainty (k = {k}): calibrated field within {within} nT (95 %) over the plan's fields",
-             " * and temperatures.",
-             " * Budget, standard uncertainty of the calibrated field (nT):"]
+    from rig.analysis.judged import field_figures
+
+    figures = field_figures(uncertainty)
+    k = num(figures.coverage_factor)
+    said = ("Uncertainty of the calibrated field over the plan's fields and temperatures: combined standard "
+            f"uncertainty u = {num(figures.standard_nt)} nT (RMS over those points); expanded uncertainty "
+            f"U = k u = {num(figures.expanded_nt)} nT (k = {k}); 95 % error radius "
+            f"{num(figures.radius_nt)} nT (the largest radius holding 95 % of the 3-D error at any of those "
+            "points, not k u).")
+    lines = [f" * {piece}" for piece in textwrap.wrap(said, NOTE_WIDTH)]
+    lines.append(" * Budget, standard uncertainty of the calibrated field (nT):")
     for item in (uncertainty.get("budget") or [])[:MAX_BUDGET_LINES]:
         if isinstance(item, dict):
             source = c_comment_text(item.get("source", "?"))
@@ -95,14 +114,38 @@ def _numeric(value: object) -> bool:
         return False
 
 
+def _comment_rows(rows) -> list[str]:
+    """(label, words) rows as comment lines, each wrapped below c_comment_text's limit and made safe."""
+    out = []
+    for label, words in rows:
+        pieces = textwrap.wrap(f"{label}: {words}".replace("`", ""), NOTE_WIDTH, subsequent_indent="  ")
+        out += [f" *   {c_comment_text(piece)}" for piece in pieces]
+    return out
+
+
+INLINE_LINES = [
+    "#ifndef MAGRIG_INLINE",
+    "#if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L",
+    "#define MAGRIG_INLINE static inline",
+    "#elif defined(__GNUC__)",
+    "#define MAGRIG_INLINE static __inline__",
+    "#else",
+    "#define MAGRIG_INLINE static",
+    "#endif",
+    "#endif",
+]
+
+
 def c_header(
     form, *, name: str, source_sha256: str = "", version: str = __version__,
     description: str = "", uncertainty: dict | None = None, notes: list[str] | tuple[str, ...] = (),
+    measurand: list[tuple[str, str]] | tuple = (), names_in_file: str = "",
 ) -> str:
-    """A self-contained C99 header of `form` (rig.report.exports.FlightForm): the constants plus
-    `static inline void <name>_apply(...)`; the calibration's uncertainty budget, when it has one, and
-    `notes` (the file's equation, the fit's residual and any flag) in its opening comment, every text made
-    safe."""
+    """A self-contained C89/C99 header of `form` (rig.report.exports.FlightForm): the constants plus
+    `MAGRIG_INLINE void <name>_apply(...)`; in its opening comment the measurand's (label, words) rows
+    (rig/analysis/measurand.py measurand_rows: reading, raw unit, tau, frames, indexing, reference chain,
+    source), which of the file's parameters each array holds (`names_in_file`), `notes` (the file's
+    equation, the fit's residual and any flag) and the uncertainty budget, every text made safe."""
     ident = c_identifier(name)
     macro = ident.upper()
     guard = names.header_guard(name)
@@ -134,14 +177,19 @@ def c_header(
         f" * model: {c_comment_text(form.model)}{' (' + description + ')' if description else ''}",
         f" * source sha256: {c_comment_text(source_sha256) if source_sha256 else 'unknown'}",
         *tau_lines,
-        " * h and B in nT, in the axes the sensor reports.",
+        " * h_nt and b_nt in nT; the arrays are indexed [row][column], zero-based, row = output axis of B,",
+        " * as the calibration file's parameters are."
+        + (f" {c_comment_text(names_in_file)}" if names_in_file else ""),
+        " * The measurand, as the calibration file states it:",
+        *_comment_rows(measurand),
         *[f" * {c_comment_text(piece)}" for note in notes
           for piece in textwrap.wrap(note.replace("`", ""), NOTE_WIDTH)],
     ]
     lines += uncertainty_comment(uncertainty)
     lines += [
-        " * MAGRIG_REAL is double by default (the export is checked against the host fit to 1e-6 relative",
+        " * MAGRIG_REAL is double by default (the export is checked against the host fit to 1e-9 relative",
         " * in double); define it as float before including this file on a single-precision target.",
+        " * The header is C89 and C99 (MAGRIG_INLINE: static inline where the compiler has it).",
         " */",
         f"#ifndef {guard}",
         f"#define {guard}",
@@ -149,6 +197,7 @@ def c_header(
         "#ifndef MAGRIG_REAL",
         "#define MAGRIG_REAL double",
         "#endif",
+        *INLINE_LINES,
         "",
         f"#define {macro}_MODEL {c_string(form.model)}",
         *([f"#define {macro}_TAU_0_C ({_c_num(form.tau_0_c)})"] if has_tau and form.tau_0_c is not None
@@ -171,21 +220,22 @@ def c_header(
     if has_t2_o:
         o_term += f" + tau * tau * {macro}_O_PER_C2[i]"
     v_term = f"h_nt[i] - ({o_term})" if form.offset_first else "h_nt[i]"
-    if not has_tau:
-        tau_decl = "    (void)temp_c;"
+    if not has_tau:  # C89: every declaration before the first statement
+        tau_decl, tau_use = [], ["    (void)temp_c;"]
     elif form.tau_0_c is None:
-        tau_decl = "    const MAGRIG_REAL tau = temp_c;"
+        tau_decl, tau_use = ["    const MAGRIG_REAL tau = temp_c;"], []
     else:
-        tau_decl = f"    const MAGRIG_REAL tau = temp_c - {macro}_TAU_0_C;"
+        tau_decl, tau_use = [f"    const MAGRIG_REAL tau = temp_c - {macro}_TAU_0_C;"], []
     lines += [
         "",
         "/* Calibrated field b_nt[3] from the raw reading h_nt[3] at DUT temperature temp_c (degC). */",
-        f"static inline void {ident}_apply(const MAGRIG_REAL h_nt[3], MAGRIG_REAL temp_c,",
-        "                                  MAGRIG_REAL b_nt[3])",
+        f"MAGRIG_INLINE void {ident}_apply(const MAGRIG_REAL h_nt[3], MAGRIG_REAL temp_c,",
+        "                                 MAGRIG_REAL b_nt[3])",
         "{",
-        tau_decl,
+        *tau_decl,
         "    MAGRIG_REAL v[3];",
         "    int i, j;",
+        *tau_use,
         f"    for (i = 0; i < 3; ++i) v[i] = {v_term};",
         "    for (i = 0; i < 3; ++i) {",
         f"        MAGRIG_REAL acc = {'0' if form.offset_first else o_term};",

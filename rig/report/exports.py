@@ -8,11 +8,16 @@ Every model is brought to one "flight form" a small computer evaluates with a fe
     M   = matrix + tau * matrix_per_c (+ tau^2 * matrix_per_c2)           (3x3)
     o   = offset_nt + tau * offset_nt_per_c (+ tau^2 * offset_nt_per_c2)  (3)
     B   = M h + o          (T24: S, K, b, kb; T36: also K2, kb2)
-    B   = M (h - o)        (P12: M = (Q P)^-1, o = b; scalar: its matrix and centre)
+    B   = M (h - o)        (P12: M = (Q P)^-1, o = h0_nt; scalar: its matrix and centre)
 
-Temperature terms are omitted when the model has none. Text from the calibration file is hostile until
-proven otherwise (rig/report/cheader.py for the C header); JSON goes through json.dumps (ASCII,
-escaped); CSV holds only parameter labels of the model's own names and numbers.
+Temperature terms are omitted when the model has none. Every export states the measurand as the
+calibration file does (rig/analysis/measurand.py): the C header in its opening comment, the JSON in the
+file's own keys (`reading`, `tau_source`, `frame`, `indexing`, `reference_chain`, `source`), the CSV in `#`
+lines above its header; each says where no commissioned reference chain stands behind the field.
+Parameter names are the file's (calib/equations.py parameter_label: `S[0][1]`, zero-based, row = output
+axis of B). Text from the calibration file is hostile until proven otherwise (rig/report/cheader.py for
+the C header); JSON goes through json.dumps (ASCII, escaped); CSV's `#` lines are folded to one line each,
+and its rows hold only parameter labels of the model's own names and numbers.
 """
 
 from __future__ import annotations
@@ -25,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.calibration import to_plain
+from calib.calibration import MEASURAND, to_plain
+from calib.equations import parameter_label
 from rig import __version__
 from rig.core import names
 from rig.core.errors import DataError
@@ -137,6 +143,8 @@ def form_dict(form: FlightForm) -> dict:
     has_tau = form.matrix_per_c is not None or form.offset_nt_per_c is not None
     d = {
         "model": form.model,
+        "indexing": "matrix[row][column], zero-based, row = output axis of B",
+        "names_in_file": FORM_NAMES.get(form.model, ""),
         "equation": "B = M(tau) (h - o(tau))" if form.offset_first else "B = M(tau) h + o(tau)",
         "tau": ("not used" if not has_tau else "temp_c (degC, absolute)" if form.tau_0_c is None
                 else "temp_c - tau_0_c"),
@@ -179,10 +187,14 @@ def json_export(form: FlightForm, params: dict, std_errors: dict, extra: dict) -
     return json.dumps(doc, indent=2, sort_keys=False) + "\n"
 
 
-def csv_export(params: dict, std_errors: dict, expanded: dict | None = None) -> str:
-    """One row per scalar parameter: `parameter,value,std_error,expanded_uncertainty` with indices, e.g.
-    S[0][1] (the last column empty without an uncertainty budget)."""
+def csv_export(params: dict, std_errors: dict, expanded: dict | None = None,
+               comments: list[tuple[str, str]] | tuple = ()) -> str:
+    """`comments` as `# label: words` lines (each on one line), then one row per scalar parameter:
+    `parameter,value,std_error,expanded_uncertainty` named as the file names them, e.g. S[0][1] (the last
+    column empty without an uncertainty budget)."""
     buf = io.StringIO()
+    for label, words in comments:
+        buf.write("# " + " ".join(f"{label}: {words}".split()) + "\n")
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(["parameter", "value", "std_error", "expanded_uncertainty"])
 
@@ -194,7 +206,7 @@ def csv_export(params: dict, std_errors: dict, expanded: dict | None = None) -> 
     for key, value in params.items():
         values = np.asarray(value, dtype=float)
         for index in np.ndindex(values.shape):
-            label = key + "".join(f"[{i}]" for i in index)
+            label = parameter_label(key, index)
             writer.writerow([label, repr(float(values[index])), cell(std_errors, key, index, values.shape),
                              cell(expanded, key, index, values.shape)])
     return buf.getvalue()
@@ -213,7 +225,7 @@ def flight_form(cal) -> FlightForm:
     if cal.model == "t36":
         return t36_form(p["S"], p["K"], p["K2"], p["b_nt"], p["kb_nt_per_c"], p["kb2_nt_per_c2"])
     if cal.model == "p12":
-        return inverse_form("p12", np.linalg.inv(registry.p12_matrix(p["k"], p["angles_deg"])), p["b_nt"])
+        return inverse_form("p12", np.linalg.inv(registry.p12_matrix(p["k"], p["angles_deg"])), p["h0_nt"])
     if cal.model == "scalar":
         return inverse_form("scalar", p["A"], p["c_nt"], p.get("KA_per_c"), p.get("kc_nt_per_c"),
                             cal.equation_keys().get("tau_0_c"))
@@ -239,24 +251,40 @@ def header_notes(cal) -> list[str]:
     return notes
 
 
+# which of the calibration file's parameters each array of the flight form holds
+FORM_NAMES = {
+    "t24": "M = S, M_PER_C = K, O = b_nt, O_PER_C = kb_nt_per_c.",
+    "t36": "M = S, M_PER_C = K, M_PER_C2 = K2, O = b_nt, O_PER_C = kb_nt_per_c, O_PER_C2 = kb2_nt_per_c2.",
+    "p12": "M = inv(Q P) of k and angles_deg, O = h0_nt.",
+    "scalar": "M = A, O = c_nt, M_PER_C = KA_per_c, O_PER_C = kc_nt_per_c.",
+}
+
+
 def export_calibration(cal, fmt: str, name: str) -> str:
     """The text of one export format (see FORMATS) of a calib.Calibration; `name` names the C symbols."""
+    from rig.analysis.measurand import measurand_rows, reference_chain_words
+
     form = flight_form(cal)
     source = cal.source or {}
     if fmt == "c-header":
         return c_header(
             form,
             name=name,
-            source_sha256=str(source.get("sha256", "")),
+            source_sha256=str(source.get("sha256") or ""),
             version=cal.software_version,
             description=f"fitted {cal.created_utc}" if cal.created_utc else "",
             uncertainty=cal.uncertainty,
             notes=header_notes(cal),
+            measurand=measurand_rows(cal),
+            names_in_file=FORM_NAMES.get(cal.model, ""),
         )
     if fmt == "json":
         extra = {
             "model": cal.model,
             **cal.equation_keys(),
+            **{key: getattr(cal, key) for key in MEASURAND},
+            "reference_chain_statement": reference_chain_words(cal.reference_chain),
+            "not_stated": cal.missing_measurand(),
             "stats": cal.stats,
             "source": source,
             "fitted_with": f"magrig {cal.software_version}",
@@ -265,5 +293,8 @@ def export_calibration(cal, fmt: str, name: str) -> str:
         }
         return json_export(form, cal.params, cal.std_errors, extra)
     if fmt == "csv":
-        return csv_export(cal.params, cal.std_errors, (cal.uncertainty or {}).get("expanded"))
+        equation = cal.equation_keys()["equation"]
+        comments = [("magrig calibration export", f"model {cal.model}; equation {equation}"),
+                    *measurand_rows(cal)]
+        return csv_export(cal.params, cal.std_errors, (cal.uncertainty or {}).get("expanded"), comments)
     raise DataError(f"unknown export format {fmt!r} (known: {', '.join(FORMATS)})")

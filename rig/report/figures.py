@@ -308,19 +308,25 @@ def step_rms(
     return fig
 
 
-def uncertainty_budget(sources: list[str], contributions_nt: list[float], combined_nt: float,
-                       expanded_nt: float, title: str = "") -> Figure:
+def uncertainty_budget(sources: list[str], contributions_nt: list[float], field, title: str = "") -> Figure:
     """The budget as bars: each input's standard contribution to the calibrated field's error, the
-    combined standard uncertainty and the expanded (95 %) vector error, nT (log scale)."""
-    labels = [*sources, "combined (standard)", "expanded (95 %)"]
-    values = [*contributions_nt, combined_nt, expanded_nt]
+    combined standard uncertainty u, the expanded U = k u and the largest 95 % radius of the 3-D error over
+    the plan's grid (`field`: rig.analysis.judged.FieldFigures), nT (log scale)."""
+    k = field.coverage_factor
+    totals = [("combined standard u", field.standard_nt),
+              (f"expanded U = k u (k = {k:.3g})" if k is not None else "expanded U (no k)",
+               field.expanded_nt),
+              ("95 % radius, largest", field.radius_nt)]
+    labels = [*sources, *(label for label, _ in totals)]
+    values = [*contributions_nt, *(np.nan if v is None else v for _, v in totals)]
     fig = new_figure(6.5, 0.35 * len(labels) + 1.2, left_in=1.6, right_in=0.45, top_in=0.45, bottom_in=0.5)
     ax = fig.subplots()
     y = np.arange(len(labels))[::-1]
-    colours = [BEFORE_COLOUR] * len(sources) + [AFTER_COLOUR, AFTER_COLOUR]
-    ax.barh(y, [max(v, 1e-3) for v in values], color=colours)
-    for yi, v in zip(y, values, strict=True):
-        ax.text(max(v, 1e-3) * 1.1, yi, f"{v:.3g}", va="center", fontsize=8)
+    colours = [BEFORE_COLOUR] * len(sources) + [AFTER_COLOUR] * len(totals)
+    shown = [max(v, 1e-3) if np.isfinite(v) else 1e-3 for v in values]  # a figure not stated: no bar
+    ax.barh(y, shown, color=colours)
+    for yi, v, at in zip(y, values, shown, strict=True):
+        ax.text(at * 1.1, yi, f"{v:.3g}" if np.isfinite(v) else "not stated", va="center", fontsize=8)
     ax.set_yticks(y, labels, fontsize=8)
     _log_scale(ax.xaxis, ax.set_xscale)
     ax.set_xlabel("nT")

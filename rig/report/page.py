@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from rig.analysis import heldout
-from rig.analysis.judged import quality_of
+from rig.analysis.judged import RADIUS_LABEL, field_figures, quality_of
 from rig.core.names import file_stem
 from rig.report import calsection, figures
 from rig.report.calsection import budget_rows, fmt
-from rig.report.calsection import number as _number
 from rig.report.evaluate import DutResult
 from rig.report.html import Image, Section, Table
 from rig.report.sources import StepInfo
@@ -36,14 +35,14 @@ def summary_table(results: list[DutResult]) -> Table:
                 _fmt(heldout.rms(before[kept])),
                 _fmt(heldout.rms(after[kept])),
                 q.uncertainty_text(),
-                "-" if q.expanded_nt is None else ("RMS > U" if q.exceeds else "ok"),
+                "-" if q.radius_nt is None else ("RMS > radius" if q.exceeds else "ok"),
                 q.dominant or "-",
                 str(int((~kept).sum())),
             ]
         )
     return Table(
         ["DUT", "calibration shown", "samples", "error", "RMS before (nT)", "RMS after (nT)",
-         "uncertainty (nT, 95 %)", "check", "largest uncertainty contribution", "outliers"], rows
+         RADIUS_LABEL, "check", "largest uncertainty contribution", "outliers"], rows
     )
 
 
@@ -131,11 +130,11 @@ def dut_figures(r: DutResult) -> dict[str, Image]:
     if budget:
         out["budget"] = _image(
             figures.uncertainty_budget([b[0] for b in budget], [b[1] for b in budget],
-                                       _number(r.uncertainty.get("combined_standard_nt")),
-                                       _number(r.uncertainty.get("expanded_vector_error_nt")),
+                                       field_figures(r.uncertainty),
                                        f"{r.name}: uncertainty budget ({r.uncertainty_of})"),
-            f"{r.name}: what each input adds to the calibrated field's error (standard uncertainties), "
-            "and the expanded uncertainty",
+            f"{r.name}: what each input adds to the calibrated field's error (standard uncertainties), the "
+            "combined standard uncertainty u, the expanded uncertainty U = k u, and the largest radius "
+            "holding 95 % of the 3-D error at a point of the plan's grid (a radius, not k u)",
             f"{tag}_uncertainty_budget.png",
         )
     if len(r.steps) > 1 and ds.temp_c is not None:
@@ -192,9 +191,27 @@ def _shown_title(r: DutResult) -> str:
     return "the given calibration" if r.given else f"fitted here (robust: {str(r.robust).lower()})"
 
 
+def ranked_by_heldout(scores: list[heldout.ModelScore]) -> tuple[list[heldout.ModelScore], str]:
+    """The models best first by their held-out error, never by their stated uncertainty: the held-out
+    vector RMS where every model has one, else the held-out |B| RMS (a scalar fit knows no direction);
+    models without a score last. Returns (ranked, the criterion in words)."""
+    scored = [s for s in scores if s.folds]
+    by_vector = bool(scored) and all(np.isfinite(s.heldout_vector_rms) for s in scored)
+    key, words = (("heldout_vector_rms", "held-out vector RMS") if by_vector
+                  else ("heldout_norm_rms", "held-out |B| RMS"))
+
+    def rank(s: heldout.ModelScore) -> float:
+        value = getattr(s, key)
+        return value if s.folds and np.isfinite(value) else np.inf
+
+    return sorted(scores, key=rank), words
+
+
 def _comparison_table(scores: list[heldout.ModelScore]) -> Table:
+    ranked, words = ranked_by_heldout(scores)
     rows = [
         [
+            str(place),
             s.model.upper(),
             _fmt(s.fit_vector_rms),
             _fmt(s.fit_norm_rms),
@@ -203,10 +220,11 @@ def _comparison_table(scores: list[heldout.ModelScore]) -> Table:
             str(s.folds),
             s.note,
         ]
-        for s in scores
+        for place, s in enumerate(ranked, start=1)
     ]
     return Table(
         [
+            "rank",
             "model",
             "fitted: vector RMS (nT)",
             "fitted: |B| RMS (nT)",
@@ -216,6 +234,7 @@ def _comparison_table(scores: list[heldout.ModelScore]) -> Table:
             "note",
         ],
         rows,
+        f"models ranked by their {words} (best first); a model's stated uncertainty plays no part",
     )
 
 

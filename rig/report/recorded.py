@@ -5,7 +5,6 @@ session's own record of it.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +36,7 @@ def recorded_calibrations(reader, dut: str) -> dict[str, Recorded]:
     out = {}
     for model, fit in last.items():
         try:
-            cal = Calibration.from_dict(json.loads(fit["calibration_json"]),
+            cal = Calibration.from_dict(reader.recorded_calibration(fit),
                                         where=f"{reader.path.name}: recorded {model} fit of {dut}")
         except (*ERRORS, ValueError):
             continue

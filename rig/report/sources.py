@@ -107,13 +107,16 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     steps = _steps(points, events)
     warnings = _session_warnings(summary, points, events, steps)
     warnings += [f"{name}: {r.warning}" for name in names for r in recorded[name].values() if r.warning]
+    session_hash = sha256_of(path)
+    warnings += [f"{d.name}: {line}" for d in duts if d.calibration is not None
+                 for line in source_mismatch(d.calibration, path, session_hash)]
     started = utc(info.get("wall_started") or info["started"])
     sim_clock = runs_on_simulated_clock(info["simulated"])
     provenance = [
         ("station", f"{info['station_name']} ({info['station_path'] or 'path not recorded'}): "
                     + simulated_text(info["simulated"]) + ("; on a simulated clock" if sim_clock else "")),
         ("session", f"{path.name} (started {started}, wall clock)"),
-        ("session file sha256", duts[0].dataset.source.get("sha256") or sha256_of(path)),
+        ("session file sha256", f"{session_hash} (what its calibrations cite as source.sha256)"),
         ("station text sha256", sha256_text(info["station_text"])),
         ("plan", f"{info['plan_name']} ({info['plan_path'] or 'path not recorded'})"),
         ("plan text sha256", sha256_text(info["plan_text"])),
@@ -137,6 +140,17 @@ def from_session(path: str | Path, dut: str | None = None) -> ReportInputs:
     ]
     title = f"Calibration report: {info['station_name']} / {info['plan_name']} ({path.name})"
     return ReportInputs(title, duts, steps, warnings, provenance, acceptance, session=path)
+
+
+def source_mismatch(cal, path: Path, file_hash: str) -> list[str]:
+    """A line when the calibration does not cite the file it comes from by that file's sha256 (a file
+    written before format version 3 hashed its session while the run still wrote it), else none."""
+    cited = (cal.source or {}).get("sha256")
+    if cited == file_hash:
+        return []
+    said = "cites no sha256" if not cited else f"cites sha256 {str(cited)[:12]}..."
+    return [f"the {cal.model.upper()} calibration {said} for its source {cal.source.get('path', '-')}, but "
+            f"{path.name} hashes {file_hash[:12]}..."]
 
 
 def _session_dut(reader, name: str, fitter, recorded: dict) -> DutInput:

@@ -144,6 +144,7 @@ def run_campaign(
             with session, watching(session, plan, station):  # word to the operator: rig/run/notify.py
                 outcome = _run_in_session(rig, plan, points, session, lock, prompt, display_factory,
                                           hold_wait_s, max_retakes, resume, calibrations)
+            postrun.seal_sources(session_path, outcome.fits)  # the session is whole: its files cite it
         finally:
             rig.close()
     finally:

@@ -12,15 +12,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.analysis.judged import judged_for_dut, quality_of
+from rig.analysis.judged import RADIUS_LABEL, judged_for_dut, quality_of
 from rig.core.errors import ERRORS
 from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
 
-CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", "uncertainty (nT, 95 %)", "check")
+CALIBRATION_COLUMNS = ("DUT", "model", "samples", "residual RMS (nT)", RADIUS_LABEL, "check")
 LEGEND = ("judged: the model the plan judges (its acceptance.model, else the first of fit.models; T36 for a "
           "DUT whose T24 failed its linearity in temperature and whose T36 validated better); "
-          "uncertainty: the calibrated field's expanded error (95 %); check: RMS > U where the residual "
-          "exceeds it")
+          "95 % error radius: the largest radius holding 95 % of the calibrated field's 3-D error at a point "
+          "of the plan's fields and temperatures (a radius over that grid, not k u); check: RMS > radius "
+          "where the residual exceeds it")
 
 
 def station_line(name: str, path: str | Path | None, simulated: dict[str, bool]) -> str:
@@ -69,16 +70,16 @@ def judged_models(outcome) -> dict[str, str | None]:
 
 def calibration_rows(outcome) -> list[list[str]]:
     """One row per fit: the judged model marked (the one the plan judges: acceptance.model, else the first
-    of fit.models), the residual beside the stated uncertainty, and the check (`RMS > U` where the
-    residual is the larger)."""
+    of fit.models), the residual beside the stated 95 % error radius, and the check (`RMS > radius` where
+    the residual is the larger)."""
     rows = []
     judged = judged_models(outcome)
     for f in outcome.fits:
         cal = f.get("calibration")
         q = quality_of(cal) if cal is not None else None
         rms = "-" if f.get("rms_nt") is None else f"{f['rms_nt']:.1f}"
-        check = ("not fitted" if q is None else "-" if q.expanded_nt is None
-                 else "RMS > U" if q.exceeds else "ok")
+        check = ("not fitted" if q is None else "-" if q.radius_nt is None
+                 else "RMS > radius" if q.exceeds else "ok")
         model = f["model"] + (" (judged)" if f["model"] == judged.get(f["dut"]) else "")
         rows.append([f["dut"], model, str(f.get("n", "-")), rms, "-" if q is None else q.uncertainty_text(),
                      check])
@@ -92,13 +93,18 @@ def calibration_files(outcome) -> list[str]:
 
 
 def calibration_notes(outcome) -> list[str]:
-    """Under the table: what dominates each judged calibration's uncertainty, and every flagged fit."""
+    """Under the table: what dominates each judged calibration's uncertainty, every flagged fit, and what
+    the calibrations' field rests on where no commissioned reference stands behind it."""
+    from rig.analysis.measurand import reference_chain_words
+
     judged = judged_models(outcome)
-    lines, dominant = [], {}
+    lines, dominant, chains = [], {}, {}
     for f in outcome.fits:
         cal = f.get("calibration")
         if cal is None:
             continue
+        if not (cal.reference_chain or {}).get("traceable"):
+            chains.setdefault(reference_chain_words(cal.reference_chain), []).append(f["dut"])
         q = quality_of(cal)
         if f["model"] == judged.get(f["dut"]) and q.dominant:
             dominant.setdefault((q.dominant, f["model"]), []).append(f["dut"])
@@ -106,7 +112,8 @@ def calibration_notes(outcome) -> list[str]:
             lines.append(f"{f['dut']} {f['model']}: {q.exceeds_text()}")
     shared = [f"uncertainty of {', '.join(duts)} {model}: largest contribution {phrase}"
               for (phrase, model), duts in dominant.items()]
-    return [LEGEND, *shared, *lines]
+    chained = [f"{', '.join(dict.fromkeys(duts))}: {words}" for words, duts in chains.items()]
+    return [LEGEND, *shared, *chained, *lines]
 
 
 def next_steps(outcome) -> list[str]:

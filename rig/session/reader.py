@@ -15,6 +15,12 @@ one cannot write to:
   beside the writer, using the index that is there;
 - a log without its index (a killed run in a folder we cannot write to): read a private copy of the
   file and its log in a temporary folder, where SQLite may rebuild the index.
+
+A calibration cites its session by path and sha256 (`source_sha256`): the hash of the file as it is once
+nothing more is written to it. While a log holds part of the session (a run still writing, or one killed
+before it closed) the file on disk is not the session, and no hash is given: a run's calibrations are
+given the session's hash once it has closed the session (rig/analysis/postrun.py seal_sources), and the
+fits the session records of them cite it through `recorded_calibration`.
 """
 
 from __future__ import annotations
@@ -48,14 +54,18 @@ def _uri(path: Path, query: str) -> sqlite3.Connection:
     return conn
 
 
+def wal_bytes(path: Path) -> int:
+    """The size of a session's write-ahead log (0: none; the main file holds the whole session)."""
+    try:
+        return Path(f"{path}-wal").stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
 def open_read_only(path: Path) -> tuple[sqlite3.Connection, tempfile.TemporaryDirectory | None]:
     """A read-only connection (and the temporary folder of a private copy, if one was needed)."""
     wal, shm = Path(f"{path}-wal"), Path(f"{path}-shm")
-    try:
-        wal_bytes = wal.stat().st_size
-    except FileNotFoundError:
-        wal_bytes = 0
-    if wal_bytes == 0:
+    if wal_bytes(path) == 0:
         return _uri(path, "mode=ro&immutable=1"), None
     if shm.exists():
         try:
@@ -98,6 +108,7 @@ class SessionReader:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         check_file(self.path)
+        self.whole = wal_bytes(self.path) == 0  # no write-ahead log holds part of it (module doc)
         try:
             self._conn, self._tmp = open_read_only(self.path)
         except (sqlite3.Error, OSError) as exc:
@@ -155,6 +166,15 @@ class SessionReader:
     def fits(self) -> list[dict]:
         return self._rows("SELECT * FROM fits ORDER BY id")
 
+    def recorded_calibration(self, fit: dict) -> dict:
+        """A recorded fit's calibration (a row of `fits`), citing this session as its file does: the run
+        recorded it before it closed the session, when the session's hash was not yet known (module doc)."""
+        cal = json.loads(fit["calibration_json"])
+        source = cal.get("source") if isinstance(cal, dict) else None
+        if isinstance(source, dict) and source.get("kind") == "session" and source.get("sha256") is None:
+            source["sha256"] = self.source_sha256
+        return cal
+
     def snapshots(self) -> list[dict]:
         return self._rows("SELECT * FROM snapshots ORDER BY id")
 
@@ -207,6 +227,12 @@ class SessionReader:
         if self._sha256 is None:
             self._sha256 = sha256_file(self.path)
         return self._sha256
+
+    @property
+    def source_sha256(self) -> str | None:
+        """The hash a calibration cites this session by: the file's, once it holds the whole session; None
+        while a write-ahead log holds part of it (module doc)."""
+        return self.sha256 if self.whole else None
 
     # --- samples ----------------------------------------------------------------------------------------
     def pick_dut(self, dut: str | None) -> str:
@@ -265,7 +291,7 @@ class SessionReader:
             group=np.array([labels[step] for step in steps], dtype=object),
             columns={"point": col("point", object), "t": col("t"), "setpoint_c": col("setpoint_c")},
             source={
-                "path": str(self.path), "sha256": self.sha256, "kind": "session", "dut": dut,
+                "path": str(self.path), "sha256": self.source_sha256, "kind": "session", "dut": dut,
                 "rows_total": len(rows), "rows_used": len(good), "rows_rejected": len(rows) - len(good),
             },
         )

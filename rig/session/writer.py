@@ -124,7 +124,11 @@ class Session:
         return cls(open_for_writing(path), path, clock or RealClock())
 
     def close(self) -> None:
+        """The write-ahead log folded into the file first, so that the file alone is the whole session (what
+        a calibration's source.sha256 hashes: rig/session/reader.py), even while a reader holds it open."""
         with self._lock:
+            with contextlib.suppress(sqlite3.Error):
+                self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             self._conn.close()
 
     def __enter__(self) -> Session:

@@ -12,7 +12,6 @@ server's own scratch folder, never beside the session.
 from __future__ import annotations
 
 import io
-import json
 import os
 import shutil
 import tempfile
@@ -53,9 +52,10 @@ def calibration(path: Path, dut: str, model: str):
 
     with SessionReader(path) as reader:
         fit = recorded_fits(reader).get((dut, model))
-    if fit is None:
-        raise DataError(f"{path.name}: no {model} fit of DUT {dut!r} recorded")
-    return Calibration.from_dict(json.loads(fit["calibration_json"]), where=f"{path.name}: fit of {dut}")
+        if fit is None:
+            raise DataError(f"{path.name}: no {model} fit of DUT {dut!r} recorded")
+        recorded = reader.recorded_calibration(fit)
+    return Calibration.from_dict(recorded, where=f"{path.name}: fit of {dut}")
 
 
 def calibration_download(path: Path, kind: str, dut: str, model: str, scratch: Path) -> Download:

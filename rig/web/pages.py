@@ -124,7 +124,7 @@ def sessions_page(app) -> str:
 # --- one session -------------------------------------------------------------------------------------------
 def session_page(app, ref: SessionRef) -> str:
     from rig.analysis.acceptance import verdict_text
-    from rig.analysis.judged import judged_cell, judged_fits, quality
+    from rig.analysis.judged import RADIUS_LABEL, judged_cell, judged_fits, quality
     from rig.session.reader import SessionReader, runs_on_simulated_clock, simulated_text
     from rig.web.downloads import CALIBRATION_KINDS, SAMPLES_KIND, recorded_fits
 
@@ -189,15 +189,15 @@ def session_page(app, ref: SessionRef) -> str:
         links = " ".join(
             f'<a href="{esc(_download_url(ref, kind, dut, model))}" download>{esc(label)}</a>'
             for kind, (label, _, _) in CALIBRATION_KINDS.items())
-        check = ("-" if q.expanded_nt is None else
-                 f'<span class="bad">RMS &gt; U: {esc(q.exceeds_text())}</span>' if q.exceeds else "ok")
+        check = ("-" if q.radius_nt is None else
+                 f'<span class="bad">RMS &gt; radius: {esc(q.exceeds_text())}</span>' if q.exceeds else "ok")
         fitted = str(recorded.get("created_utc") or "-") + (
             f" (simulated clock {_utc(fit['t'])})" if sim_clock else "")
         judged_here = judged[dut]["model"] if dut in judged else judged_model  # T36 where it was chosen
         cal_rows.append([esc(dut), esc(model + (" (judged)" if model == judged_here else "")),
                          esc(stats.get("n_used", "-")), esc(_fmt(fit["residual_rms_nt"])),
                          esc(q.uncertainty_text()), check, esc(q.dominant or "-"), esc(fitted), links])
-    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", "uncertainty (nT, 95 %)",
+    calibrations = (table(["DUT", "model", "samples used", "RMS after (nT)", RADIUS_LABEL,
                            "check", "largest uncertainty contribution", "fitted (wall clock, UTC)",
                            "downloads"], cal_rows, raw_cells=True)
                     if cal_rows else '<p class="muted">no calibration recorded yet</p>')

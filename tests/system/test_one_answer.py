@@ -108,7 +108,7 @@ def test_every_listing_names_the_calibration_the_plan_judges(measured, tmp_path,
             f"(sha256 {digest})") in text
     # its parameters with the expanded uncertainties the file states, not "-"
     expanded = yaml.safe_load(cal_file.read_text())["uncertainty"]["expanded"]["b_nt"][0]
-    assert re.search(rf"b_nt\[1\] \S+ \S+ {expanded:.3g} nT", text)
+    assert re.search(rf"b_nt\[0\] \S+ \S+ {expanded:.3g} nT", text)  # zero-based, as the file names it
     assert "Equation: B = (S + tau K) h + b_nt + tau kb_nt_per_c" in text
     assert "linearity in temperature" in text  # its model check
     assert "Comparison: models re-fitted here (robust: false)" in text  # the plan says robust: false
@@ -151,13 +151,13 @@ def test_a_residual_above_its_stated_uncertainty_is_flagged_wherever_it_is_shown
     session, fits = understated(session, fit, tmp_path)
     dut = fit["dut"]
     rows = calibration_rows(SimpleNamespace(fits=fits, judged_model="p12"))
-    assert [dut, "p12 (judged)"] == rows[0][:2] and rows[0][-1] == "RMS > U"
+    assert [dut, "p12 (judged)"] == rows[0][:2] and rows[0][-1] == "RMS > radius"
     notes = calibration_notes(SimpleNamespace(fits=fits, judged_model="p12"))
-    assert any(n.startswith(f"{dut} p12: residual RMS") and "above its stated uncertainty" in n
+    assert any(n.startswith(f"{dut} p12: residual RMS") and "above its stated 95 % error radius" in n
                for n in notes)
-    assert dut in session_cells(session)[-1].split("[RMS > U: ")[1]
+    assert dut in session_cells(session)[-1].split("[RMS > radius: ")[1]
     page = session_page(SimpleNamespace(db_url=None, csrf_token="t"), SessionRef(0, session.name, session))
-    assert "RMS &gt; U: residual RMS" in page
+    assert "RMS &gt; radius: residual RMS" in page
     assert main(["report", str(session), "--dut", dut, "-o", str(tmp_path / "r")]) == 0
     assert "FLAGGED: residual RMS" in unescape((tmp_path / "r" / "report.html").read_text())
     header = tmp_path / "p12.h"

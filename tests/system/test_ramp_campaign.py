@@ -70,9 +70,13 @@ def test_a_small_ramp_runs_end_to_end_and_fits_with_the_lag(tmp_path):
         # the lag was sought and its outcome stated: these probes read their element's own temperature,
         # so a lag is either found with its standard error or said not identifiable, by chance
         # (tests/system/test_ramp_campaign.py's lagging-sensor test recovers a real one)
-        lag = calfile.load(fit["path"]).stats["thermal_lag"]
+        cal = calfile.load(fit["path"])
+        lag = cal.stats["thermal_lag"]
         assert lag["message"]
         assert (lag["tau_s"] is None) == (lag["tau_se_s"] is None) == ("not identifiable" in lag["message"])
+        # and the file says what tau then is: the probe's reading corrected by that lag, or as it is
+        assert cal.tau_source["lag_corrected_s"] == (lag["tau_s"] if lag["applied"] else None)
+        assert ("lag_model" in cal.tau_source) == bool(lag["applied"])
     assert final_snapshots(session)["coils"][-1]["enabled"] == [False, False, False]
     # rig refit of the ramp session applies the lag too, unless told not to
     for flag, expected in (("--lag", True), ("--no-lag", False)):

@@ -74,6 +74,10 @@ class Coils(FieldSourceConfig, CoilOptions):
     field_kinds: ClassVar[frozenset[str]] = VECTOR_FIELD_KINDS
     point_letter: ClassVar[str] = "F"
     described: ClassVar[str] = "coils"
+    frame_text: ClassVar[str] = ("the station's field frame: the coil axes x, y, z (the rows of its coil "
+                                 "constants), the DUT as it was mounted in the coils")
+    declared_words: ClassVar[str] = "the coils' declared constants"
+    commissioned_words: ClassVar[str] = "the coil matrix as `rig commission` measured it"
     measured_name: ClassVar[str] = "ambient field"
 
     kind: Literal["coils"]

@@ -98,6 +98,10 @@ class Turntable(FieldSourceConfig, TurntableOptions):
     field_kinds: ClassVar[frozenset[str]] = ORIENTATION_KINDS
     point_letter: ClassVar[str] = "O"
     described: ClassVar[str] = "a turntable"
+    frame_text: ClassVar[str] = ("the turntable's frame, turning with the DUT (at home x north, y east, z "
+                                 "down), the DUT as it was mounted on the table")
+    declared_words: ClassVar[str] = "the turntable's axes as drawn"
+    commissioned_words: ClassVar[str] = "the turntable's axes as `rig commission` measured them"
     measured_name: ClassVar[str] = "site field"
 
     kind: Literal["turntable"]

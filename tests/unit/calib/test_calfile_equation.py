@@ -74,7 +74,7 @@ def test_t24_file_states_its_convention_and_no_reference_to_subtract(tmp_path):
     path = tmp_path / "cal.yaml"
     calfile.save(cal, path)
     doc = yaml.safe_load(path.read_text())
-    assert doc["format_version"] == 2
+    assert doc["format_version"] == 3
     assert doc["equation"] == T24_EQUATION and doc["tau"] == "absolute_c"
     assert "temp_ref_c" not in doc and "tau_0_c" not in doc
     assert doc["solve_centre_c"] == 20.0  # internal to the solve; its name says so
@@ -103,7 +103,7 @@ def test_a_format_1_file_with_temp_ref_c_still_loads_and_applies_the_same(tmp_pa
     ({"equation": "B = S h + b_nt"}, "key 'equation' is 'B = S h + b_nt'"),
     ({"tau": "relative_c"}, "key 'tau' is 'relative_c'"),
     ({"temp_ref_c": 25.0}, "keys 'solve_centre_c' and 'temp_ref_c' both given"),
-    ({"format_version": 3}, "key 'format_version' is 3"),
+    ({"format_version": 4}, "key 'format_version' is 4"),
 ])
 def test_a_file_that_says_something_else_is_refused_naming_the_key(change, message, tmp_path):
     doc = {**_t24(np.random.default_rng(2)).to_dict(), **change}

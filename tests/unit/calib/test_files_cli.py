@@ -49,7 +49,8 @@ def test_corrupted_and_foreign_calibration_files_name_the_key(tmp_path):
         "model": ({**good, "model": "t99"}, "key 'model'"),
         "shape": ({**good, "params": {**good["params"], "k": [1.0, 2.0]}}, "key 'params.k' has shape"),
         "missing": ({**good, "std_errors": {"k": [0, 0, 0]}}, "'std_errors.angles_deg' is missing"),
-        "text": ({**good, "params": {**good["params"], "b_nt": ["a", 1, 2]}}, "'params.b_nt' is not numeric"),
+        "text": ({**good, "params": {**good["params"], "h0_nt": ["a", 1, 2]}},
+                 "'params.h0_nt' is not numeric"),
     }
     for name, (data, expected) in cases.items():
         path = tmp_path / f"{name}.yaml"

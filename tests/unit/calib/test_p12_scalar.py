@@ -30,7 +30,7 @@ def test_p12_standard_errors_match_monte_carlo():
         )
         for s in range(200)
     ]
-    for name in ("k", "angles_deg", "b_nt"):
+    for name in ("k", "angles_deg", "h0_nt"):
         predicted = np.mean([f.std_errors[name] for f in fits], axis=0)
         ratio = np.std([f.params[name] for f in fits], axis=0, ddof=1) / predicted
         assert np.all((ratio > 0.75) & (ratio < 1.3)), (name, ratio)  # 200 runs: +-5 % (1 sigma)
@@ -46,16 +46,16 @@ def test_p12_four_stationary_points_and_the_physical_minimum():
     physical = [p for p in points if p["physical"]]
     assert len(physical) == 1 and physical[0]["signs"] == (1, 1)
     chosen = calib.fit(ds, "p12").params
-    for name in ("k", "angles_deg", "b_nt"):
+    for name in ("k", "angles_deg", "h0_nt"):
         np.testing.assert_allclose(physical[0][name], chosen[name], rtol=1e-9, atol=1e-9)
     # a stationary point that is a minimum: the penalty rises in every direction around it
     rng = np.random.default_rng(4)
-    base = p12.penalty(ds, chosen["k"], chosen["angles_deg"], chosen["b_nt"])
+    base = p12.penalty(ds, chosen["k"], chosen["angles_deg"], chosen["h0_nt"])
     for _ in range(50):
         dk, da, db = rng.normal(0, 1e-5, 3), rng.normal(0, 1e-3, 3), rng.normal(0, 0.1, 3)
-        assert p12.penalty(ds, chosen["k"] + dk, chosen["angles_deg"] + da, chosen["b_nt"] + db) > base
+        assert p12.penalty(ds, chosen["k"] + dk, chosen["angles_deg"] + da, chosen["h0_nt"] + db) > base
     # and the gradient vanishes there (central differences along each parameter)
-    x0 = np.concatenate([chosen["k"], chosen["angles_deg"], chosen["b_nt"]])
+    x0 = np.concatenate([chosen["k"], chosen["angles_deg"], chosen["h0_nt"]])
     steps = np.array([1e-6] * 3 + [1e-4] * 3 + [1e-2] * 3)
     for i, h in enumerate(steps):
         xp, xm = x0.copy(), x0.copy()

@@ -257,3 +257,15 @@ def test_simulator_speaks_the_datasheet_bytes() -> None:
         ("read", 0x03, bytes([0x04, 0x42, 0x00, 0xDA, 0xFD, 0xDF])),  # X 1090, Z 218, Y -545
     ]
     assert sample.counts == (1090, -545, 218)
+
+
+@pytest.mark.parametrize("gain", [0, 1, 7])
+def test_describe_states_how_a_reading_is_made(gain) -> None:
+    """One measurement per reading, no pulse from the driver; the stated conversion is the driver's own
+    decoding at the gain set."""
+    from tests.helpers.conversion import stated_nt
+
+    reading = HMC5883L(FakeSMBus(), gain=gain).describe()["reading"]
+    assert reading["mode"] == "single" and reading["raw_unit"] == "nT"
+    for code in (-2048, -1, 0, 1000, 2047):
+        assert stated_nt(reading["conversion"], code) == pytest.approx(code_to_nt(code, gain), abs=1e-9)

@@ -340,3 +340,16 @@ def test_connect_on_an_empty_bus_names_the_operation() -> None:
     with pytest.raises(DeviceNotFound) as err:
         MMC5983MA(FakeSMBus(), name="dut1", clock=SimClock()).connect()
     assert str(err.value) == "dut1: read product id register 0x2F: no ACK at 0x30 (after 3 tries)"
+
+
+@pytest.mark.parametrize("set_reset, mode", [(True, "set_reset_pair"), (False, "single")])
+def test_describe_states_how_a_reading_is_made(set_reset, mode) -> None:
+    """The reading's mode follows the SET/RESET setting, and the stated conversion is the driver's own
+    decoding at the null, at +-1 G and at both rails."""
+    from tests.helpers.conversion import stated_nt
+
+    reading = MMC5983MA(FakeSMBus(), name="dut1", set_reset=set_reset).describe()["reading"]
+    assert reading["mode"] == mode and reading["raw_unit"] == "nT"
+    assert ("H_SET - H_RESET" in reading["mode_text"]) == set_reset
+    for code in (0, 131072 - 16384, 131072, 131072 + 16384, 262143):
+        assert stated_nt(reading["conversion"], code) == pytest.approx(code_to_nt(code), abs=1e-9)

@@ -281,3 +281,19 @@ def test_bad_settings_are_config_errors():
         SerialMagnetometer.from_port("/dev/null", name="dut2", baudrate=115200)
     with pytest.raises(OptionError, match="dut2: set_reset 'sometimes'"):
         SerialMagnetometer(transport, name="dut2", set_reset="sometimes")
+
+
+@pytest.mark.parametrize("set_reset, mode",
+                         [("pulse", "set_reset_pair"), ("off", "set_only"), ("auto", "single")])
+def test_describe_states_how_a_reading_is_made(set_reset, mode):
+    """The reading's mode follows the SET/RESET setting; the stated conversion is the driver's counts to nT
+    (15000 counts a gauss)."""
+    from drivers.serialmag_protocol import counts_to_nt
+    from tests.helpers.conversion import stated_nt
+
+    mag = SerialMagnetometer(scripted_transport(ScriptedPort([])), name="dut2", set_reset=set_reset)
+    reading = mag.reading()
+    assert reading["mode"] == mode and reading["raw_unit"] == "nT"
+    for counts in (-30000, -1, 0, 12345, 30000):
+        expected = counts_to_nt((counts,) * 3)[0]
+        assert stated_nt(reading["conversion"], counts) == pytest.approx(expected, abs=1e-9)

@@ -33,21 +33,22 @@ def c_compiler() -> str:
 
 
 def run_header(
-    header_text: str, name: str, h_nt: np.ndarray, temp_c: np.ndarray, workdir: Path
+    header_text: str, name: str, h_nt: np.ndarray, temp_c: np.ndarray, workdir: Path, std: str = "c99"
 ) -> np.ndarray:
-    """Field the header's apply function computes for each row of (h_nt, temp_c)."""
+    """Field the header's apply function computes for each row of (h_nt, temp_c), compiled as `std`
+    (c99 or c89) with every warning an error."""
     cc = c_compiler()
     header = workdir / f"{c_identifier(name)}.h"
     header.write_text(header_text)
     source = workdir / "driver.c"
     source.write_text(DRIVER_C.format(header=header.name, ident=c_identifier(name)))
-    exe = workdir / "driver"
-    subprocess.run(
-        [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", str(exe), str(source)],
-        check=True,
+    exe = workdir / f"driver-{std}"
+    done = subprocess.run(
+        [cc, f"-std={std}", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", str(exe), str(source)],
         capture_output=True,
         text=True,
     )
+    assert done.returncode == 0, done.stderr
     stdin = "\n".join(
         f"{a!r} {b!r} {c!r} {t!r}" for (a, b, c), t in zip(h_nt.tolist(), temp_c.tolist(), strict=True)
     )

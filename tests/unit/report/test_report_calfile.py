@@ -65,7 +65,7 @@ def test_report_of_a_calibration_file(csv_and_cal, tmp_path, capsys):
     text = _text((tmp_path / "report.html").read_text(encoding="utf-8"))
     assert "residuals shown for the P12 calibration given in the calibration file" in text
     assert "2 sample(s) flagged 'overflow' (not fitted)" in text
-    assert "P12: the given calibration" in text and "Equation: B = inv(Q P) (h - b_nt)" in text
+    assert "P12: the given calibration" in text and "Equation: B = inv(Q P) (h - h0_nt)" in text
     # the other models are a labelled comparison, re-fitted here with their own options
     assert "Comparison: models re-fitted here (robust: true) on held-out points" in text
     # the CSV with flagged rows is not the file the calibration was fitted on: said so

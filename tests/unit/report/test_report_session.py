@@ -78,7 +78,7 @@ def test_models_steps_and_parameters(report):
     assert "5-fold over 41 points" in text  # 3 x 14 points, one failed
     # the run wrote no calibration and its plan cannot be read: one is fitted here, and says so
     assert "residuals shown for a T24 calibration fitted here (robust: true): the run wrote none" in text
-    assert "T24: fitted here (robust: true)" in text and "kb_nt_per_c[3]" in text
+    assert "T24: fitted here (robust: true)" in text and "kb_nt_per_c[2]" in text
     comparison = text[text.index("Comparison: models re-fitted here (robust: true)"):]
     assert all(f" {model} " in comparison[:2000] for model in ("T24", "P12", "SCALAR"))
     # step 2: setpoint 10, 14 of 14 points, settled in 1920 s = 32.0 min after one timeout

@@ -47,14 +47,14 @@ def test_the_largest_budget_line_in_one_phrase_from_its_source_and_note():
 def test_a_residual_above_the_stated_uncertainty_is_flagged():
     over, under = quality({"rms_after_nt": 380.6}, BUDGET), quality({"rms_after_nt": 29.0}, BUDGET)
     assert over.exceeds and not under.exceeds
-    assert over.exceeds_text().startswith("residual RMS 380.6 nT is above its stated uncertainty 52.5 nT "
-                                          "(k = 2)")
+    assert over.exceeds_text().startswith("residual RMS 380.6 nT is above its stated 95 % error radius "
+                                          "52.5 nT")
     assert under.exceeds_text() == "" and not quality({"rms_after_nt": 380.6}, None).exceeds
     fits = {"a": {"residual_rms_nt": 380.6, "calibration": {"stats": {"rms_after_nt": 380.6},
                                                             "uncertainty": BUDGET}},
             "b": {"residual_rms_nt": 29.0, "calibration": {"stats": {"rms_after_nt": 29.0},
                                                            "uncertainty": BUDGET}}}
-    assert judged_cell("p12", fits) == "p12 RMS: a 380.6, b 29.0 nT [RMS > U: a]"
+    assert judged_cell("p12", fits) == "p12 RMS: a 380.6, b 29.0 nT [RMS > radius: a]"
     assert judged_cell("t24", {}) == "no t24 fit" and judged_cell(None, {}) == "no fit"
 
 

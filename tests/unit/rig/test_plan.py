@@ -272,3 +272,22 @@ def test_the_default_turntable_grid_is_enough_for_t24():
     assert report.n_fields == 16 and report.warnings == []
     tilted_only = make_plan(fields={"kind": "grid", "az_deg": [0], "el_deg": [0, 90]})
     assert any(w.startswith("T24: ") for w in check_plan(tilted_only, Station.model_validate(data)).warnings)
+
+
+def test_an_older_plan_bounding_p12s_b_nt_bounds_its_h0_nt():
+    """P12's raw offset is h0_nt now (calib/equations.py RENAMED_PARAMS): a plan written for the old name
+    still loads, and its limits apply to the same parameter."""
+    import calib
+    from calib import synthetic
+    from rig.analysis.acceptance import judge
+
+    plan = make_plan(fit={"models": ["p12"]},
+                     acceptance={"bounds": {"b_nt": [-1.0, 1.0]}, "max_std_error": {"b_nt": 1e-6}})
+    plan.acceptance.check_against(["p12"])
+    ds, truth = synthetic.p12_dataset(np.random.default_rng(3), samples_per_point=2)
+    failed, figures, _ = judge(plan.acceptance, ds, calib.fit(ds, "p12"))
+    assert any(f.startswith("bounds.b_nt ") for f in failed)
+    assert any(f.startswith("std_error.b_nt") for f in failed) and figures["std_error.b_nt"] > 1e-6
+    assert np.max(np.abs(truth.params["h0_nt"])) > 1.0
+    with pytest.raises(ValueError, match="p12 has no parameter 'c_nt'"):
+        make_plan(fit={"models": ["p12"]}, acceptance={"bounds": {"c_nt": [0, 1]}})
