@@ -29,7 +29,7 @@ import calib.models.gram as gram
 import calib.models.t36 as t36
 from calib.calibration import Calibration
 from calib.dataset import Dataset
-from calib.equations import apply, p12_angles_from_rows, t24_regressors, t36_regressors
+from calib.equations import apply, p12_angles_from_rows, parameter_label, t24_regressors, t36_regressors
 from calib.errors import FitError
 from calib.models.scalar import UPPER, _residuals_jacobian, orientation_balance_weights
 from calib.stats.residuals import known_norm
@@ -64,11 +64,9 @@ class ParamLayout:
         return out
 
     def labels(self) -> list[str]:
-        """`S[0][1]`-style names of the flat entries."""
-        out = []
-        for name, shape in zip(self.names, self.shapes, strict=True):
-            out += [name + "".join(f"[{i}]" for i in idx) for idx in np.ndindex(*shape)] if shape else [name]
-        return out
+        """`S[0][1]`-style names of the flat entries (calib/equations.py INDEXING)."""
+        return [parameter_label(name, idx) for name, shape in zip(self.names, self.shapes, strict=True)
+                for idx in np.ndindex(*shape)]
 
 
 def linearised(ds: Dataset, cal: Calibration, weights: np.ndarray | None = None,

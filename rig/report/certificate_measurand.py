@@ -13,16 +13,12 @@ from __future__ import annotations
 
 import json
 
+from calib.equations import INDEXING
 from rig.budget.modelerror import CORRECTED, CORRECTED_U
 from rig.report.calsection import PARAM_UNITS, TAU_WORDS
 from rig.report.html import Table
 
 FROM_SESSION = "the session's record (the calibration file does not state it)"
-INDEXING = {"matrices": "M[row][column], zero-based; row = output axis of B (x, y, z), column = input axis "
-                        "of h",
-            "vectors": "v[i], zero-based (x, y, z)",
-            "flat_order": "row-major: S[0][0], S[0][1], ..., S[2][2], then the next parameter, in the order "
-                          "the file lists them (its uncertainty.covariance.parameters)"}
 
 
 def _said(stated: dict) -> str:
