@@ -1,6 +1,7 @@
 """Acceptance per DUT: the plan's `acceptance:` limits turned into PASS or FAIL, with the failed criteria.
 
-    verdicts = judge_session(session.path, plan, station, fits)   # after the fits of a completed run
+    v = judge_dut(plan, dut, dut_type, ds, fitted, errors, lag)    # where a DUT's fits are made (dutfits.py)
+    verdicts = judge_session(session.path, plan, station, fits)   # offline, from a session on disk
     record(session, verdicts)                                      # the session's `acceptance` table
     write_summary_csv(path, session_name, station_name, verdicts)  # for a production line
 
@@ -92,14 +93,13 @@ def heldout_rms_nt(ds, model: str, robust: bool) -> float | None:
     return _finite(score.heldout_vector_rms if REGISTRY[model].vector else score.heldout_norm_rms)
 
 
-def _lag_s(ds) -> tuple[float | None, str | None]:
-    from calib.thermal.lag import estimate_lag
-
-    t = ds.columns.get("t")
-    if t is None or ds.temp_c is None or ds.ref_nt is None:
-        return None, "lag not judged: no times, temperatures or reference vectors"
-    result = estimate_lag(t, ds.h_nt, ds.temp_c, ds.ref_nt)
-    return (result.tau_s, None) if result.identifiable else (None, f"lag not judged: {result.message}")
+def _lag_s(lag: dict | None) -> tuple[float | None, str | None]:
+    """(tau, None) from the lag the fits estimated (rig/analysis/lagfit.py), else (None, why not)."""
+    if lag is None:
+        return None, "lag not judged: not estimated"
+    if not lag.get("identifiable"):
+        return None, f"lag not judged: {lag.get('message')}"
+    return lag.get("tau_s"), None
 
 
 def coverage_problem(cal, range_c: tuple[float, float] | None, band_c: float | None,
@@ -141,9 +141,10 @@ def model_check_findings(t24_stats: dict | None, judged_model: str) -> tuple[lis
 
 
 def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, float] | None = None,
-          band_c: float | None = None) -> tuple[list[str], dict, list[str]]:
+          band_c: float | None = None, lag: dict | None = None) -> tuple[list[str], dict, list[str]]:
     """(failed criteria, figures, notes) of one DUT's calibration `cal` fitted to `ds`; `range_c` and
-    `band_c`: the plan's temperature range and stability band its data must cover."""
+    `band_c`: the plan's temperature range and stability band its data must cover; `lag`: the thermal lag
+    the fits estimated (rig/analysis/lagfit.py), for acceptance.max_lag_s."""
     failed: list[str] = []
     notes: list[str] = []
     figures: dict[str, float | None] = {"fit_rms_nt": _finite(cal.stats.get("rms_after_nt"))}
@@ -173,51 +174,70 @@ def judge(acceptance, ds, cal, *, robust: bool = False, range_c: tuple[float, fl
             failed.append(f"bounds.{name} {float(outside[np.argmax(np.abs(outside))]):.4g} "
                           f"outside [{low:g}, {high:g}]")
     if acceptance.max_lag_s is not None:
-        lag, note = _lag_s(ds)
-        figures["lag_s"] = lag
+        tau_s, note = _lag_s(lag)
+        figures["lag_s"] = tau_s
         if note:
             notes.append(note)
-        elif lag is not None and lag > acceptance.max_lag_s:
-            failed.append(f"lag {lag:.0f} s > {acceptance.max_lag_s:g}")
+        elif tau_s is not None and tau_s > acceptance.max_lag_s:
+            failed.append(f"lag {tau_s:.0f} s > {acceptance.max_lag_s:g}")
     return failed, figures, notes
 
 
-def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict]:
-    """One verdict per DUT of the station, on the plan's acceptance model (the first fitted model unless
-    `acceptance.model` names another)."""
+def judge_dut(plan, dut: str, dut_type: str, ds, fitted: dict, errors: dict[str, str],
+              lag: dict | None = None) -> Verdict:
+    """One DUT's verdict on the plan's acceptance model (the first fitted model unless `acceptance.model`
+    names another), where its fits are made (rig/analysis/dutfits.py): `ds` the data as they were fitted,
+    `fitted` {model: calibration}, `errors` {model: why its fit failed}, `lag` the fits' lag estimate."""
     from rig.analysis.judged import judged_for_dut
-    from rig.session.reader import each_dataset
 
     acceptance = plan.acceptance
+    model = judged_for_dut(plan.judged_model, fitted)
+    v = Verdict(dut, model, dut_type=dut_type)
+    if model not in fitted:
+        v.failed.append("fit")
+        v.notes.append(errors.get(model) or f"no {model} fit")
+        return v
+    try:
+        v.samples = len(ds)
+        v.failed, v.figures, v.notes = judge(acceptance, ds, fitted[model], robust=plan.fit.robust,
+                                             range_c=plan.temperatures.covered_c(),
+                                             band_c=plan.temperatures.band_c(), lag=lag)
+        if acceptance.model_checks:
+            t24 = fitted.get("t24")
+            failures, v.not_run = model_check_findings(None if t24 is None else t24.stats, model)
+            v.failed += failures
+            if v.not_run:
+                v.notes.append(f"model checks not run: {', '.join(v.not_run)}")
+    except ERRORS as exc:
+        v.failed.append("fit")
+        v.notes.append(str(exc))
+    return v
+
+
+def judge_session(session_path, plan, station, fits: list[dict]) -> list[Verdict]:
+    """One verdict per DUT of the station from a session on disk and the fits made of it (an offline
+    judgement; a run judges each DUT where its fits are made, with the data they were made from)."""
+    from rig.analysis.judged import judged_for_dut
+    from rig.analysis.sessionfit import SessionFitter
+    from rig.session.reader import SessionReader
+
     out = []
-    for dut, ds in each_dataset(session_path, station.duts):
-        fitted = {f["model"]: f["calibration"] for f in fits
-                  if f["dut"] == dut.name and f.get("calibration") is not None}
-        model = judged_for_dut(plan.judged_model, fitted)
-        v = Verdict(dut.name, model, dut_type=dut.device_type)
-        entry = next((f for f in fits if f["dut"] == dut.name and f["model"] == model), None)
-        if entry is None or entry.get("calibration") is None:
-            v.failed.append("fit")
-            v.notes.append(str((entry or {}).get("error") or f"no {model} fit"))
-            out.append(v)
-            continue
-        try:
-            if isinstance(ds, Exception):
-                raise ds  # handled below: the DUT could not be read
-            v.samples = len(ds)
-            v.failed, v.figures, v.notes = judge(acceptance, ds, entry["calibration"], robust=plan.fit.robust,
-                                                 range_c=plan.temperatures.covered_c(),
-                                                 band_c=plan.temperatures.band_c())
-            if acceptance.model_checks:
-                t24 = fitted.get("t24")
-                failures, v.not_run = model_check_findings(None if t24 is None else t24.stats, model)
-                v.failed += failures
-                if v.not_run:
-                    v.notes.append(f"model checks not run: {', '.join(v.not_run)}")
-        except ERRORS as exc:
-            v.failed.append("fit")
-            v.notes.append(str(exc))
-        out.append(v)
+    with SessionReader(session_path) as reader:
+        fitter = SessionFitter.of(reader)
+        for dut in station.duts:
+            fitted = {f["model"]: f["calibration"] for f in fits
+                      if f["dut"] == dut.name and f.get("calibration") is not None}
+            errors = {f["model"]: str(f["error"]) for f in fits
+                      if f["dut"] == dut.name and f.get("error") is not None}
+            try:
+                prepared = fitter.prepare(reader.dataset(dut.name))
+            except ERRORS as exc:
+                v = Verdict(dut.name, judged_for_dut(plan.judged_model, fitted), dut_type=dut.device_type)
+                v.failed.append("fit")
+                v.notes.append(str(exc))
+                out.append(v)
+                continue
+            out.append(judge_dut(plan, dut.name, dut.device_type, prepared.ds, fitted, errors, prepared.lag))
     return out
 
 

@@ -36,6 +36,7 @@ class DutFit:
     labels: list[str] = field(default_factory=list)
     shared: list[tuple[str, Any, Any]] = field(default_factory=list)
     pid: int = field(default_factory=os.getpid)
+    verdict: Any = None  # rig.analysis.acceptance.Verdict of the DUT (on each of its fits), or None
 
 
 class SessionFits:
@@ -70,7 +71,7 @@ class SessionFits:
         try:
             ds = self.reader.dataset(dut)
         except ERRORS as exc:
-            return [DutFit(dut, "-", error=str(exc))]
+            return [DutFit(dut, "-", error=str(exc), verdict=self._failed_verdict(dut, str(exc)))]
         ds.source["sha256"] = None  # the run still writes the session: its hash once closed (seal_sources)
         prepared = self.fitter.prepare(ds)
         fitted: dict[str, Any] = {}
@@ -82,7 +83,35 @@ class SessionFits:
                 fitted["t36"] = self._calibrate(prepared, "t36")
             if isinstance(fitted["t36"], tuple):
                 share_choice(t24[0], fitted["t36"][0])
-        return [self._written(dut, model, result, len(prepared.ds)) for model, result in fitted.items()]
+        written = [self._written(dut, model, result, len(prepared.ds)) for model, result in fitted.items()]
+        verdict = self._verdict(dut, prepared, written)
+        for fit in written:
+            fit.verdict = verdict
+        return written
+
+    def _verdict(self, dut: str, prepared, written: list[DutFit]):
+        """The DUT judged on the plan's acceptance limits, None where the plan has none."""
+        plan = self.fitter.plan
+        if plan is None or plan.acceptance is None:
+            return None
+        from rig.analysis.acceptance import judge_dut
+
+        fitted = {f.model: f.calibration for f in written if f.calibration is not None}
+        errors = {f.model: f.error for f in written if f.error is not None}
+        return judge_dut(plan, dut, self._dut_type(dut), prepared.ds, fitted, errors, prepared.lag)
+
+    def _failed_verdict(self, dut: str, why: str):
+        """A DUT whose data cannot be read fails, where the plan has acceptance limits."""
+        plan = self.fitter.plan
+        if plan is None or plan.acceptance is None:
+            return None
+        from rig.analysis.acceptance import judge_dut
+
+        return judge_dut(plan, dut, self._dut_type(dut), None, {}, {m: why for m in self.models})
+
+    def _dut_type(self, dut: str) -> str:
+        station = self.fitter.inputs.station
+        return next((d.device_type for d in station.duts if d.name == dut), "")
 
     def _calibrate(self, prepared, model: str):
         try:

@@ -20,20 +20,40 @@ from rig.core.errors import ERRORS
 def lag_corrected(ds) -> tuple[Any, dict]:
     """The dataset in time order with its temperature column moved to the element's (calib/thermal/lag.py),
     and what was estimated (JSON-ready, for the calibration's stats)."""
+    ds, info, element_c = _estimated(ds)
+    info["applied"] = element_c is not None
+    if element_c is not None:
+        ds = dataclasses.replace(ds, temp_c=element_c)
+    return ds, info
+
+
+def lag_estimated(ds) -> dict:
+    """The element's lag behind the recorded temperature, without moving the temperatures: for data taken
+    with the DUTs stable, where the lag is only judged (a plan's acceptance.max_lag_s)."""
+    _, info, _ = _estimated(ds, "element_lags")
+    info["applied"] = False
+    return info
+
+
+def _estimated(ds, direction: str = "auto") -> tuple[Any, dict, np.ndarray | None]:
+    """(the dataset in time order, the estimate as JSON-ready data, the element's temperatures where the
+    lag is identifiable, else None); `direction` as calib.thermal.lag.estimate_lag's."""
     from calib.thermal.lag import estimate_lag
 
+    if ds.columns.get("t") is None or ds.temp_c is None or ds.ref_nt is None:
+        return ds, {"identifiable": False, "message": "thermal lag not estimated: no times, temperatures "
+                    "or reference vectors", "warnings": []}, None
     ds = ds.subset(np.argsort(ds.columns["t"], kind="stable"))
     try:
-        res = estimate_lag(ds.columns["t"], ds.h_nt, ds.temp_c, ds.ref_nt, direction="auto")
+        res = estimate_lag(ds.columns["t"], ds.h_nt, ds.temp_c, ds.ref_nt, direction=direction)
     except ERRORS as exc:
-        return ds, {"applied": False, "message": f"thermal lag not estimated: {exc}", "warnings": []}
-    info = {"applied": res.identifiable, "direction": res.direction, "tau_s": _num(res.tau_s),
+        return ds, {"identifiable": False, "message": f"thermal lag not estimated: {exc}",
+                    "warnings": []}, None
+    info = {"identifiable": res.identifiable, "direction": res.direction, "tau_s": _num(res.tau_s),
             "tau_se_s": _num(res.tau_se_s), "updown_before_nt": _num(res.updown_before_nt),
             "updown_after_nt": _num(res.updown_after_nt), "message": res.message,
             "warnings": list(res.warnings)}
-    if res.identifiable:
-        ds = dataclasses.replace(ds, temp_c=res.temp_element_c)
-    return ds, info
+    return ds, info, res.temp_element_c if res.identifiable else None
 
 
 def annotate(cal, info: dict) -> None:

@@ -12,12 +12,15 @@ from rig.session.events import Kind, Reason
 
 def accept_session(session, plan: cfg.Plan, station: cfg.Station, fits: list[dict],
                    live_summaries: dict[str, str]) -> list:
-    """PASS/FAIL per DUT (rig/analysis/acceptance.py): stored in the session, written as a CSV beside it,
-    shown in
-    the live view's summaries."""
+    """PASS/FAIL per DUT, as each DUT's fits judged it (rig/analysis/dutfits.py, acceptance.py): stored in
+    the session, written as a CSV beside it, shown in the live view's summaries."""
     from rig.analysis import acceptance
 
-    verdicts = acceptance.judge_session(session.path, plan, station, fits)
+    judged = {f["dut"]: f["verdict"] for f in fits if f.get("verdict") is not None}
+    if all(dut.name in judged for dut in station.duts):
+        verdicts = [judged[dut.name] for dut in station.duts]
+    else:  # fits made without the recorded plan: judged from the session on disk
+        verdicts = acceptance.judge_session(session.path, plan, station, fits)
     session.record_acceptance(acceptance.rows(verdicts))
     acceptance.write_summary_csv(acceptance.summary_csv_path(session.path), session.path.name, station.name,
                                  verdicts)
@@ -89,7 +92,7 @@ def seal_sources(session_path, fits: list[dict]) -> None:
 
 def _keep(session, fit, shared) -> dict[str, Any]:
     """A fit's record in the session (its file is written already), or its failure logged."""
-    entry: dict[str, Any] = {"dut": fit.dut, "model": fit.model}
+    entry: dict[str, Any] = {"dut": fit.dut, "model": fit.model, "verdict": fit.verdict}
     if fit.error is not None:
         entry["error"] = fit.error
         if fit.model != "-":

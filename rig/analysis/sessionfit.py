@@ -27,7 +27,7 @@ class Prepared:
 
     ds: Any  # calib.dataset.Dataset
     ambient: dict | None = None  # the run's ambient model the references were remade with
-    lag: dict | None = None  # the thermal lag estimate (a schedule that samples while the temperature moves)
+    lag: dict | None = None  # the thermal lag estimate: applied on a moving schedule, else judged only
     checks: list | None = None  # T24's model checks of the readings as taken (before a correction)
 
 
@@ -71,8 +71,18 @@ class SessionFitter:
             from rig.analysis.lagfit import lag_corrected
 
             ds, info = lag_corrected(ds)
+        elif lag and self.judges_lag:  # taken with the DUTs stable: the lag is judged, not applied
+            from rig.analysis.lagfit import lag_estimated
+
+            info = lag_estimated(ds)
         ds, checks = corrected(ds, self.thermal_direction(ds))
         return Prepared(ds, ambient, info, checks)
+
+    @property
+    def judges_lag(self) -> bool:
+        """The plan's acceptance judges each DUT's thermal lag (acceptance.max_lag_s)."""
+        acceptance = None if self.plan is None else self.plan.acceptance
+        return acceptance is not None and acceptance.max_lag_s is not None
 
     def thermal_direction(self, ds):
         """+1 heating, -1 cooling, 0 unknown for every sample: from the run's temperature log where the

@@ -30,14 +30,13 @@ import shutil
 import sqlite3
 import tempfile
 import urllib.parse
-from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from calib.io.digest import sha256_file, sha256_text
-from rig.core.errors import ERRORS, SessionError
+from rig.core.errors import SessionError
 from rig.session.events import Event, event_from_row
 from rig.session.schema import check_file, read_decisions, verify
 
@@ -362,16 +361,6 @@ def read_dataset(path: str | Path, dut: str | None = None):
     with SessionReader(path) as reader:
         return reader.dataset(dut)
 
-
-def each_dataset(path: str | Path, duts: Iterable):
-    """(dut, its Dataset or the project error that stopped reading it) for each of `duts` (objects with a
-    `name`), from one reader: the file is opened, checked and hashed once, not once per DUT."""
-    with SessionReader(path) as reader:
-        for dut in duts:
-            try:
-                yield dut, reader.dataset(dut.name)
-            except ERRORS as exc:
-                yield dut, exc
 
 
 # --- a resume runs the recorded plan: was the file edited since? ---------------------------------------
